@@ -1,0 +1,64 @@
+"""What defines one frame, and the per-pixel buffers a task returns.
+
+A frame's image depends only on (scene version, camera, parameters, seed): any worker that
+renders task (frame, k, tile) returns the same buffers.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+BUFFER_NAMES = ("reflectance", "irradiance", "unfiltered", "depth", "normal")
+
+
+@dataclass(frozen=True)
+class FrameSpec:
+    frame: int  # frame number (monotonic per master)
+    seed: int  # scrambling seed of the Sobol stream; same seed -> same VPL/photon sets
+    camera_to_world: tuple  # 16 floats, row-major 4x4
+    fov_x: float  # degrees
+    width: int
+    height: int
+    params: dict  # params_to_dict(Params)
+    scene_version: int = 0
+    jitter: tuple = (0.5, 0.5)  # sub-pixel position of the eye ray (0.5, 0.5 = centre)
+
+
+@dataclass(frozen=True)
+class Tile:
+    """A rectangle of the sub-image of interleave index k.
+
+    Sub-image k of an n x n interleave holds pixels (x, y) with x % n == k % n and
+    y % n == k // n; sub-image pixel (sx, sy) is image pixel (sx*n + k%n, sy*n + k//n).
+    """
+
+    k: int
+    sx0: int
+    sy0: int
+    sx1: int  # exclusive
+    sy1: int
+
+    def pixels(self, n: int, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+        """Image coordinates (x, y) of the tile's pixels, row-major, clipped to the image."""
+        kx, ky = self.k % n, self.k // n
+        xs = np.arange(self.sx0, self.sx1) * n + kx
+        ys = np.arange(self.sy0, self.sy1) * n + ky
+        xs = xs[xs < width]
+        ys = ys[ys < height]
+        yy, xx = np.meshgrid(ys, xs, indexing="ij")
+        return xx.ravel(), yy.ravel()
+
+
+@dataclass
+class TileBuffers:
+    """Per-pixel results of one task, in the order of Tile.pixels()."""
+
+    reflectance: np.ndarray  # (P, 3) float32: albedo x specular-chain throughput at the end point
+    irradiance: np.ndarray  # (P, 3) float32: filtered part, radiance = reflectance * irradiance
+    unfiltered: np.ndarray  # (P, 3) float32: emission seen, specular-chain emission, ...
+    depth: np.ndarray  # (P,) float32: eye-path length to the end point (inf = miss)
+    normal: np.ndarray  # (P, 3) float32: shading normal at the end point
+
+    def __len__(self) -> int:
+        return len(self.depth)

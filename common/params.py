@@ -1,0 +1,129 @@
+"""Every render parameter, declared once with its default and help text.
+
+The CLI flags (``igi render``/``igi serve``), the docs table and the viewer's parameter panel
+are all generated from :data:`PARAMS`; nothing else declares a default.
+"""
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass, field, fields, make_dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Param:
+    name: str
+    type: type
+    default: Any
+    help: str
+    group: str = "render"
+    min: float | None = None
+    max: float | None = None
+    choices: tuple | None = None
+    viewer: bool = True  # shown as a control in the browser panel
+
+    @property
+    def flag(self) -> str:
+        return "--" + self.name.replace("_", "-")
+
+
+PARAMS: tuple[Param, ...] = (
+    # Instant radiosity (paper §4, §5.1)
+    Param("direct_vpls", int, 4, "VPLs placed on the emitters per set (direct light)", "vpl", 0, 256),
+    Param("indirect_vpls", int, 18, "VPLs at the vertices of light walks per set (indirect light)", "vpl", 0, 1024),
+    Param("light_path_length", int, 4, "maximum light-walk length for VPLs (paper: 4)", "vpl", 1, 64),
+    Param("clamp", float, -1.0,
+          "minimum squared VPL distance as a fraction of the squared scene diagonal (-1: scene default 1e-4)",
+          "vpl", -1.0, 1.0),
+    Param("light_samples", int, 0,
+          "emitters sampled per set in many-light scenes (0: all emitters share the direct VPLs by power)",
+          "vpl", 0, 1024),
+    # Caustics (paper §4.1)
+    Param("photons", int, 500, "caustic photons per light per set (paper: 500-1500)", "caustics", 0, 100000),
+    Param("photon_radius", float, -1.0,
+          "caustic gather radius as a fraction of the scene diagonal (-1: scene default 0.005)",
+          "caustics", -1.0, 1.0),
+    # Interleaved sampling + discontinuity buffer (paper §4.2, §4.3)
+    Param("interleave", int, 3, "interleave pattern n (n x n sets of VPLs/photons; 1 = one set)", "filter", 1, 8),
+    Param("filter_window", int, -1, "discontinuity-buffer window (-1: interleave size, 1: off)", "filter", -1, 15),
+    Param("depth_threshold", float, 0.05, "relative depth difference that breaks the filter", "filter", 0.0, 1.0),
+    Param("normal_threshold", float, 0.9, "minimum normal dot product inside the filter", "filter", -1.0, 1.0),
+    # Eye paths
+    Param("max_depth", int, -1, "path segments as in Mitsuba (-1 unlimited, 2 = direct only)", "path", -1, 64),
+    Param("specular_depth", int, 8, "longest mirror/glass chain followed from the eye", "path", 1, 64),
+    # Accumulation
+    Param("accumulate", bool, True, "average frames while nothing moves", "accumulate", viewer=True),
+    Param("seed", int, 0, "seed of the first frame's Sobol scrambling", "accumulate", 0, 2**31 - 1, viewer=False),
+)
+
+PARAM_BY_NAME = {p.name: p for p in PARAMS}
+
+Params = make_dataclass(
+    "Params",
+    [(p.name, p.type, field(default=p.default)) for p in PARAMS],
+    frozen=True,
+)
+Params.__doc__ = "Render parameters; build with Params(**overrides). Fields and defaults come from PARAMS."
+
+
+def make_params(**overrides: Any) -> "Params":
+    """Params with overrides, each checked against its declaration."""
+    for name, value in overrides.items():
+        if name not in PARAM_BY_NAME:
+            raise ValueError(f"unknown parameter {name!r}")
+        p = PARAM_BY_NAME[name]
+        if p.type is bool:
+            overrides[name] = bool(value)
+            continue
+        try:
+            v = p.type(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"parameter {name}: {value!r} is not a {p.type.__name__}") from None
+        if v != v:  # NaN
+            raise ValueError(f"parameter {name}: NaN")
+        if p.min is not None and v < p.min or p.max is not None and v > p.max:
+            raise ValueError(f"parameter {name}={v} outside [{p.min}, {p.max}]")
+        overrides[name] = v
+    return Params(**overrides)
+
+
+def params_to_dict(params: "Params") -> dict:
+    return {f.name: getattr(params, f.name) for f in fields(params)}
+
+
+def add_arguments(parser: argparse.ArgumentParser, exclude: tuple[str, ...] = ()) -> None:
+    """Add one flag per declared parameter (defaults left to the declaration)."""
+    group = parser.add_argument_group("render parameters")
+    for p in PARAMS:
+        if p.name in exclude:
+            continue
+        if p.type is bool:
+            group.add_argument(p.flag, dest=p.name, action=argparse.BooleanOptionalAction,
+                               default=None, help=f"{p.help} (default: {p.default})")
+        else:
+            group.add_argument(p.flag, dest=p.name, type=p.type, default=None,
+                               help=f"{p.help} (default: {p.default})")
+
+
+def params_from_args(args: argparse.Namespace) -> "Params":
+    overrides = {p.name: getattr(args, p.name) for p in PARAMS
+                 if getattr(args, p.name, None) is not None}
+    return make_params(**overrides)
+
+
+def markdown_table() -> str:
+    """The docs table of parameters (docs/parameters.md is generated from this)."""
+    rows = ["| flag | default | range | meaning |", "|---|---|---|---|"]
+    for p in PARAMS:
+        rng = "" if p.min is None else f"{p.min} … {p.max}"
+        rows.append(f"| `{p.flag}` | {p.default} | {rng} | {p.help} |")
+    return "\n".join(rows)
+
+
+def viewer_schema() -> list[dict]:
+    """Declarations the browser panel builds its controls from."""
+    return [
+        {"name": p.name, "type": p.type.__name__, "default": p.default, "help": p.help,
+         "group": p.group, "min": p.min, "max": p.max}
+        for p in PARAMS if p.viewer
+    ]

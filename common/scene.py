@@ -1,0 +1,249 @@
+"""The scene model every loader produces and every renderer part reads.
+
+Loaders (``mitsuba_xml.py``, ``obj_mtl.py``) turn files into a :class:`Scene`: triangle
+meshes already in world space, materials with their textures, emitters, one camera.
+Everything is plain numpy so a scene can be hashed, pickled and shipped to workers.
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+class SceneError(ValueError):
+    """A scene file or scene content that cannot be used; the message names file, line and problem."""
+
+
+@dataclass
+class Texture:
+    """A constant RGB value or a bitmap (linear RGB float32, row 0 = top of the image)."""
+
+    rgb: np.ndarray | None = None  # (3,) float64
+    image: np.ndarray | None = None  # (H, W, 3) float32, linear
+    filter: str = "bilinear"  # or "nearest"
+    uv_scale: tuple[float, float] = (1.0, 1.0)
+    uv_offset: tuple[float, float] = (0.0, 0.0)
+    name: str = ""
+
+    @staticmethod
+    def constant(value) -> "Texture":
+        v = np.broadcast_to(np.asarray(value, dtype=np.float64), (3,)).copy()
+        return Texture(rgb=v)
+
+    @property
+    def is_constant(self) -> bool:
+        return self.image is None
+
+    def mean(self) -> np.ndarray:
+        if self.image is None:
+            return self.rgb
+        return self.image.reshape(-1, 3).mean(axis=0).astype(np.float64)
+
+    def eval(self, uv: np.ndarray) -> np.ndarray:
+        """Look the texture up at (N, 2) uv coordinates (Mitsuba convention: v up, repeat wrap)."""
+        n = len(uv)
+        if self.image is None:
+            return np.broadcast_to(self.rgb, (n, 3)).astype(np.float32)
+        img = self.image
+        h, w = img.shape[:2]
+        u = uv[:, 0] * self.uv_scale[0] + self.uv_offset[0]
+        v = uv[:, 1] * self.uv_scale[1] + self.uv_offset[1]
+        u = u - np.floor(u)
+        v = v - np.floor(v)
+        # Mitsuba flips v: row 0 of the bitmap is v = 1.
+        x = u * w
+        y = (1.0 - v) * h
+        if self.filter == "nearest":
+            xi = np.clip(x.astype(np.int64), 0, w - 1)
+            yi = np.clip(y.astype(np.int64), 0, h - 1)
+            return img[yi, xi]
+        x = x - 0.5
+        y = y - 0.5
+        x0 = np.floor(x)
+        y0 = np.floor(y)
+        fx = (x - x0)[:, None].astype(np.float32)
+        fy = (y - y0)[:, None].astype(np.float32)
+        x0 = x0.astype(np.int64) % w
+        y0 = y0.astype(np.int64) % h
+        x1 = (x0 + 1) % w
+        y1 = (y0 + 1) % h
+        top = img[y0, x0] * (1 - fx) + img[y0, x1] * fx
+        bot = img[y1, x0] * (1 - fx) + img[y1, x1] * fx
+        return top * (1 - fy) + bot * fy
+
+
+# BSDF kinds; the integer codes are what per-point arrays carry.
+DIFFUSE = 0
+CONDUCTOR = 1
+ROUGHCONDUCTOR = 2
+DIELECTRIC = 3
+THINDIELECTRIC = 4
+PLASTIC = 5
+ROUGHPLASTIC = 6
+NULL = 7  # black / absorbing (e.g. an emitter's own black BSDF)
+
+KIND_NAMES = {
+    "diffuse": DIFFUSE,
+    "conductor": CONDUCTOR,
+    "roughconductor": ROUGHCONDUCTOR,
+    "dielectric": DIELECTRIC,
+    "thindielectric": THINDIELECTRIC,
+    "plastic": PLASTIC,
+    "roughplastic": ROUGHPLASTIC,
+    "null": NULL,
+}
+SPECULAR_KINDS = (CONDUCTOR, DIELECTRIC, THINDIELECTRIC)  # delta BSDFs: chains are followed
+GLOSSY_KINDS = (ROUGHCONDUCTOR, PLASTIC, ROUGHPLASTIC)
+
+
+@dataclass
+class Material:
+    """One BSDF in Mitsuba's parametrization.
+
+    ``kind`` is one of the codes above. Textures: ``diffuse`` (diffuse reflectance),
+    ``specular`` (specular_reflectance / specular_transmittance share it). Scalars: ``alpha``
+    (roughness), ``int_ior``/``ext_ior`` (dielectric, plastic), ``eta``/``k`` (conductor,
+    RGB), ``distribution`` ("ggx" or "beckmann"), ``nonlinear`` (plastics).
+    ``specular_transmittance`` is kept separately only for dielectrics.
+    """
+
+    name: str
+    kind: int
+    diffuse: Texture = field(default_factory=lambda: Texture.constant(0.5))
+    specular: Texture = field(default_factory=lambda: Texture.constant(1.0))
+    specular_transmittance: Texture = field(default_factory=lambda: Texture.constant(1.0))
+    alpha: float = 0.1
+    int_ior: float = 1.5046
+    ext_ior: float = 1.000277
+    eta: np.ndarray = field(default_factory=lambda: np.zeros(3))  # conductor; zeros+k=0 -> perfect mirror
+    k: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    distribution: str = "beckmann"
+    nonlinear: bool = False
+    twosided: bool = False
+
+    @property
+    def is_specular(self) -> bool:
+        return self.kind in SPECULAR_KINDS
+
+    @property
+    def is_glossy(self) -> bool:
+        return self.kind in GLOSSY_KINDS
+
+    @property
+    def has_texture(self) -> bool:
+        return not (self.diffuse.is_constant and self.specular.is_constant)
+
+
+# Emitter kinds
+AREA = "area"
+POINT = "point"
+SPOT = "spot"
+DIRECTIONAL = "directional"
+CONSTANT = "constant"
+
+
+@dataclass
+class Emitter:
+    """A light. Area emitters reference a mesh by index; radiance is per unit area, one-sided (front = +normal)."""
+
+    kind: str
+    radiance: np.ndarray = field(default_factory=lambda: np.ones(3))  # area, constant
+    intensity: np.ndarray = field(default_factory=lambda: np.ones(3))  # point, spot
+    irradiance: np.ndarray = field(default_factory=lambda: np.ones(3))  # directional
+    position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    direction: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))  # spot/directional: where light goes
+    cutoff_angle: float = 20.0  # spot, degrees
+    beam_width: float = 15.0  # spot, degrees (Mitsuba default: 3/4 of cutoff)
+    mesh: int = -1  # area: index into Scene.meshes
+    name: str = ""
+
+
+@dataclass
+class Mesh:
+    """A triangle mesh in world space."""
+
+    name: str
+    vertices: np.ndarray  # (V, 3) float64
+    faces: np.ndarray  # (F, 3) int32
+    material: int  # index into Scene.materials
+    normals: np.ndarray | None = None  # (V, 3) per-vertex shading normals, None -> flat
+    uvs: np.ndarray | None = None  # (V, 2)
+    emitter: int = -1  # index into Scene.emitters, -1 if none
+
+    @property
+    def triangle_count(self) -> int:
+        return len(self.faces)
+
+
+@dataclass
+class Camera:
+    """Mitsuba's perspective sensor: ``to_world`` maps camera space (+x left, +y up, +z forward)."""
+
+    to_world: np.ndarray  # (4, 4)
+    fov: float = 39.3077  # degrees, along fov_axis
+    fov_axis: str = "x"
+    width: int = 768
+    height: int = 576
+    near_clip: float = 0.01
+
+    @property
+    def fov_x(self) -> float:
+        """Horizontal field of view in degrees, whatever axis the file named."""
+        aspect = self.width / self.height
+        t = np.tan(np.radians(self.fov) / 2)
+        axis = self.fov_axis
+        if axis == "smaller":
+            axis = "x" if self.width <= self.height else "y"
+        elif axis == "larger":
+            axis = "x" if self.width >= self.height else "y"
+        if axis == "x":
+            tx = t
+        elif axis == "y":
+            tx = t * aspect
+        elif axis == "diagonal":
+            tx = t * aspect / np.sqrt(1 + aspect * aspect)
+        else:
+            raise SceneError(f"unknown fov_axis {self.fov_axis!r}")
+        return float(np.degrees(2 * np.arctan(tx)))
+
+
+@dataclass
+class Scene:
+    meshes: list[Mesh]
+    materials: list[Material]
+    emitters: list[Emitter]
+    camera: Camera
+    source: str = ""
+    warnings: list[str] = field(default_factory=list)
+    max_depth: int = -1  # from the file's integrator, informational
+
+    def digest(self) -> str:
+        """Content hash: identical scenes give identical digests in every process."""
+        h = hashlib.sha256()
+        for m in self.meshes:
+            h.update(np.ascontiguousarray(m.vertices, np.float64).tobytes())
+            h.update(np.ascontiguousarray(m.faces, np.int64).tobytes())
+            h.update(f"{m.material},{m.emitter}".encode())
+        for mat in self.materials:
+            h.update(repr((mat.kind, mat.alpha, mat.int_ior, mat.ext_ior, mat.distribution)).encode())
+        for e in self.emitters:
+            h.update(repr((e.kind, e.radiance.tolist(), e.intensity.tolist(), e.position.tolist())).encode())
+        h.update(np.asarray(self.camera.to_world).tobytes())
+        return h.hexdigest()[:16]
+
+    @property
+    def triangle_count(self) -> int:
+        return sum(m.triangle_count for m in self.meshes)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        vs = [m.vertices for m in self.meshes if len(m.vertices)]
+        if not vs:
+            return np.zeros(3), np.zeros(3)
+        allv = np.concatenate(vs)
+        return allv.min(axis=0), allv.max(axis=0)
+
+    def diagonal(self) -> float:
+        lo, hi = self.bounds()
+        return float(np.linalg.norm(hi - lo)) or 1.0
