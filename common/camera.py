@@ -1,0 +1,59 @@
+"""Mitsuba 3's perspective camera, so that pixel (i, j) of igi and of Mitsuba see the same point.
+
+Mitsuba's ``camera_to_sample = scale(-0.5, -0.5·aspect, 1) · translate(-1, -1/aspect, 0) ·
+perspective(fov_x)``. Inverting it, film position (sx, sy) ∈ [0,1]² (sx right, sy down) maps
+to the camera-space direction ((1 - 2 sx)·tan(fov_x/2), (1 - 2 sy)·tan(fov_x/2)/aspect, 1),
+camera +x being the image's left and +y its top. Pixel (i, j) covers
+sx ∈ [i/W, (i+1)/W), sy ∈ [j/H, (j+1)/H).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .scene import Camera
+
+
+def camera_rays(to_world: np.ndarray, fov_x: float, width: int, height: int,
+                px: np.ndarray, py: np.ndarray, jitter: np.ndarray | tuple = (0.5, 0.5),
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """World-space origins and unit directions through pixels (px, py) at sub-pixel ``jitter``.
+
+    ``jitter`` is (2,) or (N, 2) in [0,1)²; (0.5, 0.5) is the pixel centre.
+    """
+    m = np.asarray(to_world, np.float64).reshape(4, 4)
+    jit = np.asarray(jitter, np.float64)
+    jx = jit[..., 0]
+    jy = jit[..., 1]
+    sx = (px + jx) / width
+    sy = (py + jy) / height
+    aspect = width / height
+    t = np.tan(np.radians(fov_x) / 2)
+    d_cam = np.stack([(1 - 2 * sx) * t, (1 - 2 * sy) * t / aspect, np.ones_like(sx, dtype=np.float64)], axis=-1)
+    d = d_cam @ m[:3, :3].T
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    o = np.broadcast_to(m[:3, 3], d.shape).copy()
+    return o, d
+
+
+def rays_for_camera(cam: Camera, px: np.ndarray, py: np.ndarray, jitter=(0.5, 0.5)):
+    return camera_rays(cam.to_world, cam.fov_x, cam.width, cam.height, px, py, jitter)
+
+
+def look_at(origin, target, up) -> np.ndarray:
+    """Mitsuba's lookat transform (columns: left, up, forward, origin)."""
+    origin = np.asarray(origin, np.float64)
+    d = np.asarray(target, np.float64) - origin
+    d /= np.linalg.norm(d)
+    left = np.cross(np.asarray(up, np.float64), d)
+    ln = np.linalg.norm(left)
+    if ln < 1e-12:  # up parallel to the view direction: pick any perpendicular
+        left = np.cross([1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0], d)
+        ln = np.linalg.norm(left)
+    left /= ln
+    new_up = np.cross(d, left)
+    m = np.eye(4)
+    m[:3, 0] = left
+    m[:3, 1] = new_up
+    m[:3, 2] = d
+    m[:3, 3] = origin
+    return m

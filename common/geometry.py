@@ -1,0 +1,183 @@
+"""All scene triangles in one Embree scene, queried in large numpy batches.
+
+The triangles are stored relative to the scene's centre (computed in float64) before the
+float32 conversion Embree needs: a scene translated by 1e5 then keeps the precision of one
+at the origin. Ray offsets are scale-aware: a fixed fraction of the scene diagonal plus a
+few float32 ulps of the (centred) coordinate.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from embreex import rtcore_scene as rtcs
+from embreex.mesh_construction import TriangleMesh
+
+from .scene import Scene, SceneError
+
+
+@dataclass
+class Hits:
+    """Closest hits of a batch of rays; arrays are aligned with the rays, ``valid`` marks hits."""
+
+    valid: np.ndarray  # (N,) bool
+    t: np.ndarray  # (N,) float64
+    prim: np.ndarray  # (N,) int64 global triangle index (-1 = miss)
+    position: np.ndarray  # (N, 3) float64 world space
+    ng: np.ndarray  # (N, 3) geometric normal (unit, as wound)
+    ns: np.ndarray  # (N, 3) shading normal (unit, same hemisphere as ng)
+    uv: np.ndarray  # (N, 2) texture coordinates (0 if the mesh has none)
+    material: np.ndarray  # (N,) int32
+    emitter: np.ndarray  # (N,) int32 (-1 = none)
+    mesh: np.ndarray  # (N,) int32
+
+
+class Geometry:
+    """The scene's triangles, flattened, with per-triangle attributes and an Embree BVH."""
+
+    def __init__(self, scene: Scene):
+        verts, faces, mesh_of, nrm, uvs, has_n, has_uv = [], [], [], [], [], [], []
+        offset = 0
+        for i, m in enumerate(scene.meshes):
+            if len(m.faces) == 0:
+                continue
+            v = np.asarray(m.vertices, np.float64)
+            f = np.asarray(m.faces, np.int64)
+            verts.append(v)
+            faces.append(f + offset)
+            mesh_of.append(np.full(len(f), i, np.int32))
+            nrm.append(np.asarray(m.normals, np.float64) if m.normals is not None else np.zeros_like(v))
+            uvs.append(np.asarray(m.uvs, np.float64) if m.uvs is not None else np.zeros((len(v), 2)))
+            has_n.append(np.full(len(f), m.normals is not None))
+            has_uv.append(np.full(len(f), m.uvs is not None))
+            offset += len(v)
+        if not faces:
+            raise SceneError(f"{scene.source or 'scene'}: no triangles to render")
+        self.vertices = np.concatenate(verts)
+        self.faces = np.concatenate(faces)
+        self.mesh_of = np.concatenate(mesh_of)
+        self.vertex_normals = np.concatenate(nrm)
+        self.vertex_uvs = np.concatenate(uvs)
+        self.smooth = np.concatenate(has_n)
+        self.material_of = np.array([scene.meshes[i].material for i in range(len(scene.meshes))],
+                                    np.int32)[self.mesh_of]
+        self.emitter_of = np.array([scene.meshes[i].emitter for i in range(len(scene.meshes))],
+                                   np.int32)[self.mesh_of]
+
+        lo, hi = self.vertices.min(axis=0), self.vertices.max(axis=0)
+        self.center = 0.5 * (lo + hi)
+        self.diagonal = float(np.linalg.norm(hi - lo)) or 1.0
+        self.extent = float(np.abs(hi - lo).max()) or 1.0
+        # Offset: 1e-5 of the diagonal (geometry precision) + float32 ulps of the local coordinate.
+        self.eps = 1e-5 * self.diagonal + 8 * np.finfo(np.float32).eps * 0.5 * float(np.abs(hi - lo).max())
+
+        tri = self.vertices[self.faces]  # (F, 3, 3)
+        e1 = tri[:, 1] - tri[:, 0]
+        e2 = tri[:, 2] - tri[:, 0]
+        cross = np.cross(e1, e2)
+        area2 = np.linalg.norm(cross, axis=1)
+        self.area = 0.5 * area2
+        self.face_normal = cross / np.maximum(area2, 1e-300)[:, None]
+        self._tri = tri
+        self._e1 = e1
+        self._e2 = e2
+
+        self._embree = rtcs.EmbreeScene()
+        local = (tri - self.center).astype(np.float32)
+        self._mesh = TriangleMesh(self._embree, local)
+
+    # -- queries ---------------------------------------------------------------------------
+    def intersect(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
+        """Closest hit for each ray (directions need not be normalized; t is in their units)."""
+        n = len(origins)
+        o = (origins - self.center).astype(np.float32)
+        d = directions.astype(np.float32)
+        if n == 0:
+            return self._empty()
+        r = self._embree.run(o, d, output=1)
+        prim = r["primID"].astype(np.int64)
+        valid = (r["geomID"] != -1) & (prim >= 0)
+        prim = np.where(valid, prim, -1)
+        return self._surface(origins, directions, valid, prim, r["u"].astype(np.float64),
+                             r["v"].astype(np.float64), r["tfar"].astype(np.float64))
+
+    def occluded(self, origins: np.ndarray, directions: np.ndarray, tmax: np.ndarray) -> np.ndarray:
+        """True where something blocks the segment origin + t*direction, 0 < t < tmax."""
+        if len(origins) == 0:
+            return np.zeros(0, bool)
+        o = (origins - self.center).astype(np.float32)
+        d = directions.astype(np.float32)
+        dist = np.ascontiguousarray(np.minimum(tmax, 3.0e38), dtype=np.float32)
+        r = self._embree.run(o, d, query="OCCLUDED", dists=dist)
+        return r != -1
+
+    def visible(self, x: np.ndarray, nx: np.ndarray, y: np.ndarray, ny: np.ndarray | None) -> np.ndarray:
+        """Mutual visibility of surface points x and y (normals give the offset side)."""
+        d = y - x
+        ox = self.offset(x, nx, d)
+        if ny is not None:
+            oy = self.offset(y, ny, -d)
+        else:
+            oy = y
+        seg = oy - ox
+        dist = np.linalg.norm(seg, axis=1)
+        dirs = seg / np.maximum(dist, 1e-300)[:, None]
+        tmax = dist * (1 - 1e-5) - self.eps
+        return ~self.occluded(ox, dirs, np.maximum(tmax, 0.0))
+
+    def offset(self, p: np.ndarray, ng: np.ndarray, towards: np.ndarray) -> np.ndarray:
+        """Move p off its surface, along ng, to the side ``towards`` points to."""
+        side = np.sign(np.einsum("ij,ij->i", ng, towards))
+        side[side == 0] = 1.0
+        scale = self.eps + 4 * np.finfo(np.float32).eps * np.abs(p - self.center).max(axis=1)
+        return p + ng * (side * scale)[:, None]
+
+    # -- surface interaction -----------------------------------------------------------------
+    def _empty(self) -> Hits:
+        z3 = np.zeros((0, 3))
+        zi = np.zeros(0, np.int32)
+        return Hits(np.zeros(0, bool), np.zeros(0), np.zeros(0, np.int64), z3, z3, z3,
+                    np.zeros((0, 2)), zi, zi, zi)
+
+    def _surface(self, origins, directions, valid, prim, u, v, t) -> Hits:
+        n = len(origins)
+        p_idx = np.where(valid, prim, 0)
+        tri = self._tri[p_idx]
+        w0 = (1.0 - u - v)[:, None]
+        # Barycentric position in float64 is more precise than o + t*d in float32.
+        pos = w0 * tri[:, 0] + u[:, None] * tri[:, 1] + v[:, None] * tri[:, 2]
+        ng = self.face_normal[p_idx].copy()
+        ns = ng.copy()
+        sm = valid & self.smooth[p_idx]
+        if sm.any():
+            f = self.faces[p_idx[sm]]
+            vn = self.vertex_normals
+            wn = (w0[sm] * vn[f[:, 0]] + u[sm, None] * vn[f[:, 1]] + v[sm, None] * vn[f[:, 2]])
+            ln = np.linalg.norm(wn, axis=1)
+            good = ln > 1e-12
+            wn = np.where(good[:, None], wn / np.maximum(ln, 1e-300)[:, None], ng[sm])
+            ns[sm] = wn
+            # Mitsuba orients by the shading frame: flip ng to the shading normal's side.
+            flip = np.einsum("ij,ij->i", ng[sm], wn) < 0
+            ngs = ng[sm]
+            ngs[flip] *= -1
+            ng[sm] = ngs
+        f = self.faces[p_idx]
+        vt = self.vertex_uvs
+        uv = w0 * vt[f[:, 0]] + u[:, None] * vt[f[:, 1]] + v[:, None] * vt[f[:, 2]]
+        mat = np.where(valid, self.material_of[p_idx], -1).astype(np.int32)
+        em = np.where(valid, self.emitter_of[p_idx], -1).astype(np.int32)
+        mesh = np.where(valid, self.mesh_of[p_idx], -1).astype(np.int32)
+        return Hits(valid, np.where(valid, t, np.inf), prim, pos, ng, ns, uv, mat, em, mesh)
+
+    def sample_triangles(self, tri_idx: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Uniform points on the given triangles from (N, 2) uniforms: (position, ng, uv)."""
+        su = np.sqrt(u[:, 0])
+        b1 = 1 - su
+        b2 = u[:, 1] * su
+        tri = self._tri[tri_idx]
+        pos = (1 - b1 - b2)[:, None] * tri[:, 0] + b1[:, None] * tri[:, 1] + b2[:, None] * tri[:, 2]
+        f = self.faces[tri_idx]
+        vt = self.vertex_uvs
+        uv = (1 - b1 - b2)[:, None] * vt[f[:, 0]] + b1[:, None] * vt[f[:, 1]] + b2[:, None] * vt[f[:, 2]]
+        return pos, self.face_normal[tri_idx], uv

@@ -1,0 +1,266 @@
+"""Emitters: choosing one by power, sampling points on it, and emitting light rays from it.
+
+Area emitters are triangle meshes with one-sided uniform radiance (front = the surface normal,
+as Mitsuba's ``area``); point, spot (Mitsuba's linear-in-angle falloff between beam_width and
+cutoff_angle), directional and constant (uniform environment) lights are handled analytically.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .geometry import Geometry
+from .scene import AREA, CONSTANT, DIRECTIONAL, POINT, SPOT, Scene
+
+# Kinds of point-light records (VPLs and emitter samples), see worker/vpl.py.
+VPL_SURFACE = 0  # a light-walk vertex: radiates Φ · f(y, ω_in, ·)·cos
+VPL_AREA = 1  # a point on an area emitter: radiates P · max(cos θ_y, 0)
+VPL_POINT = 2  # isotropic point light: intensity I
+VPL_SPOT = 3  # spot light: I · falloff(angle to axis)
+VPL_DIRECTIONAL = 4  # light from infinity along -direction: irradiance E (also the environment)
+
+
+def luminance(rgb: np.ndarray) -> np.ndarray:
+    rgb = np.asarray(rgb, np.float64)
+    return rgb[..., 0] * 0.212671 + rgb[..., 1] * 0.715160 + rgb[..., 2] * 0.072169
+
+
+def frame_from(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Orthonormal tangents (s, t) for unit normals n (N, 3), Duff et al. 2017."""
+    sign = np.where(n[:, 2] >= 0, 1.0, -1.0)
+    a = -1.0 / (sign + n[:, 2])
+    b = n[:, 0] * n[:, 1] * a
+    s = np.stack([1 + sign * n[:, 0] ** 2 * a, sign * b, -sign * n[:, 0]], axis=1)
+    t = np.stack([b, sign + n[:, 1] ** 2 * a, -n[:, 1]], axis=1)
+    return s, t
+
+
+def to_world(local: np.ndarray, n: np.ndarray) -> np.ndarray:
+    s, t = frame_from(n)
+    return local[:, 0:1] * s + local[:, 1:2] * t + local[:, 2:3] * n
+
+
+def to_local(w: np.ndarray, n: np.ndarray) -> np.ndarray:
+    s, t = frame_from(n)
+    return np.stack([np.einsum("ij,ij->i", w, s), np.einsum("ij,ij->i", w, t),
+                     np.einsum("ij,ij->i", w, n)], axis=1)
+
+
+def cosine_hemisphere(u: np.ndarray) -> np.ndarray:
+    r = np.sqrt(u[:, 0])
+    phi = 2 * np.pi * u[:, 1]
+    return np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(0.0, 1 - u[:, 0]))], axis=1)
+
+
+def uniform_sphere(u: np.ndarray) -> np.ndarray:
+    z = 1 - 2 * u[:, 0]
+    r = np.sqrt(np.maximum(0.0, 1 - z * z))
+    phi = 2 * np.pi * u[:, 1]
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def spot_falloff(cos_theta: np.ndarray, cutoff_deg: float, beam_deg: float) -> np.ndarray:
+    """Mitsuba 3's spot falloff: 1 inside the beam, linear in angle down to 0 at the cutoff."""
+    cutoff = np.radians(cutoff_deg)
+    beam = np.radians(min(beam_deg, cutoff_deg))
+    ang = np.arccos(np.clip(cos_theta, -1, 1))
+    width = max(cutoff - beam, 1e-12)
+    val = np.where(ang <= beam, 1.0, (cutoff - ang) / width)
+    return np.where(cos_theta > np.cos(cutoff), np.clip(val, 0, 1), 0.0)
+
+
+@dataclass
+class PointSamples:
+    """Point-light records sampled on the emitters (direct light) — see VPL_* kinds."""
+
+    kind: np.ndarray  # (N,) int8
+    position: np.ndarray  # (N, 3)
+    normal: np.ndarray  # (N, 3) area: surface normal; spot/directional: light direction
+    power: np.ndarray  # (N, 3) P (area), I (point/spot), E (directional)
+    emitter: np.ndarray  # (N,) int32
+
+
+@dataclass
+class EmittedRays:
+    origin: np.ndarray
+    direction: np.ndarray
+    flux: np.ndarray  # (N, 3) power carried by each ray (already divided by the ray count)
+    emitter: np.ndarray
+    normal: np.ndarray  # surface normal at the origin (area), else the direction
+
+
+class LightSampler:
+    """Chooses emitters in proportion to their power and samples them."""
+
+    def __init__(self, scene: Scene, geom: Geometry):
+        self.scene = scene
+        self.geom = geom
+        lo, hi = geom.vertices.min(axis=0), geom.vertices.max(axis=0)
+        self.center = 0.5 * (lo + hi)
+        self.radius = 0.5 * float(np.linalg.norm(hi - lo)) or 1.0
+        n = len(scene.emitters)
+        self.powers = np.zeros(n)
+        self.area_tris: list[np.ndarray] = []
+        self.area_cdf: list[np.ndarray] = []
+        self.area_total = np.zeros(n)
+        for i, e in enumerate(scene.emitters):
+            tris = np.zeros(0, np.int64)
+            if e.kind == AREA:
+                tris = np.nonzero(geom.emitter_of == i)[0]
+                a = geom.area[tris]
+                self.area_total[i] = a.sum()
+                self.powers[i] = np.pi * self.area_total[i] * luminance(e.radiance)
+            elif e.kind == POINT:
+                self.powers[i] = 4 * np.pi * luminance(e.intensity)
+            elif e.kind == SPOT:
+                self.powers[i] = 2 * np.pi * (1 - np.cos(np.radians(e.cutoff_angle))) * luminance(e.intensity)
+            elif e.kind == DIRECTIONAL:
+                self.powers[i] = np.pi * self.radius ** 2 * luminance(e.irradiance)
+            elif e.kind == CONSTANT:
+                self.powers[i] = 4 * np.pi * np.pi * self.radius ** 2 * luminance(e.radiance)
+            self.area_tris.append(tris)
+            cdf = np.cumsum(geom.area[tris]) if len(tris) else np.zeros(0)
+            self.area_cdf.append(cdf / cdf[-1] if len(cdf) and cdf[-1] > 0 else cdf)
+        self.powers = np.where(np.isfinite(self.powers) & (self.powers > 0), self.powers, 0.0)
+        total = self.powers.sum()
+        self.pmf = self.powers / total if total > 0 else np.zeros(n)
+        self.cdf = np.cumsum(self.pmf)
+
+    @property
+    def has_light(self) -> bool:
+        return bool(self.pmf.sum() > 0)
+
+    def choose(self, u: np.ndarray) -> np.ndarray:
+        idx = np.searchsorted(self.cdf, u * self.cdf[-1], side="right")
+        return np.minimum(idx, len(self.cdf) - 1)
+
+    def _area_points(self, em: np.ndarray, u: np.ndarray):
+        pos = np.zeros((len(em), 3))
+        nrm = np.zeros((len(em), 3))
+        for i in np.unique(em):
+            sel = em == i
+            cdf = self.area_cdf[i]
+            j = np.minimum(np.searchsorted(cdf, u[sel, 0], side="right"), len(cdf) - 1)
+            # Reuse the fraction of u0 inside the chosen triangle's CDF interval: stays stratified.
+            lo = np.where(j > 0, cdf[np.maximum(j - 1, 0)], 0.0)
+            w = np.maximum(cdf[j] - lo, 1e-300)
+            ur = np.clip((u[sel, 0] - lo) / w, 0, 1 - 1e-12)
+            tri = self.area_tris[i][j]
+            p, n, _ = self.geom.sample_triangles(tri, np.stack([ur, u[sel, 1]], axis=1))
+            pos[sel] = p
+            nrm[sel] = n
+        return pos, nrm
+
+    def sample_points(self, u: np.ndarray) -> PointSamples:
+        """One point-light record per row of u (N, 3): emitter choice + position.
+
+        Power is divided by the choice probability but NOT by N (the caller averages).
+        """
+        n = len(u)
+        em = self.choose(u[:, 0])
+        kind = np.zeros(n, np.int8)
+        pos = np.zeros((n, 3))
+        nrm = np.zeros((n, 3))
+        power = np.zeros((n, 3))
+        pmf = np.maximum(self.pmf[em], 1e-300)
+        for i in np.unique(em):
+            e = self.scene.emitters[i]
+            sel = np.nonzero(em == i)[0]
+            if e.kind == AREA:
+                p, nn = self._area_points(np.full(len(sel), i), u[sel, 1:3])
+                pos[sel], nrm[sel] = p, nn
+                kind[sel] = VPL_AREA
+                power[sel] = e.radiance * self.area_total[i]
+            elif e.kind in (POINT, SPOT):
+                pos[sel] = e.position
+                nrm[sel] = e.direction / np.linalg.norm(e.direction)
+                kind[sel] = VPL_POINT if e.kind == POINT else VPL_SPOT
+                power[sel] = e.intensity
+            elif e.kind == DIRECTIONAL:
+                nrm[sel] = e.direction / np.linalg.norm(e.direction)
+                kind[sel] = VPL_DIRECTIONAL
+                power[sel] = e.irradiance
+            elif e.kind == CONSTANT:
+                # Light arriving from a uniformly chosen direction: E = L·4π per sample.
+                d = uniform_sphere(u[sel, 1:3])
+                nrm[sel] = -d  # light travels along -d... i.e. comes from direction d
+                kind[sel] = VPL_DIRECTIONAL
+                power[sel] = e.radiance * 4 * np.pi
+        power /= pmf[:, None]
+        return PointSamples(kind, pos, nrm, power, em.astype(np.int32))
+
+    def emit_rays(self, u: np.ndarray) -> EmittedRays:
+        """Light rays for walks and photons from u (N, 5); flux is per ray, not divided by N."""
+        n = len(u)
+        em = self.choose(u[:, 0])
+        o = np.zeros((n, 3))
+        d = np.zeros((n, 3))
+        nrm = np.zeros((n, 3))
+        flux = np.zeros((n, 3))
+        pmf = np.maximum(self.pmf[em], 1e-300)
+        for i in np.unique(em):
+            e = self.scene.emitters[i]
+            sel = np.nonzero(em == i)[0]
+            if e.kind == AREA:
+                p, nn = self._area_points(np.full(len(sel), i), u[sel, 1:3])
+                local = cosine_hemisphere(u[sel, 3:5])
+                o[sel], nrm[sel] = p, nn
+                d[sel] = to_world(local, nn)
+                flux[sel] = e.radiance * np.pi * self.area_total[i]
+            elif e.kind == POINT:
+                o[sel] = e.position
+                d[sel] = uniform_sphere(u[sel, 3:5])
+                nrm[sel] = d[sel]
+                flux[sel] = e.intensity * 4 * np.pi
+            elif e.kind == SPOT:
+                axis = e.direction / np.linalg.norm(e.direction)
+                cos_max = np.cos(np.radians(e.cutoff_angle))
+                cz = 1 - u[sel, 3] * (1 - cos_max)
+                r = np.sqrt(np.maximum(0, 1 - cz * cz))
+                phi = 2 * np.pi * u[sel, 4]
+                local = np.stack([r * np.cos(phi), r * np.sin(phi), cz], axis=1)
+                ax = np.broadcast_to(axis, (len(sel), 3)).copy()
+                d[sel] = to_world(local, ax)
+                o[sel] = e.position
+                nrm[sel] = d[sel]
+                fall = spot_falloff(cz, e.cutoff_angle, e.beam_width)
+                flux[sel] = e.intensity * (2 * np.pi * (1 - cos_max)) * fall[:, None]
+            elif e.kind in (DIRECTIONAL, CONSTANT):
+                if e.kind == DIRECTIONAL:
+                    dirs = np.broadcast_to(e.direction / np.linalg.norm(e.direction), (len(sel), 3)).copy()
+                    scale = e.irradiance
+                else:
+                    dirs = -uniform_sphere(u[sel, 3:5])
+                    scale = e.radiance * 4 * np.pi
+                # Origin on a disk of the bounding sphere's radius, facing the scene.
+                rr = self.radius * np.sqrt(u[sel, 1])
+                phi = 2 * np.pi * u[sel, 2]
+                s, t = frame_from(dirs)
+                o[sel] = (self.center - dirs * self.radius * 1.01
+                          + s * (rr * np.cos(phi))[:, None] + t * (rr * np.sin(phi))[:, None])
+                d[sel] = dirs
+                nrm[sel] = dirs
+                flux[sel] = scale * np.pi * self.radius ** 2
+        flux /= pmf[:, None]
+        return EmittedRays(o, d, flux, em.astype(np.int32), nrm)
+
+    def emitted_radiance(self, emitter: np.ndarray, cos_front: np.ndarray) -> np.ndarray:
+        """Radiance seen on area emitters (front side only)."""
+        out = np.zeros((len(emitter), 3))
+        for i in np.unique(emitter[emitter >= 0]):
+            e = self.scene.emitters[i]
+            if e.kind != AREA:
+                continue
+            sel = emitter == i
+            out[sel] = e.radiance
+        out[cos_front <= 0] = 0
+        return out
+
+    def environment(self) -> np.ndarray:
+        """Radiance of rays that leave the scene (sum of constant emitters)."""
+        env = np.zeros(3)
+        for e in self.scene.emitters:
+            if e.kind == CONSTANT:
+                env = env + e.radiance
+        return env

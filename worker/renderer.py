@@ -1,0 +1,98 @@
+"""Renders one task — a tile of sub-image k — into per-pixel buffers.
+
+The worker keeps the VPL set P_k (and photon set C_k) of each (scene version, seed, k) it has
+built, so tasks of the same k on the same worker skip the preprocessing (paper §4.2).
+"""
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+
+import numpy as np
+
+from common.camera import camera_rays
+from common.frame import FrameSpec, Tile, TileBuffers
+from common.geometry import Geometry
+from common.lights import LightSampler
+from common.params import Params, make_params
+from common.scene import Scene
+from common.sobol_stream import rng as make_rng
+
+from .shading import gather_vpls, trace_eye
+from .vpl import VPLSet, build_vpl_set
+
+DEFAULT_CLAMP = 1e-4  # minimum squared VPL distance, as a fraction of the squared scene diagonal
+
+
+def clamp_distance2(params: Params, diagonal: float) -> float:
+    frac = params.clamp if params.clamp >= 0 else DEFAULT_CLAMP
+    return frac * diagonal * diagonal
+
+
+class Renderer:
+    """Owns the scene's geometry and light sampler, and caches per-set preprocessing."""
+
+    def __init__(self, scene: Scene, scene_version: int = 0, max_cached_sets: int = 128):
+        self.scene = scene
+        self.scene_version = scene_version
+        self.geom = Geometry(scene)
+        self.lights = LightSampler(scene, self.geom)
+        self._sets: OrderedDict[tuple, VPLSet] = OrderedDict()
+        self._max_sets = max_cached_sets
+        self._lock = threading.Lock()
+        self.stats = {"sets_built": 0, "set_hits": 0}
+
+    # -- per-set preprocessing --------------------------------------------------------------
+    def vpl_set(self, seed: int, k: int, params: Params) -> VPLSet:
+        key = (self.scene_version, seed, k, params.direct_vpls, params.indirect_vpls,
+               params.light_path_length)
+        with self._lock:
+            hit = self._sets.get(key)
+            if hit is not None:
+                self._sets.move_to_end(key)
+                self.stats["set_hits"] += 1
+                return hit
+        s = build_vpl_set(self.scene, self.geom, self.lights, seed, k, params.direct_vpls,
+                          params.indirect_vpls, params.light_path_length)
+        with self._lock:
+            self._sets[key] = s
+            self.stats["sets_built"] += 1
+            while len(self._sets) > self._max_sets:
+                self._sets.popitem(last=False)
+        return s
+
+    def cached_sets(self) -> set[tuple[int, int]]:
+        with self._lock:
+            return {(key[1], key[2]) for key in self._sets if key[0] == self.scene_version}
+
+    # -- a task ------------------------------------------------------------------------------
+    def render_tile(self, spec: FrameSpec, tile: Tile) -> TileBuffers:
+        params = make_params(**spec.params)
+        n = params.interleave
+        xs, ys = tile.pixels(n, spec.width, spec.height)
+        p = len(xs)
+        o, d = camera_rays(np.asarray(spec.camera_to_world).reshape(4, 4), spec.fov_x, spec.width,
+                           spec.height, xs, ys, spec.jitter)
+        rng = make_rng(spec.seed, tile.k, tile.sx0, tile.sy0)
+        eye = trace_eye(self.scene, self.geom, self.lights, o, d, params.max_depth,
+                        params.specular_depth, rng)
+        vpls = self.vpl_set(spec.seed, tile.k, params)
+        albedo, irr = gather_vpls(self.geom, eye.end, vpls, clamp_distance2(params, self.geom.diagonal),
+                                  params.max_depth)
+        end = eye.end
+        refl = np.zeros((p, 3))
+        irr_buf = np.zeros((p, 3))
+        unf = eye.unfiltered
+        main = end.main
+        refl[end.pixel[main]] = albedo[main] * end.throughput[main]
+        irr_buf[end.pixel[main]] = irr[main]
+        sec = ~main
+        if sec.any():
+            np.add.at(unf, end.pixel[sec], end.throughput[sec] * albedo[sec] * irr[sec])
+        return TileBuffers(
+            reflectance=refl.astype(np.float32),
+            irradiance=irr_buf.astype(np.float32),
+            unfiltered=unf.astype(np.float32),
+            depth=eye.depth.astype(np.float32),
+            normal=eye.normal.astype(np.float32),
+        )

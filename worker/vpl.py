@@ -1,0 +1,165 @@
+"""Virtual point lights P_k by instant radiosity (Keller 1997; Wald et al. 2002 §4, §5.1).
+
+A set holds ``direct_vpls`` samples on the emitters (direct light) and the vertices of
+quasi-random light walks of at most ``light_path_length`` bounces (indirect light), all
+drawn from block k of one scrambled Sobol stream, so a set is a pure function of
+(scene, seed, k, parameters).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from common import bsdf
+from common.geometry import Geometry
+from common.lights import VPL_SPOT, VPL_SURFACE, LightSampler, to_local, to_world
+from common.scene import NULL, SPECULAR_KINDS, Scene
+from common.sobol_stream import SobolStream
+
+# Sobol dimensions: direct samples use 3 (emitter, 2 for the point); a walk uses 5 to leave
+# the light and 3 per bounce (component + 2 for the direction).
+DIRECT_DIMS = 3
+WALK_DIMS_START = 5
+WALK_DIMS_PER_BOUNCE = 3
+# Stream layout per set: direct samples and walks come from separate blocks of the stream.
+BLOCK = 1 << 12
+
+
+@dataclass
+class VPLSet:
+    kind: np.ndarray  # (M,) int8, common.lights.VPL_*
+    position: np.ndarray  # (M, 3)
+    normal: np.ndarray  # (M, 3) shading normal (surface/area) or light direction
+    ng: np.ndarray  # (M, 3) geometric normal (offsets for shadow rays)
+    power: np.ndarray  # (M, 3) already divided by the number of samples of its kind
+    depth: np.ndarray  # (M,) light-path segments from the emitter to the VPL (0 = on the emitter)
+    wi_local: np.ndarray  # (M, 3) surface VPLs: incident direction in the VPL's shading frame
+    surface: "bsdf.SurfacePoints | None"  # BSDF parameters of the surface VPLs (kind == VPL_SURFACE rows, in order)
+    diffuse_only: bool = True  # every surface VPL is Lambertian: the fast path applies
+
+    def __len__(self) -> int:
+        return len(self.kind)
+
+    @property
+    def nbytes(self) -> int:
+        return sum(a.nbytes for a in (self.kind, self.position, self.normal, self.ng, self.power,
+                                      self.depth, self.wi_local))
+
+
+def _empty_set() -> VPLSet:
+    z = np.zeros((0, 3))
+    return VPLSet(np.zeros(0, np.int8), z, z, z, z, np.zeros(0, np.int32), z, None, True)
+
+
+def walk_count(indirect_vpls: int, max_length: int) -> int:
+    """Walks per set: each walk leaves up to ``max_length`` vertices (one per bounce)."""
+    if indirect_vpls <= 0:
+        return 0
+    return max(1, int(np.ceil(indirect_vpls / max_length)))
+
+
+def build_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: int, k: int,
+                  direct_vpls: int, indirect_vpls: int, max_length: int) -> VPLSet:
+    """The VPL set P_k for frame seed ``seed``."""
+    if not lights.has_light:
+        return _empty_set()
+    stream = SobolStream(seed)
+    parts = []
+    if direct_vpls > 0:
+        u = stream.padded(2 * k, direct_vpls, BLOCK, DIRECT_DIMS)
+        s = lights.sample_points(u)
+        m = len(s.kind)
+        extra = np.zeros((m, 3))
+        for j in np.nonzero(s.kind == VPL_SPOT)[0]:
+            e = scene.emitters[s.emitter[j]]
+            extra[j] = (0.0, e.beam_width, e.cutoff_angle)
+        parts.append(VPLSet(s.kind, s.position, s.normal, s.normal.copy(), s.power / direct_vpls,
+                            np.zeros(m, np.int32), extra, None))
+    walks = walk_count(indirect_vpls, max_length)
+    if walks > 0 and max_length > 0:
+        dims = WALK_DIMS_START + WALK_DIMS_PER_BOUNCE * max_length
+        u = stream.padded(2 * k + 1, walks, BLOCK, dims)
+        parts.append(_light_walks(scene, geom, lights, u, walks, max_length))
+    return _concat(parts)
+
+
+def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarray,
+                 walks: int, max_length: int) -> VPLSet:
+    rays = lights.emit_rays(u[:, :WALK_DIMS_START])
+    flux = rays.flux / walks
+    d = rays.direction
+    o = rays.origin.copy()
+    is_surface = np.linalg.norm(rays.normal - rays.direction, axis=1) > 1e-9  # area: offset off the emitter
+    if is_surface.any():
+        o[is_surface] = geom.offset(o[is_surface], rays.normal[is_surface], d[is_surface])
+    alive = np.nonzero(np.any(flux > 0, axis=1))[0]
+    pos_l, ns_l, ng_l, pw_l, dp_l, wi_l, sp_l = [], [], [], [], [], [], []
+    for bounce in range(max_length):
+        if len(alive) == 0:
+            break
+        hits = geom.intersect(o[alive], d[alive])
+        keep = hits.valid
+        alive = alive[keep]
+        if len(alive) == 0:
+            break
+        pos = hits.position[keep]
+        ns = hits.ns[keep]
+        ng = hits.ng[keep]
+        mat = hits.material[keep]
+        uv = hits.uv[keep]
+        sp = bsdf.gather(scene.materials, mat, uv)
+        wi = to_local(-d[alive], ns)
+        nondelta = ~np.isin(sp.kind, SPECULAR_KINDS) & (sp.kind != NULL)
+        if nondelta.any():
+            sel = np.nonzero(nondelta)[0]
+            pos_l.append(pos[sel])
+            ns_l.append(ns[sel])
+            ng_l.append(ng[sel])
+            pw_l.append(flux[alive[sel]])
+            dp_l.append(np.full(len(sel), bounce + 1, np.int32))
+            wi_l.append(wi[sel])
+            sp_l.append(sp.subset(sel))
+        if bounce + 1 >= max_length:
+            break
+        col = WALK_DIMS_START + WALK_DIMS_PER_BOUNCE * bounce
+        wo, weight, _pdf, _delta = bsdf.sample(sp, wi, u[alive, col], u[alive, col + 1:col + 3],
+                                               mode="importance")
+        wo_world = to_world(wo, ns)
+        flux[alive] = flux[alive] * weight
+        ok = np.any(flux[alive] > 0, axis=1) & np.all(np.isfinite(flux[alive]), axis=1)
+        d[alive] = wo_world
+        o[alive] = geom.offset(pos, ng, wo_world)
+        alive = alive[ok]
+    if not pos_l:
+        return _empty_set()
+    sp_all = concat_surface(sp_l)
+    m = sum(len(p) for p in pos_l)
+    return VPLSet(np.full(m, VPL_SURFACE, np.int8), np.concatenate(pos_l), np.concatenate(ns_l),
+                  np.concatenate(ng_l), np.concatenate(pw_l), np.concatenate(dp_l),
+                  np.concatenate(wi_l), sp_all, bool(np.all(sp_all.kind == 0)))
+
+
+def concat_surface(sps: list) -> "bsdf.SurfacePoints":
+    """Concatenate SurfacePoints batches field by field."""
+    first = sps[0]
+    return type(first)(**{f.name: np.concatenate([getattr(s, f.name) for s in sps])
+                          for f in fields(first)})
+
+
+def _concat(parts: list[VPLSet]) -> VPLSet:
+    parts = [p for p in parts if len(p)]
+    if not parts:
+        return _empty_set()
+    surf = [p.surface for p in parts if p.surface is not None]
+    return VPLSet(
+        np.concatenate([p.kind for p in parts]),
+        np.concatenate([p.position for p in parts]),
+        np.concatenate([p.normal for p in parts]),
+        np.concatenate([p.ng for p in parts]),
+        np.concatenate([p.power for p in parts]),
+        np.concatenate([p.depth for p in parts]),
+        np.concatenate([p.wi_local for p in parts]),
+        concat_surface(surf) if surf else None,
+        all(p.diffuse_only for p in parts),
+    )
