@@ -18,6 +18,7 @@ from common.params import Params, make_params
 from common.scene import Scene
 from common.sobol_stream import rng as make_rng
 
+from .caustics import PhotonSet, build_photon_set, default_radius, gather_photons
 from .shading import gather_vpls, trace_eye
 from .vpl import VPLSet, build_vpl_set
 
@@ -61,9 +62,26 @@ class Renderer:
                 self._sets.popitem(last=False)
         return s
 
+    def photon_set(self, seed: int, k: int, params: Params) -> PhotonSet:
+        radius = default_radius(self.geom.diagonal, params.photon_radius)
+        key = ("photons", self.scene_version, seed, k, params.photons, radius, params.specular_depth)
+        with self._lock:
+            hit = self._sets.get(key)
+            if hit is not None:
+                self._sets.move_to_end(key)
+                return hit
+        s = build_photon_set(self.scene, self.geom, self.lights, seed, k, params.photons, radius,
+                             params.specular_depth)
+        with self._lock:
+            self._sets[key] = s
+            while len(self._sets) > self._max_sets:
+                self._sets.popitem(last=False)
+        return s
+
     def cached_sets(self) -> set[tuple[int, int]]:
         with self._lock:
-            return {(key[1], key[2]) for key in self._sets if key[0] == self.scene_version}
+            return {(key[1], key[2]) for key in self._sets
+                    if key[0] == self.scene_version and len(key) == 6}
 
     # -- a task ------------------------------------------------------------------------------
     def render_tile(self, spec: FrameSpec, tile: Tile) -> TileBuffers:
@@ -80,6 +98,9 @@ class Renderer:
         albedo, irr = gather_vpls(self.geom, eye.end, vpls, clamp_distance2(params, self.geom.diagonal),
                                   params.max_depth)
         end = eye.end
+        photons = self.photon_set(spec.seed, tile.k, params)
+        if len(photons):
+            irr = irr + gather_photons(end, photons, albedo, params.max_depth)
         refl = np.zeros((p, 3))
         irr_buf = np.zeros((p, 3))
         unf = eye.unfiltered

@@ -1,0 +1,208 @@
+"""Caustic photons C_k (Wald et al. 2002 §4.1) in a hashed grid.
+
+Photons leave each emitter only toward the scene's mirror and glass objects: a target is
+chosen uniformly among the bounding spheres, the direction uniformly inside the cone that
+sphere subtends, and the photon is weighted by the mixture pdf over all cones that contain
+its direction (overlapping targets are counted once; Jarosz 2002 §3). So the estimate of
+every caustic path that starts inside some cone is unbiased. Photons follow mirror/glass
+bounces and are stored at the first non-specular hit after at least one specular bounce.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from common import bsdf
+from common.geometry import Geometry
+from common.lights import LightSampler, frame_from, to_local, to_world
+from common.scene import AREA, NULL, POINT, SPECULAR_KINDS, SPOT, Scene
+from common.sobol_stream import SobolStream
+
+from .hash_grid import HashGrid
+
+BLOCK = 1 << 14
+EMIT_DIMS = 5  # 2 position, 1 target, 2 direction in the cone
+BOUNCE_DIMS = 3
+
+
+@dataclass
+class PhotonSet:
+    position: np.ndarray  # (N, 3)
+    power: np.ndarray  # (N, 3) flux
+    direction: np.ndarray  # (N, 3) towards where the photon came from
+    normal: np.ndarray  # (N, 3) surface normal where stored
+    depth: np.ndarray  # (N,) light-path segments from the emitter to the stored hit
+    radius: float
+    grid: HashGrid | None
+    shot: int = 0
+
+    def __len__(self) -> int:
+        return len(self.position)
+
+
+def specular_targets(scene: Scene, geom: Geometry) -> tuple[np.ndarray, np.ndarray]:
+    """Bounding spheres (centres, radii) of the meshes with a mirror or glass BSDF."""
+    centres, radii = [], []
+    for i, m in enumerate(scene.meshes):
+        if len(m.faces) == 0 or scene.materials[m.material].kind not in SPECULAR_KINDS:
+            continue
+        v = geom.vertices[geom.faces[geom.mesh_of == i]].reshape(-1, 3)
+        c = 0.5 * (v.min(axis=0) + v.max(axis=0))
+        r = float(np.linalg.norm(v - c, axis=1).max()) * (1 + 1e-6) + geom.eps
+        centres.append(c)
+        radii.append(r)
+    return np.array(centres).reshape(-1, 3), np.array(radii)
+
+
+def default_radius(diagonal: float, fraction: float) -> float:
+    return (fraction if fraction > 0 else 0.005) * diagonal
+
+
+def _empty(radius: float) -> PhotonSet:
+    z = np.zeros((0, 3))
+    return PhotonSet(z, z, z, z, np.zeros(0, np.int32), radius, None)
+
+
+def _cone_mixture_pdf(origin, dirs, centres, radii):
+    """Pdf (solid angle) of choosing a direction uniformly in one of the target cones."""
+    to_c = centres[None, :, :] - origin[:, None, :]
+    dist = np.linalg.norm(to_c, axis=2)
+    inside = dist <= radii[None, :]
+    sin2 = np.clip((radii[None, :] / np.maximum(dist, 1e-300)) ** 2, 0, 1)
+    cos_max = np.where(inside, -1.0, np.sqrt(1 - sin2))
+    solid = 2 * np.pi * (1 - cos_max)
+    cos_d = np.einsum("nk,ntk->nt", dirs, to_c) / np.maximum(dist, 1e-300)
+    in_cone = inside | (cos_d >= cos_max)
+    return (in_cone / solid).sum(axis=1) / len(radii), cos_max, to_c / np.maximum(dist, 1e-300)[:, :, None]
+
+
+def build_photon_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: int, k: int,
+                     photons_per_light: int, radius: float, max_bounces: int) -> PhotonSet:
+    """The caustic photon set C_k for frame seed ``seed``."""
+    centres, radii = specular_targets(scene, geom)
+    if photons_per_light <= 0 or len(radii) == 0 or not lights.has_light:
+        return _empty(radius)
+    stream = SobolStream(seed ^ 0x5EED)
+    dims = EMIT_DIMS + BOUNCE_DIMS * max_bounces
+    parts = []
+    shot = 0
+    for ei, e in enumerate(scene.emitters):
+        if e.kind not in (AREA, POINT, SPOT) or lights.powers[ei] <= 0:
+            continue  # distant lights: caustics from them are left to the VPLs (none), see docs
+        u = stream.padded(k * len(scene.emitters) + ei, photons_per_light, BLOCK, dims)
+        n = photons_per_light
+        shot += n
+        if e.kind == AREA:
+            pos, nrm = lights._area_points(np.full(n, ei), u[:, 0:2])
+        else:
+            pos = np.broadcast_to(e.position, (n, 3)).copy()
+            nrm = np.broadcast_to(e.direction / np.linalg.norm(e.direction), (n, 3)).copy()
+        t = np.minimum((u[:, 2] * len(radii)).astype(np.int64), len(radii) - 1)
+        pdf_dummy, cos_max, axes = _cone_mixture_pdf(pos, np.zeros((n, 3)), centres, radii)
+        cm = cos_max[np.arange(n), t]
+        cz = 1 - u[:, 3] * (1 - cm)
+        r = np.sqrt(np.maximum(0, 1 - cz * cz))
+        phi = 2 * np.pi * u[:, 4]
+        local = np.stack([r * np.cos(phi), r * np.sin(phi), cz], axis=1)
+        d = to_world(local, axes[np.arange(n), t])
+        pdf, _, _ = _cone_mixture_pdf(pos, d, centres, radii)
+        if e.kind == AREA:
+            cos_e = np.einsum("ij,ij->i", d, nrm)
+            flux = e.radiance[None, :] * (np.maximum(cos_e, 0) * lights.area_total[ei] / pdf)[:, None]
+            o = geom.offset(pos, nrm, d)
+        elif e.kind == POINT:
+            flux = e.intensity[None, :] / pdf[:, None]
+            o = pos
+        else:
+            from common.lights import spot_falloff
+            fall = spot_falloff(np.einsum("ij,ij->i", d, nrm), e.cutoff_angle, e.beam_width)
+            flux = e.intensity[None, :] * (fall / pdf)[:, None]
+            o = pos
+        flux /= n
+        parts.append(_trace_photons(scene, geom, o, d, flux, u, max_bounces))
+    parts = [p for p in parts if p is not None and len(p[0])]
+    if not parts:
+        out = _empty(radius)
+        out.shot = shot
+        return out
+    pos, pw, di, nr, dp = (np.concatenate([p[i] for p in parts]) for i in range(5))
+    grid = HashGrid(pos, radius)
+    return PhotonSet(pos, pw, di, nr, dp, radius, grid, shot)
+
+
+def _trace_photons(scene, geom, o, d, flux, u, max_bounces):
+    alive = np.nonzero(np.any(flux > 0, axis=1))[0]
+    bounced = np.zeros(len(o), bool)
+    out_p, out_w, out_d, out_n, out_dp = [], [], [], [], []
+    o = o.copy()
+    d = d.copy()
+    flux = flux.copy()
+    for b in range(max_bounces + 1):
+        if len(alive) == 0:
+            break
+        hits = geom.intersect(o[alive], d[alive])
+        v = hits.valid
+        alive = alive[v]
+        if len(alive) == 0:
+            break
+        sp = bsdf.gather(scene.materials, hits.material[v], hits.uv[v])
+        ns, ng, pos = hits.ns[v], hits.ng[v], hits.position[v]
+        spec = np.isin(sp.kind, SPECULAR_KINDS)
+        store = ~spec & bounced[alive] & (sp.kind != NULL)
+        if store.any():
+            s = np.nonzero(store)[0]
+            out_p.append(pos[s])
+            out_w.append(flux[alive[s]])
+            out_d.append(-d[alive[s]])
+            out_n.append(ns[s])
+            out_dp.append(np.full(len(s), b + 1, np.int32))
+        # Only mirror/glass bounces continue: anything else is a caustic's end or not a caustic.
+        si = np.nonzero(spec)[0]
+        if b == max_bounces or len(si) == 0:
+            break
+        idx = alive[si]
+        wi = to_local(-d[idx], ns[si])
+        col = EMIT_DIMS + BOUNCE_DIMS * b
+        wo, weight, _pdf, _delta = bsdf.sample(sp.subset(si), wi, u[idx, col], u[idx, col + 1:col + 3],
+                                               mode="importance")
+        wd = to_world(wo, ns[si])
+        flux[idx] = flux[idx] * weight
+        d[idx] = wd
+        o[idx] = geom.offset(pos[si], ng[si], wd)
+        bounced[idx] = True
+        ok = np.any(flux[idx] > 0, axis=1) & np.all(np.isfinite(flux[idx]), axis=1)
+        alive = idx[ok]
+    if not out_p:
+        return None
+    return (np.concatenate(out_p), np.concatenate(out_w), np.concatenate(out_d),
+            np.concatenate(out_n), np.concatenate(out_dp))
+
+
+def gather_photons(end, photons: PhotonSet, albedo: np.ndarray, max_depth: int) -> np.ndarray:
+    """Caustic radiance at the end points per unit albedo (joins the filtered irradiance)."""
+    e = len(end)
+    out = np.zeros((e, 3))
+    if e == 0 or photons.grid is None or len(photons) == 0:
+        return out
+    pi_idx, qi = photons.grid.query(end.position)
+    if len(pi_idx) == 0:
+        return out
+    # Photons arriving on the side the eye sees only: thin walls must not leak caustics through.
+    eye_side = np.sign(end.wi[qi, 2])
+    same = np.einsum("ij,ij->i", photons.direction[pi_idx], end.ns[qi]) * eye_side > 0
+    if max_depth >= 0:
+        same &= end.segments[qi] + photons.depth[pi_idx] <= max_depth
+    pi_idx, qi = pi_idx[same], qi[same]
+    if len(qi) == 0:
+        return out
+    wo_local = to_local(photons.direction[pi_idx], end.ns[qi])
+    sp = end.sp.subset(qi)
+    f = bsdf.eval(sp, end.wi[qi], wo_local, mode="radiance")
+    # eval includes |cos θ|; the photon estimate uses f alone (flux already per area).
+    cos = np.maximum(np.abs(wo_local[:, 2]), 1e-6)
+    f = f / cos[:, None]
+    a = np.maximum(albedo[qi], 1e-6)
+    contrib = photons.power[pi_idx] * f / a / (np.pi * photons.radius ** 2)
+    np.add.at(out, qi, np.nan_to_num(contrib, nan=0.0, posinf=0.0))
+    return out
