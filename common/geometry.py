@@ -125,11 +125,17 @@ class Geometry:
         tmax = dist * (1 - 1e-5) - self.eps
         return ~self.occluded(ox, dirs, np.maximum(tmax, 0.0))
 
-    def offset(self, p: np.ndarray, ng: np.ndarray, towards: np.ndarray) -> np.ndarray:
+    def offset_scale(self, p: np.ndarray) -> np.ndarray:
+        """Per-point offset length: the scene epsilon plus float32 ulps of the local coordinate."""
+        return self.eps + 4 * np.finfo(np.float32).eps * np.abs(p - self.center).max(axis=1)
+
+    def offset(self, p: np.ndarray, ng: np.ndarray, towards: np.ndarray,
+               scale: np.ndarray | None = None) -> np.ndarray:
         """Move p off its surface, along ng, to the side ``towards`` points to."""
         side = np.sign(np.einsum("ij,ij->i", ng, towards))
         side[side == 0] = 1.0
-        scale = self.eps + 4 * np.finfo(np.float32).eps * np.abs(p - self.center).max(axis=1)
+        if scale is None:
+            scale = self.offset_scale(p)
         return p + ng * (side * scale)[:, None]
 
     # -- surface interaction -----------------------------------------------------------------

@@ -185,111 +185,134 @@ def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
     filter blurs lighting, never texture.
     """
     e = len(end)
-    albedo = bsdf.albedo(end.sp, end.wi) if e else np.zeros((0, 3))
+    albedo = bsdf.albedo(end.sp, end.wi).astype(np.float64) if e else np.zeros((0, 3))
     irr = np.zeros((e, 3))
     m = len(vpls)
     if e == 0 or m == 0:
         return albedo, irr
-    lam = end.sp.kind == DIFFUSE
-    # One-sided surfaces only receive on the side the eye sees; twosided ones on either.
-    side = np.where(end.wi[:, 2] >= 0, 1.0, -1.0)
-    front_ok = end.sp.twosided | (end.wi[:, 2] > 0)
-    surf_rows = np.nonzero(vpls.kind == VPL_SURFACE)[0]
-    surf_index = np.full(m, -1)
-    surf_index[surf_rows] = np.arange(len(surf_rows))
+    cols = _VPLColumns(vpls, geom)
     chunk = max(1, PAIR_CHUNK // m)
     for s in range(0, e, chunk):
         sl = slice(s, min(e, s + chunk))
-        irr[sl] = _gather_chunk(geom, end, sl, vpls, surf_index, lam[sl], side[sl], front_ok[sl],
-                                clamp_d2, max_depth, albedo[sl])
+        irr[sl] = _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo[sl])
     return albedo, irr
 
 
-def _gather_chunk(geom, end, sl, vpls, surf_index, lam, side, front_ok, clamp_d2, max_depth, albedo):
-    x = end.position[sl]
-    ns = end.ns[sl]
-    ng = end.ng[sl]
+class _VPLColumns:
+    """Per-VPL constants of the gather, computed once per set and call."""
+
+    def __init__(self, vpls: VPLSet, geom: Geometry):
+        kind = vpls.kind
+        self.directional = kind == VPL_DIRECTIONAL
+        self.area = kind == VPL_AREA
+        self.spot = kind == VPL_SPOT
+        self.surface = kind == VPL_SURFACE
+        self.pos = (vpls.position - geom.center).astype(np.float32)
+        self.normal = vpls.normal.astype(np.float32)
+        color = vpls.power.astype(np.float64).copy()
+        self.glossy = np.zeros(len(kind), bool)
+        self.surf_rows = np.nonzero(self.surface)[0]
+        # Surface VPLs: Lambertian ones fold rho/π into their colour and radiate on the side
+        # their light arrived from; the others need their BSDF per pair.
+        self.side = np.ones(len(kind), np.float32)
+        if len(self.surf_rows):
+            sp = vpls.surface
+            lam = sp.kind == DIFFUSE
+            rows = self.surf_rows
+            self.side[rows] = np.where(vpls.wi_local[rows, 2] >= 0, 1.0, -1.0)
+            color[rows[lam]] *= sp.diffuse[lam] / np.pi
+            self.glossy[rows[~lam]] = True
+            self.glossy_sp_index = np.nonzero(~lam)[0]
+        self.color = color
+        self.spot_params = vpls.wi_local[self.spot]
+
+
+def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
+    f32 = np.float32
+    x = (end.position[sl] - geom.center).astype(f32)
+    ns = end.ns[sl].astype(f32)
     n = len(x)
     m = len(vpls)
-    kind = vpls.kind
-    # Pair arrays: end point i (rows) x VPL j (columns), flattened row-major.
-    directional = kind == VPL_DIRECTIONAL
-    dvec = vpls.position[None, :, :] - x[:, None, :]
-    dvec[:, directional] = -vpls.normal[directional][None, :, :]
+    # Pair geometry: end point i (rows) x VPL j (columns).
+    dvec = cols.pos[None, :, :] - x[:, None, :]
+    if cols.directional.any():
+        dvec[:, cols.directional] = -cols.normal[cols.directional][None]
     d2 = np.einsum("ijk,ijk->ij", dvec, dvec)
-    dist = np.sqrt(d2)
-    w = dvec / np.maximum(dist, 1e-300)[:, :, None]
-    d2 = np.where(directional[None, :], 1.0, d2)
-    # Emission of each VPL toward x (radiant intensity; irradiance for directional).
-    emit = np.broadcast_to(vpls.power[None, :, :], (n, m, 3)).copy()
-    cos_y = -np.einsum("ijk,jk->ij", w, vpls.normal)
-    area = kind == VPL_AREA
-    emit[:, area] *= np.maximum(cos_y[:, area], 0.0)[:, :, None]
-    spot = kind == VPL_SPOT
-    if spot.any():
-        emit[:, spot] *= _spot_factor(cos_y[:, spot], vpls, spot)[:, :, None]
-    surf = kind == VPL_SURFACE
-    if surf.any():
-        sj = np.nonzero(surf)[0]
-        ssp = vpls.surface
-        wo_y = -w[:, sj].reshape(-1, 3)
-        ny = np.repeat(vpls.normal[sj][None], n, axis=0).reshape(-1, 3)
-        wo_local = to_local(wo_y, ny)
-        rep = np.tile(surf_index[sj], n)
-        sp_pairs = ssp.subset(rep)
-        wi_pairs = vpls.wi_local[sj][np.tile(np.arange(len(sj)), n)]
-        f_y = bsdf.eval(sp_pairs, wi_pairs, wo_local, mode="importance").reshape(n, len(sj), 3)
-        g = 1.0 / np.maximum(d2[:, sj], clamp_d2)
-        emit[:, sj] *= f_y * g[:, :, None]
-    # 1/d² for the point-like emitter samples (clamping direct light would bias it).
-    pt = area | spot | (kind == VPL_POINT)
-    emit[:, pt] /= np.maximum(d2[:, pt], 1e-30)[:, :, None]
+    inv_d = 1.0 / np.sqrt(np.maximum(d2, f32(1e-30)))
+    w = dvec * inv_d[:, :, None]  # unit direction x -> y
+    side = np.where(end.wi[sl, 2] >= 0, f32(1), f32(-1))
+    cos_x = np.einsum("ijk,ik->ij", w, ns) * side[:, None]
+    cos_y = -np.einsum("ijk,jk->ij", w, cols.normal)
+    # Emitter factor toward x (scalar per pair; the VPL colour multiplies it later).
+    inv_d2 = inv_d * inv_d
+    em = np.where(cols.surface[None, :], 1.0 / np.maximum(d2, f32(clamp_d2)), inv_d2).astype(f32)
+    em[:, cols.directional] = 1.0
+    em[:, cols.area] *= np.maximum(cos_y[:, cols.area], 0)
+    if cols.spot.any():
+        sp_cols = np.nonzero(cols.spot)[0]
+        for jj, j in enumerate(sp_cols):
+            em[:, j] *= spot_falloff(cos_y[:, j], cols.spot_params[jj, 2], cols.spot_params[jj, 1]).astype(f32)
+    lam_vpl = cols.surface & ~cols.glossy
+    em[:, lam_vpl] *= np.maximum(cos_y[:, lam_vpl] * cols.side[lam_vpl], 0)
     if max_depth >= 0:
         seg = end.segments[sl][:, None] + 1 + vpls.depth[None, :]
-        emit *= (seg <= max_depth)[:, :, None]
-    # Receiver term at x.
-    cos_x = np.einsum("ijk,ik->ij", w, ns) * side[:, None]
-    recv = np.zeros((n, m, 3))
-    li = np.nonzero(lam & front_ok)[0]
-    if len(li):
-        # Lambertian: irradiance/π per unit albedo.
-        recv[li] = np.maximum(cos_x[li], 0.0)[:, :, None] / np.pi
-    gi = np.nonzero(~lam)[0]
+        em *= seg <= max_depth
+    front_ok = end.sp.twosided[sl] | (end.wi[sl, 2] > 0)
+    lam = (end.sp.kind[sl] == DIFFUSE) & front_ok
+    gl = (end.sp.kind[sl] != DIFFUSE) & (end.sp.kind[sl] != NULL)
+    # Receiver: Lambertian rows take cos/π (per unit albedo), glossy rows their BSDF.
+    recv = np.where(lam[:, None], np.maximum(cos_x, 0) * f32(1 / np.pi), f32(0))
+    weight = em * recv
+    gi = np.nonzero(gl)[0]
     if len(gi):
-        wo_x = w[gi].reshape(-1, 3)
-        nx = np.repeat(ns[gi], m, axis=0)
-        wi_x = np.repeat(end.wi[sl][gi], m, axis=0)
-        spx = end.sp.subset(np.repeat(np.arange(sl.start, sl.stop)[gi], m))
-        fx = bsdf.eval(spx, wi_x, to_local(wo_x, nx), mode="radiance").reshape(len(gi), m, 3)
-        a = np.maximum(albedo[gi], 1e-6)
-        recv[gi] = fx / a[:, None, :]
-    contrib = emit * recv
-    live = np.any(contrib > 0, axis=2) & np.all(np.isfinite(contrib), axis=2)
+        weight[gi] = em[gi]  # glossy rows: the scalar part only, BSDF applied below
+    live = weight > 0
+    if cols.glossy.any():
+        live[:, cols.glossy] = em[:, cols.glossy] > 0
+    live &= np.isfinite(weight)
+    # Shadow rays for the live pairs only, in one Embree batch.
     ii, jj = np.nonzero(live)
     if len(ii):
-        ox = geom.offset(x[ii], ng[ii], w[ii, jj])
-        ypos = vpls.position[jj]
-        toy = ypos - ox
-        # Targets on surfaces are pulled back off their surface toward x.
-        on_surface = (kind[jj] == VPL_SURFACE) | (kind[jj] == VPL_AREA)
-        ly = np.linalg.norm(toy, axis=1)
-        dirn = toy / np.maximum(ly, 1e-300)[:, None]
-        tmax = np.where(on_surface, ly - 2 * geom.eps - 8 * np.finfo(np.float32).eps * np.abs(ypos - geom.center).max(axis=1),
-                        ly * (1 - 1e-6))
-        dj = directional[jj]
-        dirn[dj] = w[ii[dj], jj[dj]]
-        tmax[dj] = np.inf
-        blocked = geom.occluded(ox, dirn, np.maximum(tmax, 0.0))
+        xo = end.position[sl][ii]
+        ngi = end.ng[sl][ii]
+        wij = w[ii, jj].astype(np.float64)
+        ox = geom.offset(xo, ngi, wij, geom.offset_scale(end.position[sl])[ii])
+        dist = np.sqrt(d2[ii, jj]).astype(np.float64)
+        tmax = dist * (1 - 1e-4) - 2 * geom.eps
+        tmax[cols.directional[jj]] = np.inf
+        blocked = geom.occluded(ox, wij, np.maximum(tmax, 0.0))
         live[ii[blocked], jj[blocked]] = False
-    contrib *= live[:, :, None]
-    return np.nan_to_num(contrib.sum(axis=1), nan=0.0, posinf=0.0, neginf=0.0)
-
-
-def _spot_factor(cos_y, vpls, spot_mask):
-    """Falloff of spot VPLs: cos_y is the cosine to the spot axis (stored in the normal)."""
-    # Spot VPLs carry (unused, beam_width, cutoff_angle) in degrees in their wi_local slot.
-    params = vpls.wi_local[spot_mask]
-    out = np.empty_like(cos_y)
-    for j in range(cos_y.shape[1]):
-        out[:, j] = spot_falloff(cos_y[:, j], params[j, 2], params[j, 1])
-    return out
+    weight *= live
+    out = weight @ cols.color.astype(f32) if not len(gi) else np.zeros((n, 3), f32)
+    if len(gi):
+        lrows = np.nonzero(~gl)[0]
+        out[lrows] = weight[lrows] @ cols.color.astype(f32)
+        # Glossy receivers: f_x(wi, w)/albedo per pair.
+        wo_x = w[gi].reshape(-1, 3).astype(np.float64)
+        nx = np.repeat(end.ns[sl][gi], m, axis=0)
+        rows = np.arange(sl.start, sl.stop)[gi]
+        spx = end.sp.subset(np.repeat(rows, m))
+        wi_x = np.repeat(end.wi[rows], m, axis=0)
+        fx = bsdf.eval(spx, wi_x, to_local(wo_x, nx), mode="radiance").reshape(len(gi), m, 3)
+        fx = fx / np.maximum(albedo[gi], 1e-6)[:, None, :]
+        out[gi] = np.einsum("ij,ijk,jk->ik", weight[gi], fx, cols.color)
+    if cols.glossy.any():
+        # Glossy VPLs: f_y(ω_in, y->x) per pair replaces the Lambertian colour (which was
+        # left as raw flux for them).
+        gj = np.nonzero(cols.glossy)[0]
+        sub = vpls.surface.subset(np.searchsorted(cols.surf_rows, gj))
+        wo_y = -w[:, gj].reshape(-1, 3).astype(np.float64)
+        ny = np.tile(vpls.normal[gj], (n, 1))
+        spy = sub.subset(np.tile(np.arange(len(gj)), n))
+        wi_y = np.tile(vpls.wi_local[gj], (n, 1))
+        fy = bsdf.eval(spy, wi_y, to_local(wo_y, ny), mode="importance").reshape(n, len(gj), 3)
+        # out already holds weight * flux for these columns; swap flux for flux * f_y.
+        wg = weight[:, gj]
+        rec = wg[:, :, None] * cols.color[gj][None]
+        if len(gi):
+            # glossy rows used fx already: rec must carry fx too
+            fxg = np.ones((n, len(gj), 3))
+            fxg[gi] = fx[:, gj]
+            rec = rec * fxg
+        out = out - rec.sum(axis=1) + (rec * fy).sum(axis=1)
+    return np.nan_to_num(out.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
