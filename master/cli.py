@@ -1,0 +1,408 @@
+"""The ``igi`` command line.
+
+    igi render SCENE -o OUT.exr|OUT.png [--frames N] [--width W --height H] [--workers N]
+               [--direct-only] [every render parameter flag of common.params, e.g. --max-depth, --seed]
+    igi master [--bind tcp://127.0.0.1:5555] [SCENE]
+    igi worker --connect tcp://HOST:5555 [--threads T]
+    igi serve SCENE [--workers N] [--bind ...] [--http HOST:PORT]
+    igi bench scaling [...]        (and every other master/bench_<name>.py module)
+
+``igi render`` renders through the master + local worker processes (one per core by default),
+the same path as ``igi serve``; ``--workers 0`` renders in this process (``render_local``), for
+debugging. Output by extension: ``.exr`` linear float, ``.png`` sRGB 8 bit.
+
+Bench registry: every module ``master/bench_<name>.py`` becomes ``igi bench <name>``; it
+defines ``HELP`` (one line), ``add_arguments(parser)`` and ``run(args) -> int``.
+
+Viewer hook: ``igi serve`` (and ``igi master`` with a scene) calls
+``master.viewer.start(broker, host, port, args)`` when that module exists; it returns an object
+with ``stop()``. Without it the master streams frames and logs stats only.
+
+Bad input (missing scene file, a scene that does not load, a bad parameter, an address that
+cannot be bound) gives one line ``igi: error: ...`` on stderr and exit status 2.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import os
+import pkgutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+log = logging.getLogger("igi")
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+class UsageError(Exception):
+    """A bad input: reported as one line and exit status 2."""
+
+
+# ---------------------------------------------------------------------------- helpers
+
+def load_scene_file(path: str):
+    from common.scene import SceneError
+
+    p = Path(path)
+    if not p.exists():
+        raise UsageError(f"scene file not found: {path}")
+    if not p.is_file():
+        raise UsageError(f"scene path is not a file: {path}")
+    from common.loader import load_scene
+
+    try:
+        return load_scene(p)
+    except SceneError as e:
+        raise UsageError(f"cannot load scene {path}: {e}") from None
+    except OSError as e:
+        raise UsageError(f"cannot read scene {path}: {e}") from None
+
+
+def params_from(args: argparse.Namespace):
+    from common.params import params_from_args
+
+    try:
+        params = params_from_args(args)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    if getattr(args, "direct_only", False):
+        if args.max_depth is not None and args.max_depth != 2:
+            raise UsageError("--direct-only means --max-depth 2; do not give both")
+        from dataclasses import replace
+
+        params = replace(params, max_depth=2)
+    return params
+
+
+def check_bind(address: str) -> None:
+    """Warn when the master is reachable from other hosts (an explicit choice)."""
+    host = address.split("://", 1)[-1].rsplit(":", 1)[0]
+    if host not in ("127.0.0.1", "localhost", "[::1]", "::1") and not address.startswith(("ipc://", "inproc://")):
+        log.warning("master bound to %s: reachable from the network, without authentication", address)
+
+
+def worker_command(endpoint: str, threads: int = 1, quiet: bool = True, name: str | None = None) -> list[str]:
+    cmd = [sys.executable, "-m", "worker.node", "--connect", endpoint, "--threads", str(threads),
+           "--exit-with-master", "--parent-pid", str(os.getpid())]
+    if quiet:
+        cmd.append("--quiet")
+    if name:
+        cmd += ["--name", name]
+    return cmd
+
+
+def worker_env() -> dict:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO_ROOT), env.get("PYTHONPATH", "")) if p)
+    env.setdefault("OMP_NUM_THREADS", "1")
+    return env
+
+
+class LocalWorkers:
+    """N worker processes on this machine, connected to ``endpoint``; stopped together."""
+
+    def __init__(self, endpoint: str, count: int, threads: int = 1, quiet: bool = True):
+        self.procs: list[subprocess.Popen] = []
+        for i in range(count):
+            self.procs.append(subprocess.Popen(worker_command(endpoint, threads, quiet, f"local{i}"),
+                                               env=worker_env(), stdin=subprocess.DEVNULL))
+
+    def check(self) -> None:
+        for p in self.procs:
+            if p.poll() is not None:
+                raise UsageError(f"a local worker exited with status {p.returncode} (see its log above)")
+
+    def stop(self, timeout: float = 5.0) -> None:
+        for p in self.procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + timeout
+        for p in self.procs:
+            try:
+                p.wait(max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+
+def wait_workers(broker, workers: LocalWorkers, count: int, timeout: float = 120.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not broker.wait_for_workers(count, 0.2):
+        workers.check()
+        if time.monotonic() > deadline:
+            raise UsageError(f"only {len(broker.workers())} of {count} local workers connected in {timeout:.0f} s")
+
+
+class Progress:
+    """A one-line progress bar on stderr (a line per ~10% when stderr is not a terminal)."""
+
+    def __init__(self, total: int, label: str = "rendering", stream=None):
+        self.total, self.label = total, label
+        self.stream = stream or sys.stderr
+        self.tty = self.stream.isatty()
+        self.t0 = time.monotonic()
+        self._last_pct = -1
+
+    def update(self, done: int) -> None:
+        el = time.monotonic() - self.t0
+        rate = done / el if el > 0 else 0.0
+        eta = (self.total - done) / rate if rate > 0 else 0.0
+        width = 30
+        fill = int(width * done / self.total)
+        line = (f"{self.label} [{'#' * fill}{'-' * (width - fill)}] {done}/{self.total} frames "
+                f"{rate:.2f} fps ETA {eta:.0f} s")
+        if self.tty:
+            self.stream.write("\r" + line + ("\n" if done >= self.total else ""))
+            self.stream.flush()
+        else:
+            pct = done * 10 // self.total
+            if pct != self._last_pct or done >= self.total:
+                self._last_pct = pct
+                self.stream.write(line + "\n")
+                self.stream.flush()
+
+
+def write_image(path: str, image) -> None:
+    from common.image_io import write_exr, write_png
+
+    ext = Path(path).suffix.lower()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    if ext == ".exr":
+        write_exr(path, image)
+    elif ext == ".png":
+        write_png(path, image)
+    else:  # checked before rendering
+        raise UsageError(f"output must end in .exr or .png: {path}")
+
+
+# ---------------------------------------------------------------------------- subcommands
+
+def cmd_render(args: argparse.Namespace) -> int:
+    if Path(args.output).suffix.lower() not in (".exr", ".png"):
+        raise UsageError(f"output must end in .exr or .png: {args.output}")
+    for name in ("width", "height", "frames"):
+        v = getattr(args, name)
+        if v is not None and v < 1:
+            raise UsageError(f"--{name} must be >= 1")
+    if args.workers < 0:
+        raise UsageError("--workers must be >= 0")
+    params = params_from(args)
+    scene = load_scene_file(args.scene)
+    progress = Progress(args.frames) if not args.quiet else None
+
+    def on_frame(i, _img):
+        if progress:
+            progress.update(i + 1)
+
+    if args.workers == 0:
+        from master.local import render_local
+
+        image = render_local(scene, params, frames=args.frames, width=args.width, height=args.height,
+                             on_frame=on_frame)
+    else:
+        from master.broker import Broker
+
+        with Broker(scene, bind="tcp://127.0.0.1:*") as broker:
+            workers = LocalWorkers(broker.endpoint, args.workers)
+            try:
+                wait_workers(broker, workers, args.workers)
+                image = broker.render_sequence(params, frames=args.frames, width=args.width,
+                                               height=args.height, on_frame=on_frame)
+            finally:
+                broker.stop()
+                workers.stop()
+    write_image(args.output, image)
+    if not args.quiet:
+        print(f"wrote {args.output} ({image.shape[1]}x{image.shape[0]}, {args.frames} frame(s))", file=sys.stderr)
+    return 0
+
+
+def _start_viewer(broker, args):
+    http = getattr(args, "http", None)
+    if not http:
+        return None
+    try:
+        viewer = importlib.import_module("master.viewer")
+    except ImportError:
+        log.info("no viewer in this build (master/viewer.py); serving the master only")
+        return None
+    host, _, port = http.rpartition(":")
+    return viewer.start(broker, host or "127.0.0.1", int(port), args)
+
+
+def _serve(args, scene, local_workers: int) -> int:
+    from master.broker import Broker
+
+    check_bind(args.bind)
+    params = params_from(args) if scene is not None else None
+    stop = threading.Event()
+
+    def on_signal(signum, _frame):
+        stop.set()
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    try:
+        broker = Broker(scene, bind=args.bind).start()
+    except OSError as e:
+        raise UsageError(str(e)) from None
+    workers = None
+    viewer = None
+    try:
+        print(f"igi master listening on {broker.endpoint}", file=sys.stderr, flush=True)
+        if local_workers:
+            workers = LocalWorkers(broker.endpoint, local_workers, quiet=not args.verbose)
+        if scene is not None:
+            broker.start_stream(params, width=getattr(args, "width", None), height=getattr(args, "height", None))
+            viewer = _start_viewer(broker, args)
+        last = time.monotonic()
+        while not stop.wait(0.5):
+            if workers is not None:
+                for p in workers.procs:
+                    if p.poll() is not None:
+                        log.warning("local worker pid %d exited with status %s", p.pid, p.returncode)
+                        workers.procs.remove(p)
+            if time.monotonic() - last >= args.stats_interval > 0:
+                last = time.monotonic()
+                s = broker.stats()
+                lat = s["task_latency_ms"]
+                log.info("%d workers, %.2f fps, %d accumulated, %.0f kB/frame, task latency %s ms",
+                         s["workers"], s["fps"], s["accumulated"], s["bytes_per_frame"] / 1e3,
+                         f"{lat['mean']:.0f}" if lat else "-")
+    finally:
+        print("igi: stopping", file=sys.stderr, flush=True)
+        if viewer is not None:
+            try:
+                viewer.stop()
+            except Exception:
+                log.exception("stopping the viewer failed")
+        broker.stop()
+        if workers is not None:
+            workers.stop()
+    return 0
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    if args.workers < 0:
+        raise UsageError("--workers must be >= 0")
+    scene = load_scene_file(args.scene)
+    return _serve(args, scene, args.workers)
+
+
+def cmd_master(args: argparse.Namespace) -> int:
+    scene = load_scene_file(args.scene) if args.scene else None
+    return _serve(args, scene, 0)
+
+
+def cmd_worker(args: argparse.Namespace) -> int:
+    from worker.node import run_from_args
+
+    return run_from_args(args)
+
+
+# ---------------------------------------------------------------------------- parser
+
+def bench_modules() -> dict[str, object]:
+    """``igi bench`` subcommands: every master/bench_<name>.py module."""
+    import master
+
+    out = {}
+    for info in sorted(pkgutil.iter_modules(list(master.__path__)), key=lambda i: i.name):
+        if info.name.startswith("bench_"):
+            try:
+                mod = importlib.import_module(f"master.{info.name}")
+            except Exception as e:  # a broken bench module must not break the CLI
+                log.debug("bench module %s not loaded: %s", info.name, e)
+                continue
+            if hasattr(mod, "add_arguments") and hasattr(mod, "run"):
+                out[info.name[len("bench_"):]] = mod
+    return out
+
+
+def _add_render_params(p: argparse.ArgumentParser) -> None:
+    from common.params import add_arguments
+
+    add_arguments(p)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from master.broker import DEFAULT_BIND
+
+    parser = argparse.ArgumentParser(prog="igi", description="Interactive global illumination, distributed "
+                                     "(Wald et al. 2002)")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    r = sub.add_parser("render", help="render a scene to an EXR (linear) or PNG (sRGB) file")
+    r.add_argument("scene", help="Mitsuba XML or OBJ scene file")
+    r.add_argument("-o", "--output", required=True, help="output image, .exr or .png")
+    r.add_argument("--frames", type=int, default=1, help="frames to accumulate (default 1)")
+    r.add_argument("--width", type=int, default=None, help="image width (default: the scene's)")
+    r.add_argument("--height", type=int, default=None, help="image height (default: the scene's)")
+    r.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                   help="local worker processes (default: one per core; 0 = render in this process)")
+    r.add_argument("--direct-only", action="store_true", help="direct light only (same as --max-depth 2)")
+    r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    _add_render_params(r)
+    r.set_defaults(func=cmd_render)
+
+    m = sub.add_parser("master", help="run a master that remote workers connect to")
+    m.add_argument("scene", nargs="?", help="scene to stream (optional)")
+    m.add_argument("--bind", default=DEFAULT_BIND, help=f"ZeroMQ address to bind (default {DEFAULT_BIND}; "
+                   "anything but loopback exposes the master to the network)")
+    m.add_argument("--http", default=None, help="viewer address HOST:PORT (when the viewer is installed)")
+    m.add_argument("--stats-interval", type=float, default=5.0, help="seconds between stats lines (0: none)")
+    _add_render_params(m)
+    m.set_defaults(func=cmd_master)
+
+    w = sub.add_parser("worker", help="run a worker that connects to a master")
+    from worker.node import add_arguments as worker_args
+
+    worker_args(w)
+    w.set_defaults(func=cmd_worker)
+
+    s = sub.add_parser("serve", help="master + N local workers (+ the viewer) until Ctrl-C")
+    s.add_argument("scene", help="Mitsuba XML or OBJ scene file")
+    s.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                   help="local worker processes (default: one per core)")
+    s.add_argument("--bind", default=DEFAULT_BIND, help=f"ZeroMQ address to bind (default {DEFAULT_BIND})")
+    s.add_argument("--http", default="127.0.0.1:8000", help="viewer address HOST:PORT (default 127.0.0.1:8000)")
+    s.add_argument("--width", type=int, default=None, help="stream width (default: the scene's)")
+    s.add_argument("--height", type=int, default=None, help="stream height (default: the scene's)")
+    s.add_argument("--stats-interval", type=float, default=5.0, help="seconds between stats lines (0: none)")
+    _add_render_params(s)
+    s.set_defaults(func=cmd_serve)
+
+    b = sub.add_parser("bench", help="benchmarks (scaling, ...)")
+    bsub = b.add_subparsers(dest="bench", metavar="BENCH")
+    bsub.required = True
+    for name, mod in bench_modules().items():
+        bp = bsub.add_parser(name, help=getattr(mod, "HELP", ""))
+        mod.add_arguments(bp)
+        bp.set_defaults(func=mod.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.DEBUG if args.verbose else (logging.WARNING if getattr(args, "quiet", False) else logging.INFO)
+    logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    try:
+        return int(args.func(args) or 0)
+    except UsageError as e:
+        print(f"igi: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("igi: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
