@@ -155,8 +155,8 @@ class HashGrid:
         return pidx[order], qidx[order]
 
     def gather(self, x: np.ndarray, normals: np.ndarray | None, photon_power: np.ndarray,
-               photon_normals: np.ndarray | None = None, photon_dirs: np.ndarray | None = None,
-               kernel: str = "constant") -> np.ndarray:
+               photon_dirs: np.ndarray | None = None, kernel: str = "constant",
+               photon_normals: np.ndarray | None = None) -> np.ndarray:
         """Density estimate of photon power (irradiance) at each query point.
 
         x: (Q, 3) positions; normals: (Q, 3) query normals (needed when photon_normals or

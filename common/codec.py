@@ -1,0 +1,187 @@
+"""Wire encoding of a task's TileBuffers (DESIGN.md §4; the paper's §4.3 "quantized and
+compressed").
+
+Layout after a 12-byte header (magic b"IGTB", version, flags, pixel count P):
+an lz4 frame holding, planar and byte-shuffled,
+  reflectance, irradiance, unfiltered  3 x float16 each  (clamped to +-65504, NaN -> 0)
+  depth                                float32            (NaN -> inf = miss)
+  normal                               2 x int16           octahedral, snorm16
+= 26 bytes per pixel before compression. Byte shuffling (all high bytes, then all low
+bytes) puts the slowly varying exponent bytes together, which is what lz4 can exploit.
+"""
+from __future__ import annotations
+
+import struct
+
+import lz4.frame
+import numpy as np
+
+from common.frame import TileBuffers
+
+MAGIC = b"IGTB"
+VERSION = 1
+_HEADER = struct.Struct("<4sBBHI")  # magic, version, flags (0), reserved (0), pixel count
+HEADER_SIZE = _HEADER.size
+BYTES_PER_PIXEL = 3 * 3 * 2 + 4 + 2 * 2
+MAX_PIXELS = 1 << 26  # refuse headers that would make decode allocate absurd amounts
+
+_F16_MAX = float(np.finfo(np.float16).max)  # 65504
+_F16_MIN_NORMAL = np.float32(2.0 ** -14)
+# float16 -> float32 by table: numpy's cast is slow for subnormal inputs, a gather is not.
+_F16_TO_F32 = np.arange(1 << 16, dtype=np.uint32).astype(np.uint16).view(np.float16).astype(np.float32)
+_SNORM = 32767
+_ZERO_NORMAL = -32768  # outside the snorm16 range: marks a zero (undefined) normal
+
+
+# -- octahedral normals -----------------------------------------------------------------
+def _sign_nz(v: np.ndarray) -> np.ndarray:
+    """sign with sign(0) = +1, so the octahedral fold is defined on the axes."""
+    return np.where(v >= 0, np.float32(1.0), np.float32(-1.0))
+
+
+def oct_encode(n: np.ndarray) -> np.ndarray:
+    """(P, 3) normals -> (P, 2) int16 octahedral snorm16. Zero or non-finite normals get the
+    reserved code (-32768, -32768) so they decode to zero rather than a made-up direction."""
+    n = np.asarray(n, dtype=np.float32).reshape(-1, 3)
+    a = np.abs(n)
+    l1 = a[:, 0] + a[:, 1] + a[:, 2]
+    bad = ~(np.isfinite(l1) & (l1 > 0))
+    # float32 suffices: rounding to 1/32767 steps dwarfs its 6e-8 relative error.
+    p = n[:, :2] * (1.0 / np.where(bad, np.float32(1.0), l1))[:, None]
+    p[bad] = 0.0
+    lower = ~bad & (n[:, 2] < 0)
+    # Lower hemisphere: fold the triangles outward across the diamond's edges.
+    folded = (1.0 - np.abs(p[:, ::-1])) * _sign_nz(p)
+    p = np.where(lower[:, None], folded, p)
+    q = np.rint(np.clip(p, -1.0, 1.0) * np.float32(_SNORM)).astype(np.int16)
+    q[bad] = _ZERO_NORMAL
+    return q
+
+
+def oct_decode(q: np.ndarray) -> np.ndarray:
+    """(P, 2) int16 octahedral snorm16 -> (P, 3) float32 unit normals (zero for the reserved code)."""
+    q = np.asarray(q).reshape(-1, 2)
+    zero = (q[:, 0] == _ZERO_NORMAL) & (q[:, 1] == _ZERO_NORMAL)
+    # float32 suffices: its 24-bit mantissa is far finer than the 16-bit quantization.
+    p = np.maximum(q.astype(np.float32) * np.float32(1.0 / _SNORM), np.float32(-1.0))
+    ax = np.abs(p)
+    z = 1.0 - ax[:, 0] - ax[:, 1]
+    lower = z < 0
+    unfolded = (1.0 - ax[:, ::-1]) * np.where(p >= 0, np.float32(1.0), np.float32(-1.0))
+    v = np.empty((len(q), 3), np.float32)
+    v[:, :2] = np.where(lower[:, None], unfolded, p)
+    v[:, 2] = z
+    v *= (1.0 / np.sqrt(np.einsum("ij,ij->i", v, v)))[:, None]
+    v[zero] = 0.0
+    return v
+
+
+# -- scalars ----------------------------------------------------------------------------
+def to_f16(a: np.ndarray) -> np.ndarray:
+    """float16 with NaN -> 0 and overflow clamped to +-65504 (never inf on the wire)."""
+    a = np.clip(np.nan_to_num(np.asarray(a, dtype=np.float32), nan=0.0), -_F16_MAX, _F16_MAX)
+    # numpy's float32 -> float16 cast takes a ~40x slower path for results in the float16
+    # subnormal range (|x| < 2^-14; dark pixels hit it often): cast those as 0 and write
+    # their bits directly (round-to-nearest-even of |x| * 2^24 is the subnormal mantissa).
+    small = np.abs(a) < _F16_MIN_NORMAL
+    h = np.where(small, np.float32(0.0), a).astype(np.float16)
+    if small.any():
+        v = a[small]
+        bits = np.rint(np.abs(v) * np.float32(2.0 ** 24)).astype(np.uint16)
+        bits |= np.where(np.signbit(v), np.uint16(0x8000), np.uint16(0))
+        h.view(np.uint16)[small] = bits
+    return h
+
+
+def _shuffle(a: np.ndarray) -> bytes:
+    """Bytes of a grouped by byte position (all byte 0s, then all byte 1s, ...)."""
+    b = np.ascontiguousarray(a).view(np.uint8).reshape(-1, a.dtype.itemsize)
+    return b.T.tobytes()
+
+
+def _unshuffle(raw: memoryview, dtype: np.dtype, count: int) -> np.ndarray:
+    size = np.dtype(dtype).itemsize
+    planes = np.frombuffer(raw, dtype=np.uint8, count=count * size).reshape(size, count)
+    out = np.empty((count, size), np.uint8)
+    for i in range(size):  # one strided copy per byte plane: ~5x faster than a transpose copy
+        out[:, i] = planes[i]
+    return out.view(dtype).reshape(count)
+
+
+def _sections(p: int) -> list[tuple[str, np.dtype, int]]:
+    return [("reflectance", np.dtype("<f2"), 3 * p), ("irradiance", np.dtype("<f2"), 3 * p),
+            ("unfiltered", np.dtype("<f2"), 3 * p), ("depth", np.dtype("<f4"), p),
+            ("normal", np.dtype("<i2"), 2 * p)]
+
+
+def encode(buffers: TileBuffers, compression_level: int = 0) -> bytes:
+    """TileBuffers -> bytes (header + lz4 frame). compression_level 0 is lz4's fast mode."""
+    p = len(buffers)
+    if p > MAX_PIXELS:
+        raise ValueError(f"{p} pixels exceed the codec limit of {MAX_PIXELS}")
+    for name, shape in (("reflectance", (p, 3)), ("irradiance", (p, 3)), ("unfiltered", (p, 3)),
+                        ("depth", (p,)), ("normal", (p, 3))):
+        if np.shape(getattr(buffers, name)) != shape:
+            raise ValueError(f"buffer {name} has shape {np.shape(getattr(buffers, name))}, expected {shape}")
+    depth = np.asarray(buffers.depth, dtype=np.float32)
+    depth = np.where(np.isnan(depth), np.float32(np.inf), depth)
+    parts = [to_f16(buffers.reflectance), to_f16(buffers.irradiance), to_f16(buffers.unfiltered),
+             depth.astype("<f4"), oct_encode(buffers.normal).astype("<i2")]
+    raw = b"".join(_shuffle(a.reshape(-1)) for a in parts)
+    body = lz4.frame.compress(raw, compression_level=compression_level, content_checksum=True,
+                              store_size=True)
+    return _HEADER.pack(MAGIC, VERSION, 0, 0, p) + body
+
+
+def decode(data: bytes, count: int | None = None) -> TileBuffers:
+    """bytes -> TileBuffers (float32 arrays). ``count``, when given, must match the header.
+
+    Raises ValueError for anything that is not a complete, well-formed message: wrong magic
+    or version, a pixel count other than expected, truncated or corrupt lz4 data, or a
+    payload that decompresses to more (or less) than the header announces.
+    """
+    mv = memoryview(data)
+    if len(mv) < HEADER_SIZE:
+        raise ValueError(f"tile data too short for a header ({len(mv)} < {HEADER_SIZE} bytes)")
+    magic, version, flags, reserved, p = _HEADER.unpack_from(mv)
+    if magic != MAGIC:
+        raise ValueError(f"not tile data: magic {bytes(magic)!r}, expected {MAGIC!r}")
+    if version != VERSION:
+        raise ValueError(f"tile data version {version}, this build reads version {VERSION}")
+    if flags or reserved:
+        raise ValueError(f"tile data header has unknown flags {flags:#x}/{reserved:#x}")
+    if count is not None and p != count:
+        raise ValueError(f"tile data holds {p} pixels, expected {count}")
+    if p > MAX_PIXELS:
+        raise ValueError(f"tile data announces {p} pixels, above the limit of {MAX_PIXELS}")
+    expected = p * BYTES_PER_PIXEL
+    dec = lz4.frame.LZ4FrameDecompressor()
+    try:
+        # max_length bounds the output: a payload inflating beyond the header's size is
+        # refused without decompressing the rest (no decompression bombs).
+        raw = dec.decompress(bytes(mv[HEADER_SIZE:]), max_length=expected + 1)
+    except RuntimeError as e:  # lz4 reports corrupt frames as RuntimeError
+        raise ValueError(f"tile data is corrupt: {e}") from None
+    if len(raw) > expected:
+        raise ValueError(f"tile data decompresses to more than the {expected} bytes its header announces")
+    if len(raw) < expected:
+        raise ValueError(f"tile data is truncated: {len(raw)} of {expected} bytes decompressed")
+    if not dec.eof:
+        raise ValueError("tile data is truncated: the lz4 frame's end mark or checksum is missing")
+    if dec.unused_data:
+        raise ValueError(f"tile data has {len(dec.unused_data)} trailing bytes")
+    out = {}
+    pos = 0
+    raw_mv = memoryview(raw)
+    for name, dtype, n in _sections(p):
+        size = n * dtype.itemsize
+        out[name] = _unshuffle(raw_mv[pos:pos + size], dtype, n)
+        pos += size
+    f32 = lambda h: _F16_TO_F32.take(h.view(np.uint16)).reshape(p, 3)
+    return TileBuffers(
+        reflectance=f32(out["reflectance"]),
+        irradiance=f32(out["irradiance"]),
+        unfiltered=f32(out["unfiltered"]),
+        depth=out["depth"].astype(np.float32),
+        normal=oct_decode(out["normal"].reshape(p, 2)),
+    )
