@@ -15,6 +15,7 @@ from common.frame import FrameSpec, Tile, TileBuffers
 from common.geometry import Geometry
 from common.lights import LightSampler
 from common.params import Params, make_params
+from common.render_plan import RenderPlan, analyze
 from common.scene import Scene
 from common.sobol_stream import rng as make_rng
 
@@ -33,11 +34,14 @@ def clamp_distance2(params: Params, diagonal: float) -> float:
 class Renderer:
     """Owns the scene's geometry and light sampler, and caches per-set preprocessing."""
 
-    def __init__(self, scene: Scene, scene_version: int = 0, max_cached_sets: int = 128):
+    def __init__(self, scene: Scene, scene_version: int = 0, max_cached_sets: int = 128,
+                 use_plan: bool = True):
         self.scene = scene
         self.scene_version = scene_version
         self.geom = Geometry(scene)
         self.lights = LightSampler(scene, self.geom)
+        # The plan decides which passes run; use_plan=False forces every pass on (benchmarks).
+        self.plan = analyze(scene, self.geom, self.lights) if use_plan else None
         self._sets: OrderedDict[tuple, VPLSet] = OrderedDict()
         self._max_sets = max_cached_sets
         self._lock = threading.Lock()
@@ -53,7 +57,10 @@ class Renderer:
                 self._sets.move_to_end(key)
                 self.stats["set_hits"] += 1
                 return hit
-        s = build_vpl_set(self.scene, self.geom, self.lights, seed, k, params.direct_vpls,
+        direct = params.direct_vpls
+        if self.plan is not None and self.plan.point_light:
+            direct = min(direct, 1)  # a point-like emitter: more samples on it add nothing
+        s = build_vpl_set(self.scene, self.geom, self.lights, seed, k, direct,
                           params.indirect_vpls, params.light_path_length)
         with self._lock:
             self._sets[key] = s
@@ -64,6 +71,8 @@ class Renderer:
 
     def photon_set(self, seed: int, k: int, params: Params) -> PhotonSet:
         radius = default_radius(self.geom.diagonal, params.photon_radius)
+        if self.plan is not None and not self.plan.caustics:
+            return PhotonSet(*(np.zeros((0, 3)),) * 4, np.zeros(0, np.int32), radius, None)
         key = ("photons", self.scene_version, seed, k, params.photons, radius, params.specular_depth)
         with self._lock:
             hit = self._sets.get(key)
@@ -96,7 +105,7 @@ class Renderer:
                         params.specular_depth, rng)
         vpls = self.vpl_set(spec.seed, tile.k, params)
         albedo, irr = gather_vpls(self.geom, eye.end, vpls, clamp_distance2(params, self.geom.diagonal),
-                                  params.max_depth)
+                                  params.max_depth, force_general=self.plan is None)
         end = eye.end
         photons = self.photon_set(spec.seed, tile.k, params)
         if len(photons):

@@ -176,7 +176,7 @@ def _concat_ends(ends: list[EndPoints]) -> EndPoints:
 
 
 def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
-                max_depth: int) -> tuple[np.ndarray, np.ndarray]:
+                max_depth: int, force_general: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Light from the VPL set at each end point, split as (albedo, irradiance).
 
     Radiance toward the eye = albedo · irradiance. For Lambertian end points the albedo is the
@@ -190,7 +190,7 @@ def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
     m = len(vpls)
     if e == 0 or m == 0:
         return albedo, irr
-    cols = _VPLColumns(vpls, geom)
+    cols = _VPLColumns(vpls, geom, force_general)
     chunk = max(1, PAIR_CHUNK // m)
     for s in range(0, e, chunk):
         sl = slice(s, min(e, s + chunk))
@@ -201,7 +201,7 @@ def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
 class _VPLColumns:
     """Per-VPL constants of the gather, computed once per set and call."""
 
-    def __init__(self, vpls: VPLSet, geom: Geometry):
+    def __init__(self, vpls: VPLSet, geom: Geometry, force_general: bool = False):
         kind = vpls.kind
         self.directional = kind == VPL_DIRECTIONAL
         self.area = kind == VPL_AREA
@@ -217,7 +217,8 @@ class _VPLColumns:
         self.side = np.ones(len(kind), np.float32)
         if len(self.surf_rows):
             sp = vpls.surface
-            lam = sp.kind == DIFFUSE
+            # force_general: every surface VPL through the full BSDF (the plan-off baseline).
+            lam = (sp.kind == DIFFUSE) & (not force_general)
             rows = self.surf_rows
             self.side[rows] = np.where(vpls.wi_local[rows, 2] >= 0, 1.0, -1.0)
             color[rows[lam]] *= sp.diffuse[lam] / np.pi
