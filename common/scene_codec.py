@@ -78,7 +78,13 @@ def _enc(value: Any, depth: int = 0) -> Any:
             raise SceneError(f"scene encoding: array dtype {a.dtype} not supported")
         return {"__nd__": dt, "shape": list(a.shape), "data": a.tobytes()}
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return {f.name: _enc(getattr(value, f.name), depth + 1) for f in dataclasses.fields(value)}
+        out = {}
+        for f in dataclasses.fields(value):
+            v = getattr(value, f.name)
+            if str(f.type) == "float" and isinstance(v, (int, np.integer)) and not isinstance(v, bool):
+                v = float(v)  # one encoding per value: 45 and 45.0 hash alike
+            out[f.name] = _enc(v, depth + 1)
+        return out
     if isinstance(value, tuple):
         return {"__tuple__": [_enc(v, depth + 1) for v in value]}
     if isinstance(value, list):
@@ -344,7 +350,7 @@ def _finite(value: Any, n: int | tuple, what: str) -> np.ndarray:
         raise ValueError(f"edit: {what} needs {' or '.join(map(str, sizes))} number(s)")
     if not np.all(np.isfinite(a)):
         raise ValueError(f"edit: {what} must be finite")
-    return a
+    return a.reshape(-1)
 
 
 def validate_edit(scene: Scene, edit: Any) -> None:
