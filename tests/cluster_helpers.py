@@ -58,11 +58,12 @@ def env() -> dict:
     return e
 
 
-def start_worker(endpoint: str, name: str, heartbeat: float = 1.0, threads: int = 1) -> subprocess.Popen:
+def start_worker(endpoint: str, name: str, heartbeat: float = 1.0, threads: int = 1,
+                 exit_with_master: bool = True) -> subprocess.Popen:
     """A real worker process (python -m worker.node) on loopback."""
     return subprocess.Popen([sys.executable, "-m", "worker.node", "--connect", endpoint, "--threads", str(threads),
-                             "--name", name, "--heartbeat", str(heartbeat), "--exit-with-master",
-                             "--parent-pid", str(os.getpid()), "--quiet"],
+                             "--name", name, "--heartbeat", str(heartbeat), "--parent-pid", str(os.getpid()),
+                             "--quiet"] + (["--exit-with-master"] if exit_with_master else []),
                             env=env(), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
 
