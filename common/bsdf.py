@@ -95,14 +95,20 @@ class SurfacePoints:
         return np.where(np.isfinite(w), w, 0.5).astype(np.float32)
 
 
-def gather(materials: list[Material], mat_ids: np.ndarray, uv: np.ndarray | None) -> SurfacePoints:
-    """Build :class:`SurfacePoints` for points with material indices ``mat_ids`` (negative: NULL)
-    looking textures up at ``uv`` (N, 2) (None: uv = 0). Scalars come from per-material tables;
-    only bitmap textures are evaluated, once per material over that material's points."""
-    mat_ids = np.asarray(mat_ids, dtype=np.int64).ravel()
-    n = len(mat_ids)
+_TABLES: dict = {}
+
+
+def _material_tables(materials: list[Material]) -> dict:
+    """Per-material parameter tables, built once per materials list.
+
+    Materials are treated as immutable (scene edits replace the Material object), so the key
+    is the objects' identities; the cache holds the objects, so identities are not reused.
+    """
+    key = tuple(id(mat) for mat in materials)
+    hit = _TABLES.get(key)
+    if hit is not None:
+        return hit[1]
     m = len(materials)
-    ids = np.where((mat_ids < 0) | (mat_ids >= m), m, mat_ids)  # m = the appended NULL row
 
     def table(fn, width=None, dtype=np.float32, null=0):
         rows = [fn(mat) for mat in materials]
@@ -116,24 +122,54 @@ def gather(materials: list[Material], mat_ids: np.ndarray, uv: np.ndarray | None
     def const_rgb(tex):
         return tex.rgb if tex.is_constant else tex.mean()
 
-    kind = table(lambda t: t.kind, dtype=np.int8, null=NULL)[ids]
-    diffuse = table(lambda t: const_rgb(t.diffuse), 3)[ids]
-    specular = table(lambda t: const_rgb(t.specular), 3)[ids]
-    transm = table(lambda t: const_rgb(t.specular_transmittance), 3)[ids]
-    alpha = table(lambda t: max(float(t.alpha), 1e-4), null=0.1)[ids]
-    eta = table(lambda t: float(t.int_ior) / float(t.ext_ior), null=1.5)[ids]
-    cond_eta = table(lambda t: np.broadcast_to(np.asarray(t.eta, np.float64), (3,)), 3)[ids]
-    cond_k = table(lambda t: np.broadcast_to(np.asarray(t.k, np.float64), (3,)), 3)[ids]
-    beck = table(lambda t: str(t.distribution).lower() == "beckmann", dtype=bool, null=True)[ids]
-    nonlin = table(lambda t: bool(t.nonlinear), dtype=bool, null=False)[ids]
-    twos = table(lambda t: bool(t.twosided), dtype=bool, null=False)[ids]
-
     def sw(mat):
         d = float(np.mean(mat.diffuse.mean()))
         s = float(np.mean(mat.specular.mean()))
         return s / (d + s) if d + s > 0 else 0.5
 
-    spec_weight = table(sw, null=0.5)[ids]
+    tables = {
+        "kind": table(lambda t: t.kind, dtype=np.int8, null=NULL),
+        "diffuse": table(lambda t: const_rgb(t.diffuse), 3),
+        "specular": table(lambda t: const_rgb(t.specular), 3),
+        "transm": table(lambda t: const_rgb(t.specular_transmittance), 3),
+        "alpha": table(lambda t: max(float(t.alpha), 1e-4), null=0.1),
+        "eta": table(lambda t: float(t.int_ior) / float(t.ext_ior), null=1.5),
+        "cond_eta": table(lambda t: np.broadcast_to(np.asarray(t.eta, np.float64), (3,)), 3),
+        "cond_k": table(lambda t: np.broadcast_to(np.asarray(t.k, np.float64), (3,)), 3),
+        "beck": table(lambda t: str(t.distribution).lower() == "beckmann", dtype=bool, null=True),
+        "nonlin": table(lambda t: bool(t.nonlinear), dtype=bool, null=False),
+        "twos": table(lambda t: bool(t.twosided), dtype=bool, null=False),
+        "spec_weight": table(sw, null=0.5),
+    }
+    if len(_TABLES) > 16:
+        _TABLES.clear()
+    _TABLES[key] = (tuple(materials), tables)
+    return tables
+
+
+
+def gather(materials: list[Material], mat_ids: np.ndarray, uv: np.ndarray | None) -> SurfacePoints:
+    """Build :class:`SurfacePoints` for points with material indices ``mat_ids`` (negative: NULL)
+    looking textures up at ``uv`` (N, 2) (None: uv = 0). Scalars come from per-material tables;
+    only bitmap textures are evaluated, once per material over that material's points."""
+    mat_ids = np.asarray(mat_ids, dtype=np.int64).ravel()
+    n = len(mat_ids)
+    m = len(materials)
+    ids = np.where((mat_ids < 0) | (mat_ids >= m), m, mat_ids)  # m = the appended NULL row
+
+    t = _material_tables(materials)
+    kind = t["kind"][ids]
+    diffuse = t["diffuse"][ids]
+    specular = t["specular"][ids]
+    transm = t["transm"][ids]
+    alpha = t["alpha"][ids]
+    eta = t["eta"][ids]
+    cond_eta = t["cond_eta"][ids]
+    cond_k = t["cond_k"][ids]
+    beck = t["beck"][ids]
+    nonlin = t["nonlin"][ids]
+    twos = t["twos"][ids]
+    spec_weight = t["spec_weight"][ids]
 
     textured = [i for i, mat in enumerate(materials) if mat.has_texture or not mat.specular_transmittance.is_constant]
     if textured and n:

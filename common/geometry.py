@@ -82,6 +82,10 @@ class Geometry:
         self._e1 = e1
         self._e2 = e2
 
+        # Ray counters (primary = closest-hit queries, shadow = occlusion queries) and, when
+        # ``record`` is set, the batches themselves so benchmarks can replay them on raw Embree.
+        self.counters = {"intersect_rays": 0, "occluded_rays": 0}
+        self.record: list | None = None
         self._embree = rtcs.EmbreeScene()
         local = (tri - self.center).astype(np.float32)
         self._mesh = TriangleMesh(self._embree, local)
@@ -94,6 +98,9 @@ class Geometry:
         d = directions.astype(np.float32)
         if n == 0:
             return self._empty()
+        self.counters["intersect_rays"] += n
+        if self.record is not None:
+            self.record.append(("intersect", o, d, None))
         r = self._embree.run(o, d, output=1)
         prim = r["primID"].astype(np.int64)
         valid = (r["geomID"] != -1) & (prim >= 0)
@@ -108,6 +115,9 @@ class Geometry:
         o = (origins - self.center).astype(np.float32)
         d = directions.astype(np.float32)
         dist = np.ascontiguousarray(np.minimum(tmax, 3.0e38), dtype=np.float32)
+        self.counters["occluded_rays"] += len(o)
+        if self.record is not None:
+            self.record.append(("occluded", o, d, dist))
         r = self._embree.run(o, d, query="OCCLUDED", dists=dist)
         return r != -1
 
@@ -137,6 +147,18 @@ class Geometry:
         if scale is None:
             scale = self.offset_scale(p)
         return p + ng * (side * scale)[:, None]
+
+    def replay(self, batches: list) -> float:
+        """Trace recorded batches on raw Embree; returns the seconds it took."""
+        import time
+
+        t0 = time.perf_counter()
+        for kind, o, d, dist in batches:
+            if kind == "intersect":
+                self._embree.run(o, d, output=1)
+            else:
+                self._embree.run(o, d, query="OCCLUDED", dists=dist)
+        return time.perf_counter() - t0
 
     # -- surface interaction -----------------------------------------------------------------
     def _empty(self) -> Hits:

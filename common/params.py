@@ -33,7 +33,7 @@ PARAMS: tuple[Param, ...] = (
     Param("indirect_vpls", int, 18, "VPLs at the vertices of light walks per set (indirect light)", "vpl", 0, 1024),
     Param("light_path_length", int, 4, "maximum light-walk length for VPLs (paper: 4)", "vpl", 1, 64),
     Param("clamp", float, -1.0,
-          "minimum squared VPL distance as a fraction of the squared scene diagonal (-1: scene default 1e-4)",
+          "minimum squared VPL distance as a fraction of the squared scene diagonal (-1: scene default 1e-3)",
           "vpl", -1.0, 1.0),
     Param("light_samples", int, 0,
           "emitters sampled per set in many-light scenes (0: all emitters share the direct VPLs by power)",

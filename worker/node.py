@@ -285,7 +285,7 @@ class WorkerNode:
             self.exit_code = 2
             return "refused"
         elif kind == P.BYE:
-            log.warning("master said BYE (%s)", body.get("reason", ""))
+            (log.info if self.exit_with_master else log.warning)("master said BYE (%s)", body.get("reason", ""))
             return "bye"
         else:
             log.warning("dropped %s: not a message the master sends", kind)

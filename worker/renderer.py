@@ -23,7 +23,7 @@ from .caustics import PhotonSet, build_photon_set, default_radius, gather_photon
 from .shading import gather_vpls, trace_eye
 from .vpl import VPLSet, build_vpl_set
 
-DEFAULT_CLAMP = 1e-4  # minimum squared VPL distance, as a fraction of the squared scene diagonal
+DEFAULT_CLAMP = 1e-3  # minimum squared VPL distance, as a fraction of the squared scene diagonal
 
 
 def clamp_distance2(params: Params, diagonal: float) -> float:
@@ -50,7 +50,7 @@ class Renderer:
     # -- per-set preprocessing --------------------------------------------------------------
     def vpl_set(self, seed: int, k: int, params: Params) -> VPLSet:
         key = (self.scene_version, seed, k, params.direct_vpls, params.indirect_vpls,
-               params.light_path_length)
+               params.light_path_length, params.max_depth)
         with self._lock:
             hit = self._sets.get(key)
             if hit is not None:
@@ -60,8 +60,14 @@ class Renderer:
         direct = params.direct_vpls
         if self.plan is not None and self.plan.point_light:
             direct = min(direct, 1)  # a point-like emitter: more samples on it add nothing
-        s = build_vpl_set(self.scene, self.geom, self.lights, seed, k, direct,
-                          params.indirect_vpls, params.light_path_length)
+        length = params.light_path_length
+        if params.max_depth >= 0:
+            # A VPL at light depth d lights paths of >= 2 + d segments: walks past
+            # max_depth - 2 bounces could never contribute.
+            length = min(length, params.max_depth - 2)
+        indirect = params.indirect_vpls if length > 0 else 0
+        s = build_vpl_set(self.scene, self.geom, self.lights, seed, k, direct if params.max_depth != 1 else 0,
+                          indirect, max(length, 1))
         with self._lock:
             self._sets[key] = s
             self.stats["sets_built"] += 1
@@ -71,7 +77,8 @@ class Renderer:
 
     def photon_set(self, seed: int, k: int, params: Params) -> PhotonSet:
         radius = default_radius(self.geom.diagonal, params.photon_radius)
-        if self.plan is not None and not self.plan.caustics:
+        # Caustic paths have >= 4 segments (light, specular, diffuse, eye).
+        if (self.plan is not None and not self.plan.caustics) or 0 <= params.max_depth < 4:
             return PhotonSet(*(np.zeros((0, 3)),) * 4, np.zeros(0, np.int32), radius, None)
         key = ("photons", self.scene_version, seed, k, params.photons, radius, params.specular_depth)
         with self._lock:
@@ -90,7 +97,7 @@ class Renderer:
     def cached_sets(self) -> set[tuple[int, int]]:
         with self._lock:
             return {(key[1], key[2]) for key in self._sets
-                    if key[0] == self.scene_version and len(key) == 6}
+                    if key[0] == self.scene_version and key[0] != "photons"}
 
     # -- a task ------------------------------------------------------------------------------
     def render_tile(self, spec: FrameSpec, tile: Tile) -> TileBuffers:

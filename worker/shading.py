@@ -53,8 +53,9 @@ class EyeResult:
     normal: np.ndarray  # (P, 3)
 
 
-def _allowed(segments: np.ndarray | int, max_depth: int) -> np.ndarray | bool:
-    return True if max_depth < 0 else np.asarray(segments) <= max_depth
+def _allowed(segments: int, max_depth: int) -> bool:
+    """May a path of ``segments`` segments contribute under Mitsuba's max_depth?"""
+    return max_depth < 0 or int(segments) <= max_depth
 
 
 def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.ndarray,
@@ -86,7 +87,7 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
                       np.ones((len(nd), 3)), np.ones(len(nd), np.int32), np.ones(len(nd), bool),
                       hits.t[v][nd])]
     di = np.nonzero(delta)[0]
-    if len(di) and specular_depth > 0 and _allowed(2, max_depth) is not False:
+    if len(di) and specular_depth > 0 and _allowed(2, max_depth):
         sp_d = sp.subset(di)
         comps = bsdf.specular_components(sp_d, wi[di], mode="radiance")
         lum = np.stack([np.where(c[2], luminance(c[1]), -1.0) for c in comps], axis=1)
@@ -126,14 +127,14 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, unf
         o = geom.offset(pos, ng, dirs)
         hits = geom.intersect(o, dirs)
         v = hits.valid
-        if _allowed(seg, max_depth) is not False:
+        if _allowed(seg, max_depth):
             np.add.at(unf, pix[~v], thr[~v] * env)
         pix, thr, main, dirs = pix[v], thr[v], main[v], dirs[v]
         dist = dist[v] + hits.t[v]
         hpos, hns, hng = hits.position[v], hits.ns[v], hits.ng[v]
         if len(pix) == 0:
             break
-        if _allowed(seg, max_depth) is not False:
+        if _allowed(seg, max_depth):
             cos_front = -np.einsum("ij,ij->i", dirs, hns)
             np.add.at(unf, pix, thr * lights.emitted_radiance(hits.emitter[v], cos_front))
         sp = bsdf.gather(scene.materials, hits.material[v], hits.uv[v])
@@ -144,7 +145,7 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, unf
             out.append(EndPoints(pix[nd], hpos[nd], hns[nd], hng[nd], wi[nd], sp.subset(nd), thr[nd],
                                  np.full(len(nd), seg, np.int32), main[nd], dist[nd]))
         di = np.nonzero(delta)[0]
-        if len(di) == 0 or not (_allowed(seg + 1, max_depth) is not False):
+        if len(di) == 0 or not _allowed(seg + 1, max_depth):
             break
         n = len(di)
         wo, weight, _pdf, _dl = bsdf.sample(sp.subset(di), wi[di], rng.random(n), rng.random((n, 2)),
