@@ -77,3 +77,62 @@ def test_broken_scene_file_is_exit_2(tmp_path):
 def test_bench_group_lists_scaling():
     r = igi("bench", "--help")
     assert r.returncode == 0 and "scaling" in r.stdout
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
+
+
+def test_serve_starts_workers_and_stops_them_all_on_sigterm(tmp_path):
+    import signal
+    import socket
+    import time
+
+    with socket.socket() as s:  # a free loopback port for the master
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    exe = shutil.which("igi")
+    cmd = ([exe] if exe else [sys.executable, "-m", "master.cli"]) + [
+        "serve", str(CORNELL), "--workers", "2", "--bind", f"tcp://127.0.0.1:{port}", "--http", "",
+        "--width", "32", "--height", "24", "--stats-interval", "0.5"]
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
+    p = subprocess.Popen(cmd, cwd=tmp_path, env=env, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True)
+    lines = []
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:  # wait for a stats line showing frames from 2 workers
+            line = p.stderr.readline()
+            if not line:
+                break
+            lines.append(line)
+            if "2 workers" in line and " 0 accumulated" not in line and "accumulated" in line:
+                break
+        kids = _children(p.pid)
+        assert len(kids) == 2, "".join(lines)
+        p.send_signal(signal.SIGTERM)
+        assert p.wait(30) == 0
+        lines.append(p.stderr.read())
+        deadline = time.monotonic() + 10  # serve waits for its workers; this is only a safety margin
+        while time.monotonic() < deadline and any(_alive(k) for k in kids):
+            time.sleep(0.1)
+        assert not any(_alive(k) for k in kids), "the workers stopped with the master"
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
