@@ -1,0 +1,34 @@
+"""Scene loading entry point: dispatch on the file extension."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from .scene import Scene, SceneError
+
+LOADERS = {".xml": "Mitsuba 3 scene XML", ".obj": "Wavefront OBJ (+ MTL) as a whole scene"}
+
+
+def load_scene(path: str | Path, defaults: dict[str, str] | None = None) -> Scene:
+    """Load a scene: ``.xml`` -> :func:`common.mitsuba_xml.load_mitsuba` (``defaults`` override its
+    ``<default>`` parameters), ``.obj`` -> :func:`common.obj_mtl.load_obj_scene`.
+
+    Raises :class:`SceneError` for a missing file or an unknown extension.
+    """
+    path = Path(path)
+    ext = path.suffix.lower()
+    if ext not in LOADERS:
+        known = ", ".join(f"{k} ({v})" for k, v in LOADERS.items())
+        raise SceneError(f"{path}: unknown scene format '{ext or '(no extension)'}'; supported: {known}")
+    if not path.exists():
+        raise SceneError(f"{path}: file not found")
+    if not path.is_file():
+        raise SceneError(f"{path}: not a file")
+    if ext == ".xml":
+        from .mitsuba_xml import load_mitsuba
+
+        return load_mitsuba(path, defaults)
+    if defaults:
+        raise SceneError(f"{path}: parameter defaults only apply to Mitsuba XML scenes")
+    from .obj_mtl import load_obj_scene
+
+    return load_obj_scene(path)
