@@ -208,4 +208,16 @@ class Geometry:
         f = self.faces[tri_idx]
         vt = self.vertex_uvs
         uv = (1 - b1 - b2)[:, None] * vt[f[:, 0]] + b1[:, None] * vt[f[:, 1]] + b2[:, None] * vt[f[:, 2]]
-        return pos, self.face_normal[tri_idx], uv
+        # Emission follows the shading normal, as in Mitsuba (a mirroring to_world flips the
+        # winding but not the vertex normals).
+        n = self.face_normal[tri_idx].copy()
+        sm = self.smooth[tri_idx]
+        if sm.any():
+            vn = self.vertex_normals
+            fs = f[sm]
+            w0, w1, w2 = (1 - b1 - b2)[sm, None], b1[sm, None], b2[sm, None]
+            ns = w0 * vn[fs[:, 0]] + w1 * vn[fs[:, 1]] + w2 * vn[fs[:, 2]]
+            ln = np.linalg.norm(ns, axis=1)
+            good = ln > 1e-12
+            n[np.nonzero(sm)[0][good]] = ns[good] / ln[good, None]
+        return pos, n, uv

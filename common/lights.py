@@ -79,6 +79,7 @@ class PointSamples:
     normal: np.ndarray  # (N, 3) area: surface normal; spot/directional: light direction
     power: np.ndarray  # (N, 3) P (area), I (point/spot), E (directional)
     emitter: np.ndarray  # (N,) int32
+    pdf: np.ndarray  # (N,) area pdf (area lights), solid-angle pdf (environment), 0 for delta lights
 
 
 @dataclass
@@ -163,6 +164,7 @@ class LightSampler:
         pos = np.zeros((n, 3))
         nrm = np.zeros((n, 3))
         power = np.zeros((n, 3))
+        pdf = np.zeros(n)
         pmf = np.maximum(self.pmf[em], 1e-300)
         for i in np.unique(em):
             e = self.scene.emitters[i]
@@ -172,6 +174,7 @@ class LightSampler:
                 pos[sel], nrm[sel] = p, nn
                 kind[sel] = VPL_AREA
                 power[sel] = e.radiance * self.area_total[i]
+                pdf[sel] = self.pmf[i] / max(self.area_total[i], 1e-300)
             elif e.kind in (POINT, SPOT):
                 pos[sel] = e.position
                 nrm[sel] = e.direction / np.linalg.norm(e.direction)
@@ -187,8 +190,25 @@ class LightSampler:
                 nrm[sel] = -d  # light travels along -d... i.e. comes from direction d
                 kind[sel] = VPL_DIRECTIONAL
                 power[sel] = e.radiance * 4 * np.pi
+                pdf[sel] = self.pmf[i] / (4 * np.pi)
         power /= pmf[:, None]
-        return PointSamples(kind, pos, nrm, power, em.astype(np.int32))
+        return PointSamples(kind, pos, nrm, power, em.astype(np.int32), pdf)
+
+    def area_pdf(self, emitter: np.ndarray) -> np.ndarray:
+        """Area pdf with which sample_points picks a point on area emitter ``emitter``."""
+        out = np.zeros(len(emitter))
+        ok = emitter >= 0
+        e = emitter[ok]
+        out[ok] = self.pmf[e] / np.maximum(self.area_total[e], 1e-300)
+        return out
+
+    def environment_pdf(self) -> float:
+        """Solid-angle pdf of one environment direction drawn by sample_points."""
+        tot = 0.0
+        for i, e in enumerate(self.scene.emitters):
+            if e.kind == CONSTANT:
+                tot += self.pmf[i] / (4 * np.pi)
+        return tot
 
     def emit_rays(self, u: np.ndarray) -> EmittedRays:
         """Light rays for walks and photons from u (N, 5); flux is per ray, not divided by N."""

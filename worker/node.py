@@ -386,9 +386,11 @@ class WorkerNode:
             cached = getattr(renderer, "cached_sets", None)
             if cached is not None:
                 sets = [[int(s), int(k)] for s, k in sorted(cached())][:4096]
+            counters = getattr(getattr(renderer, "geom", None), "counters", None) or {}
+            rays = int(sum(v for v in counters.values() if isinstance(v, int)))
             frame = P.encode(P.RESULT, {
                 "frame": body["frame"], "task": body["task"], "epoch": body["epoch"],
-                "count": len(bufs), "data": data, "sets": sets,
+                "count": len(bufs), "data": data, "sets": sets, "rays": min(rays, P.INT53),
                 "timings": {"wait_scene": t1 - t0, "render": t2 - t1, "encode": t3 - t2}}, check=False)
             self._outbox.put((session, frame))
             self.tasks_done += 1

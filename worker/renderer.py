@@ -20,7 +20,7 @@ from common.scene import Scene
 from common.sobol_stream import rng as make_rng
 
 from .caustics import PhotonSet, build_photon_set, default_radius, gather_photons
-from .shading import gather_vpls, trace_eye
+from .shading import bsdf_direct, gather_vpls, trace_eye
 from .vpl import VPLSet, build_vpl_set
 
 DEFAULT_CLAMP = 1e-3  # minimum squared VPL distance, as a fraction of the squared scene diagonal
@@ -114,6 +114,8 @@ class Renderer:
         albedo, irr = gather_vpls(self.geom, eye.end, vpls, clamp_distance2(params, self.geom.diagonal),
                                   params.max_depth, force_general=self.plan is None)
         end = eye.end
+        irr = irr + bsdf_direct(self.scene, self.geom, self.lights, end, albedo, vpls.direct_count,
+                                params.max_depth, rng)
         photons = self.photon_set(spec.seed, tile.k, params)
         if len(photons):
             irr = irr + gather_photons(end, photons, albedo, params.max_depth)

@@ -227,6 +227,10 @@ class _VPLColumns:
             self.glossy_sp_index = np.nonzero(~lam)[0]
         self.color = color
         self.spot_params = vpls.wi_local[self.spot]
+        lp = vpls.light_pdf if vpls.light_pdf is not None else np.zeros(len(kind))
+        self.light_pdf = lp.astype(np.float32)
+        # Emitter samples with a non-delta pdf take part in MIS (area lights, environment).
+        self.mis = (lp > 0) & (self.area | self.directional) & (vpls.direct_count > 0)
 
 
 def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
@@ -264,8 +268,30 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
     gl = (end.sp.kind[sl] != DIFFUSE) & (end.sp.kind[sl] != NULL)
     # Receiver: Lambertian rows take cos/π (per unit albedo), glossy rows their BSDF.
     recv = np.where(lam[:, None], np.maximum(cos_x, 0) * f32(1 / np.pi), f32(0))
-    weight = em * recv
     gi = np.nonzero(gl)[0]
+    if len(gi):
+        wo_x = w[gi].reshape(-1, 3).astype(np.float64)
+        nx = np.repeat(end.ns[sl][gi], m, axis=0)
+        rows = np.arange(sl.start, sl.stop)[gi]
+        spx = end.sp.subset(np.repeat(rows, m))
+        wi_x = np.repeat(end.wi[rows], m, axis=0)
+        wo_l = to_local(wo_x, nx)
+        fx = bsdf.eval(spx, wi_x, wo_l, mode="radiance").reshape(len(gi), m, 3)
+        fx = fx / np.maximum(albedo[gi], 1e-6)[:, None, :]
+        pdf_gl = bsdf.pdf(spx, wi_x, wo_l).reshape(len(gi), m)
+    if cols.mis.any():
+        # Multiple importance sampling of the emitter samples against the BSDF-sampled ray
+        # each end point also traces (power heuristic, D emitter samples per set).
+        pb = np.maximum(cos_x, 0) * f32(1 / np.pi)
+        if len(gi):
+            pb[gi] = pdf_gl
+        mc = cols.mis
+        pl = np.broadcast_to(cols.light_pdf[mc][None, :], (n, int(mc.sum()))).astype(f32)
+        area_mc = cols.area[mc]
+        pl = np.where(area_mc[None, :], pl * d2[:, mc] / np.maximum(cos_y[:, mc], f32(1e-7)), pl)
+        pl = pl * f32(vpls.direct_count)
+        em[:, mc] *= pl * pl / np.maximum(pl * pl + pb[:, mc] * pb[:, mc], f32(1e-30))
+    weight = em * recv
     if len(gi):
         weight[gi] = em[gi]  # glossy rows: the scalar part only, BSDF applied below
     live = weight > 0
@@ -290,13 +316,6 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
         lrows = np.nonzero(~gl)[0]
         out[lrows] = weight[lrows] @ cols.color.astype(f32)
         # Glossy receivers: f_x(wi, w)/albedo per pair.
-        wo_x = w[gi].reshape(-1, 3).astype(np.float64)
-        nx = np.repeat(end.ns[sl][gi], m, axis=0)
-        rows = np.arange(sl.start, sl.stop)[gi]
-        spx = end.sp.subset(np.repeat(rows, m))
-        wi_x = np.repeat(end.wi[rows], m, axis=0)
-        fx = bsdf.eval(spx, wi_x, to_local(wo_x, nx), mode="radiance").reshape(len(gi), m, 3)
-        fx = fx / np.maximum(albedo[gi], 1e-6)[:, None, :]
         out[gi] = np.einsum("ij,ijk,jk->ik", weight[gi], fx, cols.color)
     if cols.glossy.any():
         # Glossy VPLs: f_y(ω_in, y->x) per pair replaces the Lambertian colour (which was
@@ -318,3 +337,44 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
             rec = rec * fxg
         out = out - rec.sum(axis=1) + (rec * fy).sum(axis=1)
     return np.nan_to_num(out.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+
+
+def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints,
+                albedo: np.ndarray, direct_count: int, max_depth: int,
+                rng: np.random.Generator) -> np.ndarray:
+    """Emission reached by one BSDF-sampled ray per end point, MIS-weighted against the
+    emitter samples (per unit albedo, so it joins the filtered irradiance)."""
+    e = len(end)
+    out = np.zeros((e, 3))
+    if e == 0 or not lights.has_light:
+        return out
+    ok = np.nonzero(end.segments + 1 <= max_depth if max_depth >= 0 else np.ones(e, bool))[0]
+    if len(ok) == 0:
+        return out
+    sp = end.sp.subset(ok)
+    wo, weight, pdf_b, delta = bsdf.sample(sp, end.wi[ok], rng.random(len(ok)), rng.random((len(ok), 2)),
+                                           mode="radiance")
+    live = np.any(weight > 0, axis=1) & np.all(np.isfinite(weight), axis=1)
+    ok, wo, weight, pdf_b, delta = ok[live], wo[live], weight[live], pdf_b[live], delta[live]
+    if len(ok) == 0:
+        return out
+    d = to_world(wo, end.ns[ok])
+    o = geom.offset(end.position[ok], end.ng[ok], d)
+    hits = geom.intersect(o, d)
+    le = np.zeros((len(ok), 3))
+    pl = np.zeros(len(ok))
+    v = hits.valid
+    if v.any():
+        cos_front = -np.einsum("ij,ij->i", d[v], hits.ns[v])
+        le[v] = lights.emitted_radiance(hits.emitter[v], cos_front)
+        # Solid-angle pdf of the emitter sampler for the same point.
+        pl[v] = lights.area_pdf(hits.emitter[v]) * hits.t[v] ** 2 / np.maximum(np.abs(cos_front), 1e-7)
+    env = lights.environment()
+    if np.any(env > 0) and (~v).any():
+        le[~v] = env
+        pl[~v] = lights.environment_pdf()
+    pl *= direct_count
+    w_mis = np.where(delta, 1.0, pdf_b ** 2 / np.maximum(pdf_b ** 2 + pl ** 2, 1e-300))
+    contrib = weight * le * w_mis[:, None] / np.maximum(albedo[ok], 1e-6)
+    out[ok] = np.nan_to_num(contrib, nan=0.0, posinf=0.0, neginf=0.0)
+    return out

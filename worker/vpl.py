@@ -37,6 +37,8 @@ class VPLSet:
     wi_local: np.ndarray  # (M, 3) surface VPLs: incident direction in the VPL's shading frame
     surface: "bsdf.SurfacePoints | None"  # BSDF parameters of the surface VPLs (kind == VPL_SURFACE rows, in order)
     diffuse_only: bool = True  # every surface VPL is Lambertian: the fast path applies
+    light_pdf: np.ndarray | None = None  # (M,) emitter samples' pdf (lights.PointSamples.pdf), 0 elsewhere
+    direct_count: int = 0  # emitter samples per set (the MIS sample count)
 
     def __len__(self) -> int:
         return len(self.kind)
@@ -49,7 +51,7 @@ class VPLSet:
 
 def _empty_set() -> VPLSet:
     z = np.zeros((0, 3))
-    return VPLSet(np.zeros(0, np.int8), z, z, z, z, np.zeros(0, np.int32), z, None, True)
+    return VPLSet(np.zeros(0, np.int8), z, z, z, z, np.zeros(0, np.int32), z, None, True, np.zeros(0), 0)
 
 
 def walk_count(indirect_vpls: int, max_length: int) -> int:
@@ -75,7 +77,7 @@ def build_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: int,
             e = scene.emitters[s.emitter[j]]
             extra[j] = (0.0, e.beam_width, e.cutoff_angle)
         parts.append(VPLSet(s.kind, s.position, s.normal, s.normal.copy(), s.power / direct_vpls,
-                            np.zeros(m, np.int32), extra, None))
+                            np.zeros(m, np.int32), extra, None, True, s.pdf, direct_vpls))
     walks = walk_count(indirect_vpls, max_length)
     if walks > 0 and max_length > 0:
         dims = WALK_DIMS_START + WALK_DIMS_PER_BOUNCE * max_length
@@ -162,4 +164,6 @@ def _concat(parts: list[VPLSet]) -> VPLSet:
         np.concatenate([p.wi_local for p in parts]),
         concat_surface(surf) if surf else None,
         all(p.diffuse_only for p in parts),
+        np.concatenate([p.light_pdf if p.light_pdf is not None else np.zeros(len(p)) for p in parts]),
+        max(p.direct_count for p in parts),
     )
