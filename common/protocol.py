@@ -28,7 +28,8 @@ FRAME      M->W  frame, hash, scene_version, seed, camera (16 floats), fov_x, wi
                  before the first TASK of that frame it gets
 TASK       M->W  frame, task, epoch, k, tile [sx0, sy0, sx1, sy1] of sub-image k
 RESULT     W->M  frame, task, epoch, count (pixels), data (common.codec bytes),
-                 timings {name: seconds}, sets [[seed, k], ...] held by the worker
+                 timings {name: seconds}, sets [[seed, k], ...] held by the worker,
+                 rays (the worker's cumulative ray count, for rays/s)
 HEARTBEAT  both  queued (tasks waiting or running on the worker; optional)
 BYE        both  reason
 ERROR      both  code, message, optional frame/task/epoch (e.g. a task that failed, or
@@ -303,6 +304,7 @@ SCHEMAS: dict[str, dict[str, tuple[Checker, bool]]] = {
         "data": (Bytes(MAX_MESSAGE_SIZE), R),
         "timings": (MapOf(Float(0.0, 1e6)), O),
         "sets": (List(_set_key, maxlen=4096), O),
+        "rays": (Int(0, INT53), O),
     },
     HEARTBEAT: {
         "queued": (Int(0, 1 << 20), O),

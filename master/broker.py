@@ -110,6 +110,8 @@ class StreamFrame:
     spec: FrameSpec
     relative_error: float | None  # even/odd halves estimate (None before 2 frames)
     time: float  # time.monotonic() when published
+    generation: int = 0  # bumps with every change of view / params / scene
+    view_time: float = 0.0  # time.monotonic() of that change: time - view_time = input-to-photon latency
 
 
 @dataclass
@@ -128,6 +130,7 @@ class _Worker:
     frames_sent: collections.OrderedDict = field(default_factory=collections.OrderedDict)
     scene_state: tuple | None = None  # (hash, version) the worker was brought to
     done: int = 0
+    rays: int = 0  # last cumulative ray count reported
     busy_s: float = 0.0  # sum of reported render time
     joined: float = 0.0
 
@@ -162,12 +165,13 @@ class Broker:
     def __init__(self, scene: Scene | None = None, bind: str = DEFAULT_BIND, *,
                  heartbeat: float = P.HEARTBEAT_INTERVAL, liveness: int = P.HEARTBEAT_LIVENESS,
                  task_pixels: int = DEFAULT_TASK_PIXELS, pipeline: int = 2,
-                 context: zmq.Context | None = None):
+                 task_timeout: float = 60.0, context: zmq.Context | None = None):
         self.bind_address = bind
         self.heartbeat = float(heartbeat)
         self.liveness = int(liveness)
         self.task_pixels = int(task_pixels)
         self.pipeline = max(1, int(pipeline))
+        self.task_timeout = float(task_timeout)
         self._ctx = context or zmq.Context.instance()
         self._sock: zmq.Socket | None = None
         self.endpoint: str | None = None
@@ -190,6 +194,7 @@ class Broker:
         self._counters = collections.Counter()
         self._frame_times: collections.deque = collections.deque(maxlen=64)  # completion times
         self._frame_bytes: collections.deque = collections.deque(maxlen=64)
+        self._rays: collections.deque = collections.deque(maxlen=4096)  # (time, rays traced)
 
         # scene state (written by the loop thread, read under _lock)
         self._scene: Scene | None = None
@@ -201,6 +206,7 @@ class Broker:
         # streaming state
         self._stream_on = False
         self._stream_gen = 0
+        self._gen_time = time.monotonic()
         self._stream_index = 0
         self._view: dict[str, Any] = {}
         self._finisher_q: queue.SimpleQueue = queue.SimpleQueue()
@@ -533,6 +539,7 @@ class Broker:
         if reset_index:
             self._stream_gen += 1
             self._stream_index = 0
+            self._gen_time = time.monotonic()
         gen = self._stream_gen
         self._cancel_frames(lambda f: f.stream_gen is not None and f.stream_gen != gen,
                             FrameCancelled("view changed"))
@@ -596,7 +603,7 @@ class Broker:
             self._seq += 1
             sf = StreamFrame(seq=self._seq, image=self._acc.mean(), frame_image=img, accumulated=count,
                              spec=res.spec, relative_error=self._acc.relative_error(),
-                             time=time.monotonic())
+                             time=time.monotonic(), generation=gen, view_time=self._gen_time)
             self._latest = sf
             self._latest_cond.notify_all()
         for cb in list(self._listeners):
@@ -638,11 +645,15 @@ class Broker:
         ft = list(self._frame_times)
         fps = (len(ft) - 1) / (ft[-1] - ft[0]) if len(ft) >= 2 and ft[-1] > ft[0] else 0.0
         lat = np.array(self._latencies) if self._latencies else None
+        recent = [(t, r) for t, r in self._rays if now - t <= 5.0]
+        span = (now - recent[0][0]) if len(recent) >= 2 else 0.0
+        rays_per_s = sum(r for _, r in recent[1:]) / span if span > 0 else 0.0
         latest = self._latest
         return {
             "workers": len(self._workers),
             "threads": sum(w.threads for w in self._workers.values()),
             "fps": fps,
+            "rays_per_s": rays_per_s,
             "frames_completed": self._counters["frames"],
             "open_frames": len(self._frames),
             "queued_tasks": len(self._queue),
@@ -688,9 +699,9 @@ class Broker:
         poller = zmq.Poller()
         poller.register(self._sock, zmq.POLLIN)
         poller.register(self._wake_r.fileno(), zmq.POLLIN)
-        next_tick = time.monotonic() + self.heartbeat
+        self._next_tick = time.monotonic() + self.heartbeat
         while self._running:
-            timeout_ms = max(0, int((next_tick - time.monotonic()) * 1000))
+            timeout_ms = max(0, int((self._next_tick - time.monotonic()) * 1000))
             try:
                 events = dict(poller.poll(timeout_ms))
             except zmq.ZMQError as e:  # pragma: no cover - interrupted
@@ -702,27 +713,33 @@ class Broker:
                         pass
                 except (BlockingIOError, OSError):
                     pass
-            self._run_commands()
-            if self._sock in events:
-                for _ in range(256):  # bounded batch, then service timers and commands
-                    try:
-                        parts = self._sock.recv_multipart(zmq.NOBLOCK, copy=True)
-                    except zmq.Again:
-                        break
-                    except zmq.ZMQError as e:  # pragma: no cover
-                        log.warning("receive failed: %s", e)
-                        break
-                    try:
-                        self._on_message(parts)
-                    except Exception:  # a bug must never take the master down
-                        self._counters["dropped"] += 1
-                        log.exception("dropped a message that raised in its handler")
-                self._dispatch()
-            now = time.monotonic()
-            if now >= next_tick:
-                next_tick = now + self.heartbeat
-                self._tick(now)
+            try:
+                self._run_commands()
+                self._service(events)
+            except Exception:  # a bug must never take the master down
+                log.exception("master loop error (continuing)")
         self._sock.close(linger=500)  # let the BYEs of _shutdown leave
+
+    def _service(self, events: dict) -> None:
+        if self._sock in events:
+            for _ in range(256):  # bounded batch, then service timers and commands
+                try:
+                    parts = self._sock.recv_multipart(zmq.NOBLOCK, copy=True)
+                except zmq.Again:
+                    break
+                except zmq.ZMQError as e:  # pragma: no cover
+                    log.warning("receive failed: %s", e)
+                    break
+                try:
+                    self._on_message(parts)
+                except Exception:  # a bug must never take the master down
+                    self._counters["dropped"] += 1
+                    log.exception("dropped a message that raised in its handler")
+            self._dispatch()
+        now = time.monotonic()
+        if now >= self._next_tick:
+            self._next_tick = now + self.heartbeat
+            self._tick(now)
 
     def _run_commands(self) -> None:
         while True:
@@ -837,6 +854,11 @@ class Broker:
             self._counters["results_stale"] += 1
             log.debug("stale/duplicate result %s epoch %d from %s", key, body["epoch"], w.name)
             return
+        if "rays" in body:
+            r = body["rays"]
+            delta = r - w.rays if r >= w.rays else r  # a new renderer restarts its counter
+            w.rays = r
+            self._rays.append((now, delta))
         timings = body.get("timings", {})
         if "render" in timings:
             w.busy_s += timings["render"]
@@ -969,6 +991,7 @@ class Broker:
         return True
 
     def _tick(self, now: float) -> None:
+        self._expire_tasks(now)
         hb = None
         for w in list(self._workers.values()):
             if now - w.last_seen > self.heartbeat * self.liveness:
@@ -978,6 +1001,24 @@ class Broker:
                 hb = hb or P.encode(P.HEARTBEAT, {})
                 self._send(w, hb)
         self._dispatch()
+
+    def _expire_tasks(self, now: float) -> None:
+        """A task unanswered for ``task_timeout`` s (a wedged worker, results it cannot get
+        through) goes back to the front of the queue. Its slot stays taken on that worker until
+        something comes back, so a worker that never answers runs out of credit."""
+        lost = []
+        for f in self._frames.values():
+            for t in f.tasks.values():
+                if t.worker is not None and now - t.sent > self.task_timeout:
+                    w = self._workers.get(t.worker)
+                    log.warning("task (%d, %d) unanswered for %.0f s on %s; re-queued", t.frame, t.task,
+                                now - t.sent, w.name if w else "?")
+                    t.worker = None
+                    t.epoch = 0
+                    lost.append((t.frame, t.task))
+        if lost:
+            self._queue = collections.deque(scheduler.requeue_front(list(self._queue), lost))
+            self._counters["tasks_requeued"] += len(lost)
 
     def _drop_worker(self, w: _Worker, reason: str) -> None:
         if self._workers.pop(w.ident, None) is None:

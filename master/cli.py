@@ -44,6 +44,10 @@ class UsageError(Exception):
     """A bad input: reported as one line and exit status 2."""
 
 
+class RenderError(Exception):
+    """The render could not finish (e.g. every local worker died): one line, exit status 1."""
+
+
 # ---------------------------------------------------------------------------- helpers
 
 def load_scene_file(path: str):
@@ -208,13 +212,29 @@ def cmd_render(args: argparse.Namespace) -> int:
     else:
         from master.broker import Broker
 
+        from master.broker import FrameCancelled
+
         with Broker(scene, bind="tcp://127.0.0.1:*") as broker:
             workers = LocalWorkers(broker.endpoint, args.workers)
+            done, dead = threading.Event(), threading.Event()
+
+            def watchdog():  # every worker gone: stop the master, which cancels the frames
+                while not done.wait(0.5):
+                    if all(p.poll() is not None for p in workers.procs):
+                        dead.set()
+                        broker.stop()
+                        return
+            threading.Thread(target=watchdog, daemon=True).start()
             try:
                 wait_workers(broker, workers, args.workers)
                 image = broker.render_sequence(params, frames=args.frames, width=args.width,
                                                height=args.height, on_frame=on_frame)
+            except FrameCancelled:
+                if dead.is_set():
+                    raise RenderError("every local worker exited before the render finished") from None
+                raise
             finally:
+                done.set()
                 broker.stop()
                 workers.stop()
     write_image(args.output, image)
@@ -400,6 +420,9 @@ def main(argv: list[str] | None = None) -> int:
     except UsageError as e:
         print(f"igi: error: {e}", file=sys.stderr)
         return 2
+    except RenderError as e:
+        print(f"igi: error: {e}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("igi: interrupted", file=sys.stderr)
         return 130
