@@ -14,6 +14,8 @@ from .geometry import Geometry
 from .scene import AREA, CONSTANT, DIRECTIONAL, POINT, SPOT, Scene
 
 # Kinds of point-light records (VPLs and emitter samples), see worker/vpl.py.
+UNIFORM_SHARE = 0.3  # part of the emitter choice made uniformly rather than by power
+
 VPL_SURFACE = 0  # a light-walk vertex: radiates Φ · f(y, ω_in, ·)·cos
 VPL_AREA = 1  # a point on an area emitter: radiates P · max(cos θ_y, 0)
 VPL_POINT = 2  # isotropic point light: intensity I
@@ -126,6 +128,11 @@ class LightSampler:
         self.powers = np.where(np.isfinite(self.powers) & (self.powers > 0), self.powers, 0.0)
         total = self.powers.sum()
         self.pmf = self.powers / total if total > 0 else np.zeros(n)
+        # Mix in a uniform share over the emitters that emit at all: choosing purely by power
+        # makes a small, close, bright lamp a once-in-hundreds sample with a huge weight.
+        lit = self.powers > 0
+        if lit.sum() > 1:
+            self.pmf = (1 - UNIFORM_SHARE) * self.pmf + UNIFORM_SHARE * lit / lit.sum()
         self.cdf = np.cumsum(self.pmf)
 
     @property

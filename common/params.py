@@ -48,6 +48,9 @@ PARAMS: tuple[Param, ...] = (
     Param("filter_window", int, -1, "discontinuity-buffer window (-1: interleave size, 1: off)", "filter", -1, 15),
     Param("depth_threshold", float, 0.05, "relative depth difference that breaks the filter", "filter", 0.0, 1.0),
     Param("normal_threshold", float, 0.9, "minimum normal dot product inside the filter", "filter", -1.0, 1.0),
+    Param("filter_glossy_alpha", float, 0.3,
+          "glossy surfaces at least this rough are filtered like irradiance; smoother ones stay sharp",
+          "filter", 0.0, 10.0),
     # Eye paths
     Param("max_depth", int, -1, "path segments as in Mitsuba (-1 unlimited, 2 = direct only)", "path", -1, 64),
     Param("specular_depth", int, 8, "longest mirror/glass chain followed from the eye", "path", 1, 64),

@@ -16,7 +16,7 @@ from common.geometry import Geometry
 from common.lights import LightSampler
 from common.params import Params, make_params
 from common.render_plan import RenderPlan, analyze
-from common.scene import Scene
+from common.scene import DIFFUSE, GLOSSY_KINDS, PLASTIC, Scene
 from common.sobol_stream import rng as make_rng
 
 from .caustics import PhotonSet, build_photon_set, default_radius, gather_photons
@@ -122,7 +122,12 @@ class Renderer:
         refl = np.zeros((p, 3))
         irr_buf = np.zeros((p, 3))
         unf = eye.unfiltered
-        main = end.main
+        # Lambertian and rough end points go through the discontinuity buffer; the highlights
+        # of smooth glossy ones would be smeared by it, so their radiance stays unfiltered.
+        kind = end.sp.kind
+        filterable = (kind == DIFFUSE) | (kind == PLASTIC) | (
+            np.isin(kind, GLOSSY_KINDS) & (end.sp.alpha >= params.filter_glossy_alpha))
+        main = end.main & filterable
         refl[end.pixel[main]] = albedo[main] * end.throughput[main]
         irr_buf[end.pixel[main]] = irr[main]
         sec = ~main
