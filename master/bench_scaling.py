@@ -115,6 +115,7 @@ def run_point(scene, params, width: int, height: int, workers: int, frames: int,
     from .cli import LocalWorkers, wait_workers
 
     kw = {} if task_pixels is None else {"task_pixels": task_pixels}
+    load_before = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     with Broker(scene, bind="tcp://127.0.0.1:*", **kw) as broker:
         procs = LocalWorkers(broker.endpoint, workers)
         try:
@@ -137,6 +138,12 @@ def run_point(scene, params, width: int, height: int, workers: int, frames: int,
         "bytes_per_frame": s1["bytes_per_frame"], "bytes_per_pixel": s1["bytes_per_frame"] / (width * height),
         "task_latency_ms": s1["task_latency_ms"], "task_render_ms": s1["task_render_ms"],
         "tasks_requeued": s1["tasks_requeued"] - s0["tasks_requeued"],
+        "rays_per_s": s1.get("rays_per_s"),
+        # where the time goes: worker render seconds per frame, and the fps the workers alone
+        # would allow (the rest is transfer, master merge/filter/accumulate and idle slots)
+        "render_s_per_frame": (s1["task_render_ms"] or 0) * tasks / frames / 1e3,
+        "render_bound_fps": workers / max(1e-9, (s1["task_render_ms"] or 0) * tasks / frames / 1e3),
+        "load_avg_before": load_before,
     }
     return point, last
 
@@ -156,6 +163,9 @@ def plot(results: dict, path: Path) -> bool:
         a1.plot(ws, [p["fps"] for p in pts], "o-", label=size)
         if all(p["efficiency"] is not None for p in pts):
             a2.plot(ws, [p["efficiency"] for p in pts], "o-", label=size)
+    allw = sorted({p["workers"] for pts in results["points"].values() for p in pts})
+    a1.set_xticks(allw)
+    a2.set_xticks(allw)
     a1.set_xlabel("workers")
     a1.set_ylabel("frames / s")
     a1.set_title("throughput")
