@@ -183,3 +183,39 @@ def test_worker_process_refuses_a_master_of_another_version(procs):
         assert f"{P.PROTOCOL_VERSION + 7}" in err and "protocol" in err
     finally:
         router.close(0)
+
+
+def test_stream_api_camera_params_and_edits_change_the_image(procs):
+    """What the viewer drives: every change restarts accumulation and shows up in the image."""
+    scene = mini_cornell(32, 24)
+    with Broker(scene, bind="tcp://127.0.0.1:*") as broker:
+        procs.append(start_worker(broker.endpoint, "s"))
+        assert broker.wait_for_workers(1, 60)
+        broker.start_stream({"photons": 0})
+        f = broker.wait_frame(0, 60)
+        f = broker.wait_frame(f.seq, 60)
+        assert f.accumulated >= 2, "accumulates while nothing changes"
+        base = f.image
+
+        def first_frame_after_change():
+            g = broker.wait_frame(f.seq, 60)
+            while g.accumulated != 1 or g.generation == f.generation:
+                g = broker.wait_frame(g.seq, 60)
+            return g
+
+        cam = np.asarray(scene.camera.to_world).copy()
+        cam[0, 3] += 0.3
+        broker.set_camera(cam)
+        f = first_frame_after_change()
+        assert f.spec.camera_to_world == tuple(cam.ravel()) and not np.allclose(f.image, base)
+        assert f.spec.seed == 0, "a camera move keeps the seed (cached sets, no flicker)"
+        broker.set_params(filter_window=1)
+        f = first_frame_after_change()
+        assert f.spec.params["filter_window"] == 1
+        before = f.image
+        v = broker.apply_edit({"op": "set_emitter", "emitter": 0, "param": "radiance", "value": [0.0, 0.0, 0.0]})
+        f = first_frame_after_change()
+        assert f.spec.scene_version == v == 1
+        assert f.image.mean() < 0.2 * before.mean(), "the light was switched off on the worker"
+        assert broker.stats()["rays_per_s"] > 0
+        broker.stop_stream()
