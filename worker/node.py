@@ -165,6 +165,17 @@ class WorkerNode:
         poller = zmq.Poller()
         poller.register(sock, zmq.POLLIN)
         poller.register(self._wake_r.fileno(), zmq.POLLIN)
+        # the socket monitor tells why the master does not answer (refused, unreachable, ...)
+        monitor = None
+        link = "no connection yet"
+        try:
+            monitor = sock.get_monitor_socket(zmq.EVENT_CONNECTED | zmq.EVENT_CONNECT_RETRIED
+                                              | zmq.EVENT_DISCONNECTED | zmq.EVENT_CLOSED
+                                              | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL
+                                              | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL)
+            poller.register(monitor, zmq.POLLIN)
+        except zmq.ZMQError:  # pragma: no cover - monitoring unsupported
+            monitor = None
         welcomed = False
         last_recv = time.monotonic()
         last_sent = 0.0
@@ -195,6 +206,8 @@ class WorkerNode:
                             pass
                     except (BlockingIOError, OSError):
                         pass
+                if monitor is not None and monitor in events:
+                    link = self._monitor_events(monitor, link)
                 if sock in events:
                     for _ in range(256):
                         try:
@@ -220,18 +233,46 @@ class WorkerNode:
                     send(P.encode(P.HEARTBEAT, {"queued": min(self._queued, 1 << 20)}))
                 silent = now - last_recv
                 if silent > self.heartbeat * self.liveness:
-                    log.warning("master at %s silent for %.1f s (%s)", self.connect, silent,
-                                "connection lost" if welcomed else "no answer to HELLO: not running or unreachable")
+                    log.warning("master at %s silent for %.1f s (%s; %s)", self.connect, silent,
+                                "connection lost" if welcomed else "no answer to HELLO", link)
                     outcome = "silent"
                 if self._parent_gone():
                     log.info("parent process gone; stopping")
                     self.stop("parent gone")
         finally:
+            if monitor is not None:
+                try:
+                    sock.disable_monitor() if sock is not None else None
+                except zmq.ZMQError:
+                    pass
+                monitor.close(0)
             if sock is not None:
                 sock.close(0)
         if outcome in ("refused", "bye"):
             return outcome
         return "welcomed" if welcomed else outcome
+
+    @staticmethod
+    def _monitor_events(monitor, link: str) -> str:
+        """Drain socket-monitor events; returns a short description of the link state."""
+        from zmq.utils.monitor import recv_monitor_message
+
+        names = {zmq.EVENT_CONNECTED: "connected", zmq.EVENT_CONNECT_RETRIED: "connection refused or unreachable",
+                 zmq.EVENT_DISCONNECTED: "disconnected", zmq.EVENT_CLOSED: "closed",
+                 zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL: "ZeroMQ handshake failed",
+                 zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL: "ZeroMQ handshake failed (not a ZeroMQ peer?)"}
+        while True:
+            try:
+                ev = recv_monitor_message(monitor, zmq.NOBLOCK)
+            except zmq.Again:
+                return link
+            except zmq.ZMQError:
+                return link
+            name = names.get(ev.get("event"))
+            if name is not None:
+                if name != link:
+                    log.debug("link to master: %s", name)
+                link = name
 
     def _hello(self) -> bytes:
         from importlib import metadata
