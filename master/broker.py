@@ -133,6 +133,7 @@ class _Worker:
     rays: int = 0  # last cumulative ray count reported
     busy_s: float = 0.0  # sum of reported render time
     joined: float = 0.0
+    first_task_s: float | None = None  # HELLO -> first TASK sent (a joiner gets work within a second)
 
 
 @dataclass
@@ -680,6 +681,7 @@ class Broker:
                 "threads": w.threads, "credit": w.credit, "inflight": len(w.inflight),
                 "load": len(w.inflight) / w.credit, "tasks_done": w.done,
                 "busy": w.busy_s / max(1e-9, now - w.joined) / w.threads,
+                "first_task_s": w.first_task_s,
                 "last_seen_s": now - w.last_seen}
 
     def workers(self) -> list[dict]:
@@ -974,6 +976,8 @@ class Broker:
                                     "tile": [tl.sx0, tl.sy0, tl.sx1, tl.sy1]}, check=False)
             if self._send(w, msg):
                 w.inflight[key] = t.epoch
+                if w.first_task_s is None:
+                    w.first_task_s = t.sent - w.joined
                 done.add(key)
             else:
                 t.worker = None

@@ -61,7 +61,7 @@ def test_two_workers_equal_one_worker_and_local(scene, procs):
         procs.append(start_worker(broker.endpoint, "one"))
         assert broker.wait_for_workers(1, 60)
         one = broker.render_sequence(params, frames=2)
-        procs.append(start_worker(broker.endpoint, "two"))
+        procs.append(start_worker(broker.endpoint, "two", threads=2))  # also exercises the render pool
         assert broker.wait_for_workers(2, 60)
         before = per_worker(broker)
         two = broker.render_sequence(params, frames=2)
@@ -142,6 +142,8 @@ def test_worker_started_mid_run_receives_tasks(scene, procs):
         assert f is not None
         procs.append(start_worker(broker.endpoint, "late"))
         assert wait_until(lambda: per_worker(broker).get("late", 0) > 0, 60), "the late worker got tasks"
+        late = next(w for w in broker.workers() if w["name"] == "late")
+        print(f"late worker: first task {late['first_task_s'] * 1e3:.0f} ms after its HELLO", file=sys.stderr)
         f2 = broker.wait_frame(f.seq, 60)
         assert f2 is not None and f2.accumulated > f.accumulated
         broker.stop_stream()
