@@ -137,6 +137,8 @@ def run_point(scene, params, width: int, height: int, workers: int, frames: int,
         "fps": frames / wall, "tasks_per_frame": tasks / frames,
         "bytes_per_frame": s1["bytes_per_frame"], "bytes_per_pixel": s1["bytes_per_frame"] / (width * height),
         "task_latency_ms": s1["task_latency_ms"], "task_render_ms": s1["task_render_ms"],
+        "task_encode_ms": s1["task_encode_ms"], "task_merge_ms": s1["task_merge_ms"],
+        "task_bytes": s1["task_bytes"],
         "tasks_requeued": s1["tasks_requeued"] - s0["tasks_requeued"],
         "rays_per_s": s1.get("rays_per_s"),
         # where the time goes: worker render seconds per frame, and the fps the workers alone

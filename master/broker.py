@@ -192,6 +192,9 @@ class Broker:
         self._next_frame = 0
         self._latencies: collections.deque = collections.deque(maxlen=LATENCY_WINDOW)
         self._render_times: collections.deque = collections.deque(maxlen=LATENCY_WINDOW)
+        self._encode_times: collections.deque = collections.deque(maxlen=LATENCY_WINDOW)
+        self._merge_times: collections.deque = collections.deque(maxlen=LATENCY_WINDOW)  # decode + scatter
+        self._task_bytes: collections.deque = collections.deque(maxlen=LATENCY_WINDOW)
         self._counters = collections.Counter()
         self._frame_times: collections.deque = collections.deque(maxlen=64)  # completion times
         self._frame_bytes: collections.deque = collections.deque(maxlen=64)
@@ -670,6 +673,9 @@ class Broker:
                 "mean": float(lat.mean() * 1e3), "p50": float(np.percentile(lat, 50) * 1e3),
                 "p95": float(np.percentile(lat, 95) * 1e3)},
             "task_render_ms": float(np.mean(self._render_times) * 1e3) if self._render_times else None,
+            "task_encode_ms": float(np.mean(self._encode_times) * 1e3) if self._encode_times else None,
+            "task_merge_ms": float(np.mean(self._merge_times) * 1e3) if self._merge_times else None,
+            "task_bytes": float(np.mean(self._task_bytes)) if self._task_bytes else None,
             "accumulated": latest.accumulated if latest else 0,
             "relative_error": latest.relative_error if latest else None,
             "scene_version": self._base_version + len(self._edits),
@@ -865,6 +871,9 @@ class Broker:
         if "render" in timings:
             w.busy_s += timings["render"]
             self._render_times.append(timings["render"])
+        if "encode" in timings:
+            self._encode_times.append(timings["encode"])
+        t_merge = time.perf_counter()
         try:
             from common.codec import decode
 
@@ -882,6 +891,8 @@ class Broker:
             w.cached = {(v, s, k) for s, k in body["sets"]}
         else:
             w.cached.add(t.set_key)
+        self._merge_times.append(time.perf_counter() - t_merge)
+        self._task_bytes.append(len(body["data"]))
         del f.tasks[body["task"]]
         w.done += 1
         self._counters["tasks_done"] += 1
