@@ -178,6 +178,8 @@ class Broker:
         self.endpoint: str | None = None
         self._thread: threading.Thread | None = None
         self._running = False
+        self._closed = False
+        self._stop_lock = threading.Lock()
         self._cmds: queue.SimpleQueue = queue.SimpleQueue()
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
@@ -252,26 +254,26 @@ class Broker:
         return self
 
     def stop(self, timeout: float = 2.0) -> None:
-        """Say BYE to every worker, cancel open frames and close the socket."""
-        if self._thread is None:
-            return
-        self._stream_on = False
-        try:
-            self._call(self._shutdown, timeout=timeout)
-        except Exception:  # pragma: no cover - loop already gone
-            pass
-        self._running = False
-        self._wake()
-        self._thread.join(timeout)
-        self._finisher_q.put(None)
-        if self._finisher is not None:
-            self._finisher.join(timeout)
-        self._thread = None
-        for s in (self._wake_r, self._wake_w):
+        """Say BYE to every worker, cancel open frames and close the socket (idempotent,
+        callable from any thread)."""
+        with self._stop_lock:
+            if self._thread is None or self._closed:
+                return
+            self._stream_on = False
             try:
-                s.close()
-            except OSError:
+                self._call(self._shutdown, timeout=timeout)
+            except Exception:  # pragma: no cover - loop already gone
                 pass
+            self._closed = True
+            self._running = False
+            self._wake()
+            self._thread.join(timeout)
+            self._finisher_q.put(None)
+            if self._finisher is not None:
+                self._finisher.join(timeout)
+            if not self._thread.is_alive():
+                for s in (self._wake_r, self._wake_w):
+                    s.close()
 
     def __enter__(self) -> "Broker":
         return self.start()
@@ -289,6 +291,9 @@ class Broker:
 
     def _post(self, fn: Callable[[], Any]) -> cf.Future:
         fut: cf.Future = cf.Future()
+        if self._closed:
+            fut.set_exception(FrameCancelled("master stopped"))
+            return fut
         if self._thread is None or not self._running:
             # Not started: run inline (single-threaded use before start()).
             try:
@@ -412,7 +417,11 @@ class Broker:
     def submit_frame(self, spec: FrameSpec) -> cf.Future:
         """Queue a frame; the Future resolves to a FrameResult (or FrameCancelled/FrameFailed)."""
         out: cf.Future = cf.Future()
-        self._post(lambda: self._open_frame(spec, out, None))
+
+        def failed(posted: cf.Future) -> None:  # e.g. the master stopped: never leave `out` pending
+            if posted.exception() is not None and not out.done():
+                out.set_exception(posted.exception())
+        self._post(lambda: self._open_frame(spec, out, None)).add_done_callback(failed)
         return out
 
     def render_frame(self, spec: FrameSpec, timeout: float | None = None) -> FrameResult:

@@ -193,3 +193,14 @@ def _serves_a_frame(broker):
         fw.result(t)
     assert fut.result(10).tasks == 9
     fw.close()
+
+
+def test_stop_cancels_open_frames_and_later_submissions():
+    b = Broker(mini_cornell(W, H), bind="tcp://127.0.0.1:*").start()
+    fut = b.submit_frame(b.frame_spec(0, {}))  # no worker: stays open
+    b.stop()
+    with pytest.raises(FrameCancelled):
+        fut.result(5)
+    with pytest.raises(FrameCancelled):
+        b.submit_frame(b.frame_spec(1, {})).result(5)
+    b.stop()  # idempotent
