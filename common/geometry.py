@@ -7,6 +7,7 @@ few float32 ulps of the (centred) coordinate.
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,6 +15,8 @@ from embreex import rtcore_scene as rtcs
 from embreex.mesh_construction import TriangleMesh
 
 from .scene import Scene, SceneError
+
+log = logging.getLogger("igi.geometry")
 
 
 @dataclass
@@ -32,6 +35,49 @@ class Hits:
     mesh: np.ndarray  # (N,) int32
 
 
+def _repair_nonfinite(scene: Scene, m) -> tuple:
+    """A mesh's (vertices, faces, normals, uvs) with NaN/Inf data repaired, never rendered.
+
+    Triangles using a vertex with a non-finite position are dropped; non-finite positions no
+    triangle uses any more are replaced by a finite vertex of the mesh, so they cannot make the
+    scene bounds (centre, offsets, light sampler radius) NaN; non-finite shading normals become
+    0 (the face normal is used) and non-finite uvs 0. Each repair that changes what is rendered
+    is a warning naming the mesh, in ``scene.warnings`` and the log (loaders that already dropped
+    such triangles leave only the silent replacement of unused vertices).
+    """
+    v = np.asarray(m.vertices, np.float64)
+    f = np.asarray(m.faces, np.int64)
+    vn = np.asarray(m.normals, np.float64) if m.normals is not None else None
+    vt = np.asarray(m.uvs, np.float64) if m.uvs is not None else None
+    if np.isfinite(v).all() and (vn is None or np.isfinite(vn).all()) and (vt is None or np.isfinite(vt).all()):
+        return v, f, vn, vt
+    notes = []
+    bad = ~np.all(np.isfinite(v), axis=1)
+    if bad.any():
+        drop = bad[f].any(axis=1)
+        if drop.any():
+            notes.append(f"dropped {int(drop.sum())} of {len(f)} triangle(s) with non-finite (NaN/Inf) vertex positions")
+            f = f[~drop]
+        if len(f):
+            v = v.copy()
+            v[bad] = v[f[0, 0]]
+    fixed = []
+    for what, arr in (("shading normals", vn), ("texture coordinates", vt)):
+        if arr is not None and not np.isfinite(arr).all():
+            badr = ~np.all(np.isfinite(arr), axis=1)
+            arr = arr.copy()
+            arr[badr] = 0.0
+            if len(f) and badr[f].any():
+                notes.append(f"set {int(badr.sum())} non-finite {what} to 0")
+        fixed.append(arr)
+    vn, vt = fixed
+    if notes:
+        msg = f"{scene.source or 'scene'}: mesh '{m.name}': " + "; ".join(notes)
+        log.warning(msg)
+        scene.warnings.append(msg)
+    return v, f, vn, vt
+
+
 class Geometry:
     """The scene's triangles, flattened, with per-triangle attributes and an Embree BVH."""
 
@@ -41,13 +87,14 @@ class Geometry:
         for i, m in enumerate(scene.meshes):
             if len(m.faces) == 0:
                 continue
-            v = np.asarray(m.vertices, np.float64)
-            f = np.asarray(m.faces, np.int64)
+            v, f, vn, vt = _repair_nonfinite(scene, m)
+            if len(f) == 0:
+                continue
             verts.append(v)
             faces.append(f + offset)
             mesh_of.append(np.full(len(f), i, np.int32))
-            nrm.append(np.asarray(m.normals, np.float64) if m.normals is not None else np.zeros_like(v))
-            uvs.append(np.asarray(m.uvs, np.float64) if m.uvs is not None else np.zeros((len(v), 2)))
+            nrm.append(vn if vn is not None else np.zeros_like(v))
+            uvs.append(vt if vt is not None else np.zeros((len(v), 2)))
             has_n.append(np.full(len(f), m.normals is not None))
             has_uv.append(np.full(len(f), m.uvs is not None))
             offset += len(v)
