@@ -88,6 +88,7 @@ class WorkerNode:
         self._queued = 0
         self._queued_lock = threading.Lock()
         self._session = 0  # bumps on every reconnect: results of older sessions are dropped
+        self._pending: set[cf.Future] = set()  # render futures of the current session
         self.exit_code = 0
         self.tasks_done = 0
 
@@ -240,6 +241,11 @@ class WorkerNode:
                     log.info("parent process gone; stopping")
                     self.stop("parent gone")
         finally:
+            # tasks of this connection not started yet are moot: the master re-queues them
+            for fut in list(self._pending):
+                if fut.cancel():
+                    with self._queued_lock:
+                        self._queued -= 1
             if monitor is not None:
                 try:
                     sock.disable_monitor() if sock is not None else None
@@ -400,7 +406,9 @@ class WorkerNode:
             return
         with self._queued_lock:
             self._queued += 1
-        self._pool.submit(self._render, body, info[0], info[1], session)
+        fut = self._pool.submit(self._render, body, info[0], info[1], session)
+        self._pending.add(fut)
+        fut.add_done_callback(self._pending.discard)
 
     def _task_error(self, body: dict, code: str, message: str) -> bytes:
         return P.encode(P.ERROR, {"code": code, "message": message[:1024], "frame": body["frame"],
