@@ -44,7 +44,6 @@ import collections
 import concurrent.futures as cf
 import dataclasses
 import logging
-import os
 import queue
 import socket
 import threading
