@@ -51,11 +51,13 @@ def test_round_trip_is_exact_and_deterministic():
     assert len(sc.scene_hash(blob)) == 64
 
 
-def test_shared_scene_round_trip():
-    loader = pytest.importorskip("common.loader")
-    s = loader.load_scene(SHARED / "scenes" / "cornell-box" / "scene.xml")
+@pytest.mark.parametrize("name", ["cornell-box-sphere", "veach-ajar"])  # veach-ajar: bitmap textures
+def test_shared_scene_round_trip(name):
+    from common.loader import load_scene
+
+    s = load_scene(SHARED / "scenes" / name / "scene.xml")
     blob = sc.encode_scene(s)
-    assert_same(s, sc.decode_scene(blob))
+    assert_same(s, sc.decode_scene(blob, expected_hash=sc.scene_hash(blob)))
 
 
 def test_corrupt_blobs_raise_scene_error():
