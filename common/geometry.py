@@ -132,6 +132,8 @@ class Geometry:
         # Ray counters (primary = closest-hit queries, shadow = occlusion queries) and, when
         # ``record`` is set, the batches themselves so benchmarks can replay them on raw Embree.
         self.counters = {"intersect_rays": 0, "occluded_rays": 0}
+        # Texture coordinates are interpolated only when some texture reads them (render plan).
+        self.need_uv = bool(any(m.uvs is not None for m in scene.meshes))
         self.record: list | None = None
         self._embree = rtcs.EmbreeScene()
         local = (tri - self.center).astype(np.float32)
@@ -237,9 +239,12 @@ class Geometry:
             ngs = ng[sm]
             ngs[flip] *= -1
             ng[sm] = ngs
-        f = self.faces[p_idx]
-        vt = self.vertex_uvs
-        uv = w0 * vt[f[:, 0]] + u[:, None] * vt[f[:, 1]] + v[:, None] * vt[f[:, 2]]
+        if self.need_uv:
+            f = self.faces[p_idx]
+            vt = self.vertex_uvs
+            uv = w0 * vt[f[:, 0]] + u[:, None] * vt[f[:, 1]] + v[:, None] * vt[f[:, 2]]
+        else:
+            uv = np.zeros((n, 2))
         mat = np.where(valid, self.material_of[p_idx], -1).astype(np.int32)
         em = np.where(valid, self.emitter_of[p_idx], -1).astype(np.int32)
         mesh = np.where(valid, self.mesh_of[p_idx], -1).astype(np.int32)

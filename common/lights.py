@@ -135,6 +135,38 @@ class LightSampler:
             self.pmf = (1 - UNIFORM_SHARE) * self.pmf + UNIFORM_SHARE * lit / lit.sum()
         self.cdf = np.cumsum(self.pmf)
 
+    def emitter_spheres(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bounding spheres of the area emitters (centres, radii), computed once."""
+        if not hasattr(self, "_spheres"):
+            cs, rs = [], []
+            for i, e in enumerate(self.scene.emitters):
+                tris = self.area_tris[i]
+                if e.kind != AREA or len(tris) == 0 or self.powers[i] <= 0:
+                    continue
+                v = self.geom.vertices[self.geom.faces[tris]].reshape(-1, 3)
+                c = 0.5 * (v.min(axis=0) + v.max(axis=0))
+                cs.append(c)
+                rs.append(float(np.linalg.norm(v - c, axis=1).max()) * (1 + 1e-6) + 4 * self.geom.eps)
+            self._spheres = (np.array(cs).reshape(-1, 3), np.array(rs))
+        return self._spheres
+
+    def may_reach_emitter(self, o: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """False where the ray (unit d) provably misses every area emitter and no environment
+        light exists: such BSDF-sampled direct-light rays carry nothing and are not traced."""
+        if np.any(self.environment() > 0):
+            return np.ones(len(o), bool)
+        c, r = self.emitter_spheres()
+        if len(r) == 0:
+            return np.zeros(len(o), bool)
+        if len(r) > 64:
+            return np.ones(len(o), bool)
+        oc = c[None, :, :] - o[:, None, :]
+        tca = np.einsum("nek,nk->ne", oc, d)
+        d2 = np.einsum("nek,nek->ne", oc, oc) - tca * tca
+        inside = np.einsum("nek,nek->ne", oc, oc) <= r[None, :] ** 2
+        hit = inside | ((tca > 0) & (d2 <= r[None, :] ** 2))
+        return hit.any(axis=1)
+
     @property
     def has_light(self) -> bool:
         return bool(self.pmf.sum() > 0)

@@ -185,7 +185,15 @@ def gather_photons(end, photons: PhotonSet, albedo: np.ndarray, max_depth: int) 
     out = np.zeros((e, 3))
     if e == 0 or photons.grid is None or len(photons) == 0:
         return out
-    pi_idx, qi = photons.grid.query(end.position)
+    # Caustics are usually small: only end points inside the photons' bounding box (grown by
+    # r) can find any, so the others skip the grid lookups.
+    lo = photons.position.min(axis=0) - photons.radius
+    hi = photons.position.max(axis=0) + photons.radius
+    near = np.nonzero(np.all((end.position >= lo) & (end.position <= hi), axis=1))[0]
+    if len(near) == 0:
+        return out
+    pi_idx, qn = photons.grid.query(end.position[near])
+    qi = near[qn]
     if len(pi_idx) == 0:
         return out
     # Photons arriving on the side the eye sees only: thin walls must not leak caustics through.

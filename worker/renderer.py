@@ -42,6 +42,8 @@ class Renderer:
         self.lights = LightSampler(scene, self.geom)
         # The plan decides which passes run; use_plan=False forces every pass on (benchmarks).
         self.plan = analyze(scene, self.geom, self.lights) if use_plan else None
+        if self.plan is not None and not self.plan.textures:
+            self.geom.need_uv = False  # no bitmap is read: skip uv interpolation on every hit
         self._sets: OrderedDict[tuple, VPLSet] = OrderedDict()
         self._max_sets = max_cached_sets
         self._lock = threading.Lock()

@@ -245,10 +245,11 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
         dvec[:, cols.directional] = -cols.normal[cols.directional][None]
     d2 = np.einsum("ijk,ijk->ij", dvec, dvec)
     inv_d = 1.0 / np.sqrt(np.maximum(d2, f32(1e-30)))
-    w = dvec * inv_d[:, :, None]  # unit direction x -> y
     side = np.where(end.wi[sl, 2] >= 0, f32(1), f32(-1))
-    cos_x = np.einsum("ijk,ik->ij", w, ns) * side[:, None]
-    cos_y = -np.einsum("ijk,jk->ij", w, cols.normal)
+    # Cosines straight from the unnormalized offsets: the unit directions are only formed
+    # for the pairs that need them (shadow rays, glossy BSDFs).
+    cos_x = np.einsum("ijk,ik->ij", dvec, ns) * inv_d * side[:, None]
+    cos_y = -np.einsum("ijk,jk->ij", dvec, cols.normal) * inv_d
     # Emitter factor toward x (scalar per pair; the VPL colour multiplies it later).
     inv_d2 = inv_d * inv_d
     em = np.where(cols.surface[None, :], 1.0 / np.maximum(d2, f32(clamp_d2)), inv_d2).astype(f32)
@@ -270,7 +271,7 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
     recv = np.where(lam[:, None], np.maximum(cos_x, 0) * f32(1 / np.pi), f32(0))
     gi = np.nonzero(gl)[0]
     if len(gi):
-        wo_x = w[gi].reshape(-1, 3).astype(np.float64)
+        wo_x = (dvec[gi] * inv_d[gi][:, :, None]).reshape(-1, 3).astype(np.float64)
         nx = np.repeat(end.ns[sl][gi], m, axis=0)
         rows = np.arange(sl.start, sl.stop)[gi]
         spx = end.sp.subset(np.repeat(rows, m))
@@ -303,7 +304,7 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
     if len(ii):
         xo = end.position[sl][ii]
         ngi = end.ng[sl][ii]
-        wij = w[ii, jj].astype(np.float64)
+        wij = (dvec[ii, jj] * inv_d[ii, jj][:, None]).astype(np.float64)
         ox = geom.offset(xo, ngi, wij, geom.offset_scale(end.position[sl])[ii])
         dist = np.sqrt(d2[ii, jj]).astype(np.float64)
         tmax = dist * (1 - 1e-4) - 2 * geom.eps
@@ -322,7 +323,7 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
         # left as raw flux for them).
         gj = np.nonzero(cols.glossy)[0]
         sub = vpls.surface.subset(np.searchsorted(cols.surf_rows, gj))
-        wo_y = -w[:, gj].reshape(-1, 3).astype(np.float64)
+        wo_y = -(dvec[:, gj] * inv_d[:, gj][:, :, None]).reshape(-1, 3).astype(np.float64)
         ny = np.tile(vpls.normal[gj], (n, 1))
         spy = sub.subset(np.tile(np.arange(len(gj)), n))
         wi_y = np.tile(vpls.wi_local[gj], (n, 1))
@@ -360,6 +361,10 @@ def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoin
         return out
     d = to_world(wo, end.ns[ok])
     o = geom.offset(end.position[ok], end.ng[ok], d)
+    reach = lights.may_reach_emitter(o, d)
+    ok, wo, weight, pdf_b, delta, d, o = (a[reach] for a in (ok, wo, weight, pdf_b, delta, d, o))
+    if len(ok) == 0:
+        return out
     hits = geom.intersect(o, d)
     le = np.zeros((len(ok), 3))
     pl = np.zeros(len(ok))
