@@ -15,7 +15,7 @@ import numpy as np
 
 from common import bsdf
 from common.geometry import Geometry
-from common.lights import LightSampler, frame_from, to_local, to_world
+from common.lights import LightSampler, to_local, to_world, uniform_sphere
 from common.scene import AREA, NULL, POINT, SPECULAR_KINDS, SPOT, Scene
 from common.sobol_stream import SobolStream
 
@@ -78,8 +78,13 @@ def _cone_mixture_pdf(origin, dirs, centres, radii):
 
 
 def build_photon_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: int, k: int,
-                     photons_per_light: int, radius: float, max_bounces: int) -> PhotonSet:
-    """The caustic photon set C_k for frame seed ``seed``."""
+                     photons_per_light: int, radius: float, max_bounces: int,
+                     aim: bool = True) -> PhotonSet:
+    """The caustic photon set C_k for frame seed ``seed``.
+
+    ``aim=False`` emits photons over the light's whole emission distribution instead of the
+    target cones (same expectation, many photons wasted): the check that aiming is unbiased.
+    """
     centres, radii = specular_targets(scene, geom)
     if photons_per_light <= 0 or len(radii) == 0 or not lights.has_light:
         return _empty(radius)
@@ -90,7 +95,8 @@ def build_photon_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: i
     for ei, e in enumerate(scene.emitters):
         if e.kind not in (AREA, POINT, SPOT) or lights.powers[ei] <= 0:
             continue  # distant lights: caustics from them are left to the VPLs (none), see docs
-        u = stream.padded(k * len(scene.emitters) + ei, photons_per_light, BLOCK, dims)
+        block = max(BLOCK, 1 << int(np.ceil(np.log2(photons_per_light))))
+        u = stream.padded(k * len(scene.emitters) + ei, photons_per_light, block, dims)
         n = photons_per_light
         shot += n
         if e.kind == AREA:
@@ -98,15 +104,19 @@ def build_photon_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: i
         else:
             pos = np.broadcast_to(e.position, (n, 3)).copy()
             nrm = np.broadcast_to(e.direction / np.linalg.norm(e.direction), (n, 3)).copy()
-        t = np.minimum((u[:, 2] * len(radii)).astype(np.int64), len(radii) - 1)
-        pdf_dummy, cos_max, axes = _cone_mixture_pdf(pos, np.zeros((n, 3)), centres, radii)
-        cm = cos_max[np.arange(n), t]
-        cz = 1 - u[:, 3] * (1 - cm)
-        r = np.sqrt(np.maximum(0, 1 - cz * cz))
-        phi = 2 * np.pi * u[:, 4]
-        local = np.stack([r * np.cos(phi), r * np.sin(phi), cz], axis=1)
-        d = to_world(local, axes[np.arange(n), t])
-        pdf, _, _ = _cone_mixture_pdf(pos, d, centres, radii)
+        if aim:
+            t = np.minimum((u[:, 2] * len(radii)).astype(np.int64), len(radii) - 1)
+            _, cos_max, axes = _cone_mixture_pdf(pos, np.zeros((n, 3)), centres, radii)
+            cm = cos_max[np.arange(n), t]
+            cz = 1 - u[:, 3] * (1 - cm)
+            r = np.sqrt(np.maximum(0, 1 - cz * cz))
+            phi = 2 * np.pi * u[:, 4]
+            local = np.stack([r * np.cos(phi), r * np.sin(phi), cz], axis=1)
+            d = to_world(local, axes[np.arange(n), t])
+            pdf, _, _ = _cone_mixture_pdf(pos, d, centres, radii)
+        else:
+            d = uniform_sphere(u[:, 3:5])
+            pdf = np.full(n, 1 / (4 * np.pi))
         if e.kind == AREA:
             cos_e = np.einsum("ij,ij->i", d, nrm)
             flux = e.radiance[None, :] * (np.maximum(cos_e, 0) * lights.area_total[ei] / pdf)[:, None]
