@@ -27,7 +27,8 @@ Reliability (ZeroMQ guide, Paranoid Pirate over the data socket; ``common/protoc
 
 API (thread-safe)
 -----------------
-    Broker(scene=None, bind="tcp://127.0.0.1:5555", heartbeat=1.0, liveness=3, ...)
+    Broker(scene=None, bind="tcp://127.0.0.1:5555", heartbeat=1.0, liveness=3, task_pixels=4096,
+           pipeline=2, task_timeout=60, configure_socket=None)   # configure_socket(sock): before bind
     .start() -> Broker / .stop() / context manager; .endpoint (the bound address)
     .set_scene(scene) / .apply_edit(edit) -> version / .scene / .scene_version
     .submit_frame(spec) -> Future[FrameResult];  .render_frame(spec) -> FrameResult
@@ -165,13 +166,15 @@ class Broker:
     def __init__(self, scene: Scene | None = None, bind: str = DEFAULT_BIND, *,
                  heartbeat: float = P.HEARTBEAT_INTERVAL, liveness: int = P.HEARTBEAT_LIVENESS,
                  task_pixels: int = DEFAULT_TASK_PIXELS, pipeline: int = 2,
-                 task_timeout: float = 60.0, context: zmq.Context | None = None):
+                 task_timeout: float = 60.0, context: zmq.Context | None = None,
+                 configure_socket: Callable[[zmq.Socket], None] | None = None):
         self.bind_address = bind
         self.heartbeat = float(heartbeat)
         self.liveness = int(liveness)
         self.task_pixels = int(task_pixels)
         self.pipeline = max(1, int(pipeline))
         self.task_timeout = float(task_timeout)
+        self._configure_socket = configure_socket  # e.g. CURVE server keys (issue 8), before bind
         self._ctx = context or zmq.Context.instance()
         self._sock: zmq.Socket | None = None
         self.endpoint: str | None = None
@@ -237,6 +240,8 @@ class Broker:
         sock.setsockopt(zmq.MAXMSGSIZE, P.MAX_MESSAGE_SIZE)
         sock.setsockopt(zmq.SNDHWM, 10000)
         sock.setsockopt(zmq.RCVHWM, 10000)
+        if self._configure_socket is not None:
+            self._configure_socket(sock)
         try:
             sock.bind(self.bind_address)
         except zmq.ZMQError as e:

@@ -60,7 +60,7 @@ class WorkerNode:
                  heartbeat: float = P.HEARTBEAT_INTERVAL, liveness: int = P.HEARTBEAT_LIVENESS,
                  max_backoff: float = 32.0, cache_size: int = 4, exit_with_master: bool = False,
                  parent_pid: int | None = None, renderer_factory=None,
-                 context: zmq.Context | None = None):
+                 context: zmq.Context | None = None, configure_socket=None):
         self.connect = connect
         self.threads = max(1, int(threads))
         self.credit = int(credit) if credit else self.threads * P.CREDIT_PER_THREAD
@@ -72,6 +72,7 @@ class WorkerNode:
         self.exit_with_master = exit_with_master
         self.parent_pid = parent_pid
         self._renderer_factory = renderer_factory
+        self._configure_socket = configure_socket  # e.g. CURVE client keys (issue 8), before connect
         self._ctx = context or zmq.Context.instance()
         self._blobs: collections.OrderedDict[str, bytes] = collections.OrderedDict()
         self._state: _SceneState | None = None
@@ -156,6 +157,8 @@ class WorkerNode:
         sock.setsockopt(zmq.MAXMSGSIZE, P.MAX_SCENE_MESSAGE_SIZE)
         sock.setsockopt(zmq.SNDHWM, 10000)
         sock.setsockopt(zmq.RCVHWM, 10000)
+        if self._configure_socket is not None:
+            self._configure_socket(sock)
         try:
             sock.connect(self.connect)
         except zmq.ZMQError as e:
