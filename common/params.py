@@ -56,6 +56,14 @@ PARAMS: tuple[Param, ...] = (
     Param("specular_depth", int, 8, "longest mirror/glass chain followed from the eye", "path", 1, 64),
     # Accumulation
     Param("accumulate", bool, True, "average frames while nothing moves", "accumulate", viewer=True),
+    Param("consistent", bool, True,
+          "while accumulating, remove the biases frames cannot average away: Russian-roulette light "
+          "walks, shrinking photon radius, fading image filter", "accumulate"),
+    Param("ppm_alpha", float, 2 / 3, "photon radius shrink per accumulated frame: r²ᵢ₊₁ = r²ᵢ(i+α)/(i+1)",
+          "accumulate", 0.05, 1.0),
+    Param("filter_frames", int, 8,
+          "accumulated frames after which the discontinuity buffer is faded out (-1: always filter)",
+          "accumulate", -1, 100000),
     Param("seed", int, 0, "seed of the first frame's Sobol scrambling", "accumulate", 0, 2**31 - 1, viewer=False),
 )
 

@@ -101,3 +101,24 @@ def test_set_k_uses_block_k_of_the_stream():
         np.testing.assert_allclose(s.position, r.lights.sample_points(u).position)
         other = SobolStream(5).padded(2 * k + 2, 8, vpl_mod.BLOCK, vpl_mod.DIRECT_DIMS)
         assert not np.allclose(s.position, r.lights.sample_points(other).position)
+
+
+def test_roulette_walks_converge_to_the_untruncated_series():
+    # While accumulating (seed > params.seed, `consistent` on), light walks continue past
+    # light_path_length by Russian roulette, so the image is Le / (1 - rho) = 2, not the
+    # truncated 1 + 0.5 + ... + 0.5^(L+1) = 1.875 of L = 2.
+    scene = furnace_box(0.5, 1.0, 18, 18)
+    r = Renderer(scene)
+    p = make_params(interleave=3, clamp=0.0, light_path_length=2, indirect_vpls=8, direct_vpls=16)
+    w, h = scene.camera.width, scene.camera.height
+    means = []
+    for seed in range(1, 101):
+        spec = FrameSpec(0, seed, tuple(scene.camera.to_world.ravel()), scene.camera.fov_x, w, h,
+                         params_to_dict(p))
+        tot = 0.0
+        for k in range(9):
+            b = r.render_tile(spec, Tile(k, 0, 0, 6, 6))
+            tot += float((b.reflectance * b.irradiance + b.unfiltered).mean())
+        means.append(tot / 9)
+    assert np.mean(means) == pytest.approx(2.0, rel=0.015)
+    assert abs(np.mean(means) - 1.875) > 0.06

@@ -9,6 +9,7 @@ import threading
 from collections import OrderedDict
 
 import numpy as np
+from scipy.special import gammaln
 
 from common.camera import camera_rays
 from common.frame import FrameSpec, Tile, TileBuffers
@@ -24,6 +25,24 @@ from .shading import bsdf_direct, gather_vpls, trace_eye
 from .vpl import VPLSet, build_vpl_set
 
 DEFAULT_CLAMP = 1e-3  # minimum squared VPL distance, as a fraction of the squared scene diagonal
+
+
+def accumulation_index(spec: FrameSpec, params: Params) -> int:
+    """How many frames have been accumulated before this one (0 while the view changes):
+    frame i after an accumulation reset renders with seed = params.seed + i."""
+    if not params.accumulate:
+        return 0
+    return (spec.seed - params.seed) % (2**31)
+
+
+def radius_scale(index: int, params: Params) -> float:
+    """Progressive photon mapping: r_i/r_0 with r²ᵢ₊₁ = r²ᵢ (i + α)/(i + 1), so accumulated
+    caustics converge (the averaged estimate is consistent, Knaus & Zwicker 2011)."""
+    if index <= 0 or not params.consistent:
+        return 1.0
+    a = params.ppm_alpha
+    # Π_{j<i} (j+α)/(j+1) = Γ(i+α) / (Γ(α) Γ(i+1))
+    return float(np.exp(0.5 * (gammaln(index + a) - gammaln(a) - gammaln(index + 1))))
 
 
 def clamp_distance2(params: Params, diagonal: float) -> float:
@@ -50,9 +69,9 @@ class Renderer:
         self.stats = {"sets_built": 0, "set_hits": 0}
 
     # -- per-set preprocessing --------------------------------------------------------------
-    def vpl_set(self, seed: int, k: int, params: Params) -> VPLSet:
+    def vpl_set(self, seed: int, k: int, params: Params, roulette: bool = False) -> VPLSet:
         key = (self.scene_version, seed, k, params.direct_vpls, params.indirect_vpls,
-               params.light_path_length, params.max_depth)
+               params.light_path_length, params.max_depth, roulette)
         with self._lock:
             hit = self._sets.get(key)
             if hit is not None:
@@ -69,7 +88,7 @@ class Renderer:
             length = min(length, params.max_depth - 2)
         indirect = params.indirect_vpls if length > 0 else 0
         s = build_vpl_set(self.scene, self.geom, self.lights, seed, k, direct if params.max_depth != 1 else 0,
-                          indirect, max(length, 1))
+                          indirect, max(length, 1), roulette=roulette and params.max_depth < 0)
         with self._lock:
             self._sets[key] = s
             self.stats["sets_built"] += 1
@@ -77,8 +96,8 @@ class Renderer:
                 self._sets.popitem(last=False)
         return s
 
-    def photon_set(self, seed: int, k: int, params: Params) -> PhotonSet:
-        radius = default_radius(self.geom.diagonal, params.photon_radius)
+    def photon_set(self, seed: int, k: int, params: Params, index: int = 0) -> PhotonSet:
+        radius = default_radius(self.geom.diagonal, params.photon_radius) * radius_scale(index, params)
         # Caustic paths have >= 4 segments (light, specular, diffuse, eye).
         if (self.plan is not None and not self.plan.caustics) or 0 <= params.max_depth < 4:
             return PhotonSet(*(np.zeros((0, 3)),) * 4, np.zeros(0, np.int32), radius, None)
@@ -112,13 +131,14 @@ class Renderer:
         rng = make_rng(spec.seed, tile.k, tile.sx0, tile.sy0)
         eye = trace_eye(self.scene, self.geom, self.lights, o, d, params.max_depth,
                         params.specular_depth, rng)
-        vpls = self.vpl_set(spec.seed, tile.k, params)
+        index = accumulation_index(spec, params)
+        vpls = self.vpl_set(spec.seed, tile.k, params, roulette=index > 0 and params.consistent)
         albedo, irr = gather_vpls(self.geom, eye.end, vpls, clamp_distance2(params, self.geom.diagonal),
                                   params.max_depth, force_general=self.plan is None)
         end = eye.end
         irr = irr + bsdf_direct(self.scene, self.geom, self.lights, end, albedo, vpls.direct_count,
                                 params.max_depth, rng)
-        photons = self.photon_set(spec.seed, tile.k, params)
+        photons = self.photon_set(spec.seed, tile.k, params, index)
         if len(photons):
             irr = irr + gather_photons(end, photons, albedo, params.max_depth)
         refl = np.zeros((p, 3))

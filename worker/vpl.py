@@ -16,6 +16,7 @@ from common.geometry import Geometry
 from common.lights import VPL_SPOT, VPL_SURFACE, LightSampler, to_local, to_world
 from common.scene import NULL, SPECULAR_KINDS, Scene
 from common.sobol_stream import SobolStream
+from common.sobol_stream import rng as make_rng
 
 # Sobol dimensions: direct samples use 3 (emitter, 2 for the point); a walk uses 5 to leave
 # the light and 3 per bounce (component + 2 for the direction).
@@ -61,9 +62,17 @@ def walk_count(indirect_vpls: int, max_length: int) -> int:
     return max(1, int(np.ceil(indirect_vpls / max_length)))
 
 
+MAX_WALK = 64  # hard cap of Russian-roulette walks (a safety net; survival falls off long before)
+
+
 def build_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: int, k: int,
-                  direct_vpls: int, indirect_vpls: int, max_length: int) -> VPLSet:
-    """The VPL set P_k for frame seed ``seed``."""
+                  direct_vpls: int, indirect_vpls: int, max_length: int,
+                  roulette: bool = False) -> VPLSet:
+    """The VPL set P_k for frame seed ``seed``.
+
+    ``roulette``: walks go on past ``max_length`` with Russian roulette (survival = the
+    throughput ratio of the bounce), so the set is unbiased for paths of any length.
+    """
     if not lights.has_light:
         return _empty_set()
     stream = SobolStream(seed)
@@ -80,14 +89,21 @@ def build_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: int,
                             np.zeros(m, np.int32), extra, None, True, s.pdf, direct_vpls))
     walks = walk_count(indirect_vpls, max_length)
     if walks > 0 and max_length > 0:
+        length = MAX_WALK if roulette else max_length
         dims = WALK_DIMS_START + WALK_DIMS_PER_BOUNCE * max_length
         u = stream.padded(2 * k + 1, walks, BLOCK, dims)
-        parts.append(_light_walks(scene, geom, lights, u, walks, max_length))
+        rr = make_rng(seed, k, "roulette") if roulette else None
+        if roulette:
+            # Bounces past max_length are rare: plain pseudo-random numbers serve them.
+            extra = rr.random((walks, WALK_DIMS_PER_BOUNCE * (length - max_length)))
+            u = np.concatenate([u, extra], axis=1)
+        parts.append(_light_walks(scene, geom, lights, u, walks, length, max_length if roulette else None, rr))
     return _concat(parts)
 
 
 def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarray,
-                 walks: int, max_length: int) -> VPLSet:
+                 walks: int, max_length: int, roulette_after: int | None = None,
+                 rr: np.random.Generator | None = None) -> VPLSet:
     rays = lights.emit_rays(u[:, :WALK_DIMS_START])
     flux = rays.flux / walks
     d = rays.direction
@@ -128,6 +144,11 @@ def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarr
         wo, weight, _pdf, _delta = bsdf.sample(sp, wi, u[alive, col], u[alive, col + 1:col + 3],
                                                mode="importance")
         wo_world = to_world(wo, ns)
+        if roulette_after is not None and bounce + 1 >= roulette_after:
+            # Russian roulette: survive with the bounce's throughput ratio, reweight survivors.
+            q = np.clip(np.max(weight, axis=1), 0.0, 0.95)
+            survive = rr.random(len(q)) < q
+            weight = np.where(survive[:, None], weight / np.maximum(q, 1e-12)[:, None], 0.0)
         flux[alive] = flux[alive] * weight
         ok = np.any(flux[alive] > 0, axis=1) & np.all(np.isfinite(flux[alive]), axis=1)
         d[alive] = wo_world
