@@ -116,7 +116,7 @@ class FakeWorker:
             return None
         return P.decode(self.sock.recv(), max_size=P.MAX_SCENE_MESSAGE_SIZE)
 
-    def recv_kind(self, kind, timeout: float = 5.0, keep_frames: bool = True):
+    def recv_kind(self, kind, timeout: float = 5.0):
         """Next message of ``kind`` (FRAME bodies are remembered on the way)."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
