@@ -25,6 +25,14 @@ class FrameSpec:
     jitter: tuple = (0.5, 0.5)  # sub-pixel position of the eye ray (0.5, 0.5 = centre)
 
 
+def accumulation_index(spec: FrameSpec) -> int:
+    """Frames accumulated before this one (0 while the view changes): frame i after an
+    accumulation reset renders with seed = params["seed"] + i (master.accumulation)."""
+    if not spec.params.get("accumulate", True):
+        return 0
+    return (spec.seed - int(spec.params.get("seed", 0))) % (2**31)
+
+
 @dataclass(frozen=True)
 class Tile:
     """A rectangle of the sub-image of interleave index k.

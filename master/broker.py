@@ -56,7 +56,7 @@ import numpy as np
 import zmq
 
 from common import protocol as P
-from common.frame import FrameSpec, Tile
+from common.frame import FrameSpec, Tile, accumulation_index
 from common.params import make_params, params_to_dict
 from common.scene import Scene
 
@@ -96,7 +96,7 @@ class FrameResult:
 
     def image(self) -> np.ndarray:
         """Filtered + composed image (discontinuity buffer), computed in the caller's thread."""
-        return self.assembler.image(self.spec.params)
+        return self.assembler.image(self.spec.params, accumulation_index(self.spec))
 
 
 @dataclass

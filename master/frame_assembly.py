@@ -67,16 +67,35 @@ class FrameAssembler:
         self.received += count
         return self.complete
 
-    def image(self, params) -> np.ndarray:
-        """The filtered image (H, W, 3) float32, linear radiance."""
+    def image(self, params, index: int = 0) -> np.ndarray:
+        """The filtered image (H, W, 3) float32, linear radiance, of accumulation frame ``index``.
+
+        With ``consistent`` accumulation the discontinuity buffer's share fades after
+        ``filter_frames`` frames: frame i uses w·filtered + (1-w)·raw irradiance with
+        w = min(1, T/(i+1)), so the filter's blur (a bias no averaging removes) vanishes from
+        the running mean like T·ln(N/T)/N, while the first frames stay smooth.
+        """
         from master.discontinuity_buffer import compose, filter_irradiance, resolve_window
 
         p = params if isinstance(params, dict) else _asdict(params)
         window = resolve_window(int(p["filter_window"]), self.n)
         b = self.buffers
+        w = filter_weight(p, index)
+        if w <= 0.0 or window <= 1:
+            return compose(b["reflectance"], b["irradiance"], b["unfiltered"])
         filtered = filter_irradiance(b["irradiance"], b["depth"], b["normal"], window,
                                      float(p["depth_threshold"]), float(p["normal_threshold"]))
+        if w < 1.0:
+            filtered = w * filtered + (1.0 - w) * b["irradiance"]
         return compose(b["reflectance"], filtered, b["unfiltered"])
+
+
+def filter_weight(params: dict, index: int) -> float:
+    """Share of the filtered irradiance in accumulation frame ``index`` (see FrameAssembler.image)."""
+    t = int(params.get("filter_frames", -1))
+    if t < 0 or index < t or not params.get("consistent", False) or not params.get("accumulate", True):
+        return 1.0
+    return t / (index + 1.0)
 
 
 def _asdict(params) -> dict:

@@ -86,7 +86,7 @@ def render_local(scene: Scene, params=None, frames: int = 1, camera=None,
         asm = FrameAssembler(w, h, n)
         for tile in tiles:
             asm.add(tile, roundtrip(renderer.render_tile(spec, tile), quantize))
-        frame_img = asm.image(pdict)
+        frame_img = asm.image(pdict, i if params.accumulate else 0)
         acc.add(frame_img, accumulation_key(spec))
         image = acc.mean()
         if on_frame is not None:

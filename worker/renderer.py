@@ -12,7 +12,7 @@ import numpy as np
 from scipy.special import gammaln
 
 from common.camera import camera_rays
-from common.frame import FrameSpec, Tile, TileBuffers
+from common.frame import FrameSpec, Tile, TileBuffers, accumulation_index
 from common.geometry import Geometry
 from common.lights import LightSampler
 from common.params import Params, make_params
@@ -25,14 +25,6 @@ from .shading import bsdf_direct, gather_vpls, trace_eye
 from .vpl import VPLSet, build_vpl_set
 
 DEFAULT_CLAMP = 1e-3  # minimum squared VPL distance, as a fraction of the squared scene diagonal
-
-
-def accumulation_index(spec: FrameSpec, params: Params) -> int:
-    """How many frames have been accumulated before this one (0 while the view changes):
-    frame i after an accumulation reset renders with seed = params.seed + i."""
-    if not params.accumulate:
-        return 0
-    return (spec.seed - params.seed) % (2**31)
 
 
 def radius_scale(index: int, params: Params) -> float:
@@ -131,7 +123,7 @@ class Renderer:
         rng = make_rng(spec.seed, tile.k, tile.sx0, tile.sy0)
         eye = trace_eye(self.scene, self.geom, self.lights, o, d, params.max_depth,
                         params.specular_depth, rng)
-        index = accumulation_index(spec, params)
+        index = accumulation_index(spec)
         vpls = self.vpl_set(spec.seed, tile.k, params, roulette=index > 0 and params.consistent)
         albedo, irr = gather_vpls(self.geom, eye.end, vpls, clamp_distance2(params, self.geom.diagonal),
                                   params.max_depth, force_general=self.plan is None)
