@@ -15,8 +15,25 @@ from common.params import make_params
 from master.machine import machine_info
 
 
-def run(scene_path: str, width: int | None = None, height: int | None = None, frames: int = 2,
-        out: str | None = None, **param_overrides) -> dict:
+HELP = "primary + shadow ray throughput of the whole pipeline against raw embreex on the same rays"
+
+
+def add_arguments(p) -> None:
+    p.add_argument("scene", help="scene file")
+    p.add_argument("--width", type=int, default=None)
+    p.add_argument("--height", type=int, default=None)
+    p.add_argument("--frames", type=int, default=2)
+    p.add_argument("--out", default="artifacts/bench_rays.json")
+
+
+def run(args) -> int:
+    res = measure(args.scene, args.width, args.height, args.frames, args.out)
+    print(json.dumps({k: v for k, v in res.items() if k not in ("machine", "settings")}, indent=2))
+    return 0
+
+
+def measure(scene_path: str, width: int | None = None, height: int | None = None, frames: int = 2,
+            out: str | None = None, **param_overrides) -> dict:
     from master.accumulation import sequence_spec
     from master.frame_assembly import task_tiles
     from master.local import resolve_camera
