@@ -135,8 +135,15 @@ class Geometry:
         # Texture coordinates are interpolated only when some texture reads them (render plan).
         self.need_uv = bool(any(m.uvs is not None for m in scene.meshes))
         self.record: list | None = None
-        self._embree = rtcs.EmbreeScene()
+        # float32 per-triangle data for hit reconstruction (centred positions, normals).
         local = (tri - self.center).astype(np.float32)
+        self._v0c = local[:, 0].copy()
+        self._e1c = (local[:, 1] - local[:, 0]).copy()
+        self._e2c = (local[:, 2] - local[:, 0]).copy()
+        self._fn32 = self.face_normal.astype(np.float32)
+        self._any_smooth = bool(self.smooth.any())
+        self._tri_normals = self.vertex_normals[self.faces].astype(np.float32)
+        self._embree = rtcs.EmbreeScene()
         self._mesh = TriangleMesh(self._embree, local)
 
     # -- queries ---------------------------------------------------------------------------
@@ -169,6 +176,18 @@ class Geometry:
             self.record.append(("occluded", o, d, dist))
         r = self._embree.run(o, d, query="OCCLUDED", dists=dist)
         return r != -1
+
+    def occluded_local(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray) -> np.ndarray:
+        """occluded() for origins already in the centred float32 frame (hot path)."""
+        if len(o) == 0:
+            return np.zeros(0, bool)
+        self.counters["occluded_rays"] += len(o)
+        dist = np.ascontiguousarray(np.minimum(tmax, np.float32(3.0e38)), dtype=np.float32)
+        o = np.ascontiguousarray(o, dtype=np.float32)
+        d = np.ascontiguousarray(d, dtype=np.float32)
+        if self.record is not None:
+            self.record.append(("occluded", o, d, dist))
+        return self._embree.run(o, d, query="OCCLUDED", dists=dist) != -1
 
     def visible(self, x: np.ndarray, nx: np.ndarray, y: np.ndarray, ny: np.ndarray | None) -> np.ndarray:
         """Mutual visibility of surface points x and y (normals give the offset side)."""
@@ -219,36 +238,45 @@ class Geometry:
     def _surface(self, origins, directions, valid, prim, u, v, t) -> Hits:
         n = len(origins)
         p_idx = np.where(valid, prim, 0)
-        tri = self._tri[p_idx]
-        w0 = (1.0 - u - v)[:, None]
-        # Barycentric position in float64 is more precise than o + t*d in float32.
-        pos = w0 * tri[:, 0] + u[:, None] * tri[:, 1] + v[:, None] * tri[:, 2]
-        ng = self.face_normal[p_idx].copy()
-        ns = ng.copy()
-        sm = valid & self.smooth[p_idx]
-        if sm.any():
-            f = self.faces[p_idx[sm]]
-            vn = self.vertex_normals
-            wn = (w0[sm] * vn[f[:, 0]] + u[sm, None] * vn[f[:, 1]] + v[sm, None] * vn[f[:, 2]])
-            ln = np.linalg.norm(wn, axis=1)
-            good = ln > 1e-12
-            wn = np.where(good[:, None], wn / np.maximum(ln, 1e-300)[:, None], ng[sm])
-            ns[sm] = wn
-            # Mitsuba orients by the shading frame: flip ng to the shading normal's side.
-            flip = np.einsum("ij,ij->i", ng[sm], wn) < 0
-            ngs = ng[sm]
-            ngs[flip] *= -1
-            ng[sm] = ngs
+        f32 = np.float32
+        u32 = u.astype(f32)[:, None]
+        v32 = v.astype(f32)[:, None]
+        # Positions from the centred float32 triangle (precise relative to the scene's size),
+        # moved back to world space in float64.
+        pos = (self._v0c[p_idx] + u32 * self._e1c[p_idx] + v32 * self._e2c[p_idx]).astype(np.float64)
+        pos += self.center
+        ng = self._fn32[p_idx]
+        ns = ng
+        sm_any = self._any_smooth
+        if sm_any:
+            sm = valid & self.smooth[p_idx]
+            if sm.any():
+                tn = self._tri_normals[p_idx[sm]]  # (k, 3, 3) float32
+                w0 = 1 - u32[sm] - v32[sm]
+                wn = w0 * tn[:, 0] + u32[sm] * tn[:, 1] + v32[sm] * tn[:, 2]
+                ln = np.sqrt((wn * wn).sum(axis=1))
+                good = ln > 1e-12
+                wn = np.where(good[:, None], wn / np.maximum(ln, f32(1e-30))[:, None], ng[sm])
+                ns = ng.copy()
+                ns[sm] = wn
+                # Mitsuba orients by the shading frame: flip ng to the shading normal's side.
+                flip = (ng[sm] * wn).sum(axis=1) < 0
+                if flip.any():
+                    ng = ng.copy()
+                    rows = np.nonzero(sm)[0][flip]
+                    ng[rows] = -ng[rows]
         if self.need_uv:
             f = self.faces[p_idx]
             vt = self.vertex_uvs
-            uv = w0 * vt[f[:, 0]] + u[:, None] * vt[f[:, 1]] + v[:, None] * vt[f[:, 2]]
+            w0d = (1.0 - u - v)[:, None]
+            uv = w0d * vt[f[:, 0]] + u[:, None] * vt[f[:, 1]] + v[:, None] * vt[f[:, 2]]
         else:
             uv = np.zeros((n, 2))
         mat = np.where(valid, self.material_of[p_idx], -1).astype(np.int32)
         em = np.where(valid, self.emitter_of[p_idx], -1).astype(np.int32)
         mesh = np.where(valid, self.mesh_of[p_idx], -1).astype(np.int32)
-        return Hits(valid, np.where(valid, t, np.inf), prim, pos, ng, ns, uv, mat, em, mesh)
+        return Hits(valid, np.where(valid, t, np.inf), prim, pos, ng.astype(np.float64),
+                    ns.astype(np.float64), uv, mat, em, mesh)
 
     def sample_triangles(self, tri_idx: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Uniform points on the given triangles from (N, 2) uniforms: (position, ng, uv)."""

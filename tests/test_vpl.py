@@ -19,6 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _furnace_mean(renderer, scene, frames, **overrides):
+    overrides.setdefault("consistent", False)  # truncated walks: the paper's fixed length
     p = make_params(interleave=3, clamp=0.0, **overrides)
     w, h = scene.camera.width, scene.camera.height
     means = []

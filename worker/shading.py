@@ -82,10 +82,16 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
     sp = bsdf.gather(scene.materials, hits.material[v], hits.uv[v])
     wi = to_local(-d, ns)
     delta = np.isin(sp.kind, SPECULAR_KINDS)
-    nd = np.nonzero(~delta & (sp.kind != NULL))[0]
-    ends = [EndPoints(idx[nd], pos[nd], ns[nd], ng[nd], wi[nd], sp.subset(nd),
-                      np.ones((len(nd), 3)), np.ones(len(nd), np.int32), np.ones(len(nd), bool),
-                      hits.t[v][nd])]
+    nd_mask = ~delta & (sp.kind != NULL)
+    if nd_mask.all():  # the common case: no copies of the per-hit arrays
+        n_all = len(idx)
+        ends = [EndPoints(idx, pos, ns, ng, wi, sp, np.ones((n_all, 3)), np.ones(n_all, np.int32),
+                          np.ones(n_all, bool), hits.t[v])]
+    else:
+        nd = np.nonzero(nd_mask)[0]
+        ends = [EndPoints(idx[nd], pos[nd], ns[nd], ng[nd], wi[nd], sp.subset(nd),
+                          np.ones((len(nd), 3)), np.ones(len(nd), np.int32), np.ones(len(nd), bool),
+                          hits.t[v][nd])]
     di = np.nonzero(delta)[0]
     if len(di) and specular_depth > 0 and _allowed(2, max_depth):
         sp_d = sp.subset(di)
@@ -231,6 +237,13 @@ class _VPLColumns:
         self.light_pdf = lp.astype(np.float32)
         # Emitter samples with a non-delta pdf take part in MIS (area lights, environment).
         self.mis = (lp > 0) & (self.area | self.directional) & (vpls.direct_count > 0)
+        # Columns whose emission has a cos θ_y factor (area emitters, Lambertian surface VPLs).
+        self.cos_y_factor = self.area | (self.surface & ~self.glossy)
+
+    def min_d2(self, clamp_d2: float) -> np.ndarray:
+        """Per-column lower bound of the squared distance: the clamp for surface VPLs only
+        (clamping emitter samples would bias direct light); directional columns have d² = 1."""
+        return np.where(self.surface, np.float32(clamp_d2), np.float32(1e-30)).astype(np.float32)
 
 
 def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
@@ -250,17 +263,14 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
     # for the pairs that need them (shadow rays, glossy BSDFs).
     cos_x = np.einsum("ijk,ik->ij", dvec, ns) * inv_d * side[:, None]
     cos_y = -np.einsum("ijk,jk->ij", dvec, cols.normal) * inv_d
-    # Emitter factor toward x (scalar per pair; the VPL colour multiplies it later).
-    inv_d2 = inv_d * inv_d
-    em = np.where(cols.surface[None, :], 1.0 / np.maximum(d2, f32(clamp_d2)), inv_d2).astype(f32)
-    em[:, cols.directional] = 1.0
-    em[:, cols.area] *= np.maximum(cos_y[:, cols.area], 0)
+    # Emitter factor toward x (scalar per pair; the VPL colour multiplies it later), built
+    # with per-column vectors so no column gather/scatter copies the (n, m) arrays.
+    em = 1.0 / np.maximum(d2, cols.min_d2(clamp_d2)[None, :])
+    em *= np.where(cols.cos_y_factor[None, :], np.maximum(cos_y * cols.side[None, :], f32(0)), f32(1))
     if cols.spot.any():
         sp_cols = np.nonzero(cols.spot)[0]
         for jj, j in enumerate(sp_cols):
             em[:, j] *= spot_falloff(cos_y[:, j], cols.spot_params[jj, 2], cols.spot_params[jj, 1]).astype(f32)
-    lam_vpl = cols.surface & ~cols.glossy
-    em[:, lam_vpl] *= np.maximum(cos_y[:, lam_vpl] * cols.side[lam_vpl], 0)
     if max_depth >= 0:
         seg = end.segments[sl][:, None] + 1 + vpls.depth[None, :]
         em *= seg <= max_depth
@@ -302,14 +312,18 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
     # Shadow rays for the live pairs only, in one Embree batch.
     ii, jj = np.nonzero(live)
     if len(ii):
-        xo = end.position[sl][ii]
-        ngi = end.ng[sl][ii]
-        wij = (dvec[ii, jj] * inv_d[ii, jj][:, None]).astype(np.float64)
-        ox = geom.offset(xo, ngi, wij, geom.offset_scale(end.position[sl])[ii])
-        dist = np.sqrt(d2[ii, jj]).astype(np.float64)
-        tmax = dist * (1 - 1e-4) - 2 * geom.eps
+        # Everything in Embree's centred float32 frame: no float64 round trip per pair. Live
+        # pairs lie on the side of the surface the eye sees (cos_x > 0, reflective BSDFs), so
+        # one offset origin per end point serves all its shadow rays.
+        ng = end.ng[sl].astype(f32)
+        scale = geom.offset_scale(end.position[sl]).astype(f32) * side
+        o_rows = x + ng * scale[:, None]
+        id_ = inv_d[ii, jj]
+        wij = dvec[ii, jj] * id_[:, None]
+        ox = o_rows[ii]
+        tmax = (1.0 / id_) * f32(1 - 1e-4) - f32(2 * geom.eps)
         tmax[cols.directional[jj]] = np.inf
-        blocked = geom.occluded(ox, wij, np.maximum(tmax, 0.0))
+        blocked = geom.occluded_local(ox, wij, np.maximum(tmax, f32(0)))
         live[ii[blocked], jj[blocked]] = False
     weight *= live
     out = weight @ cols.color.astype(f32) if not len(gi) else np.zeros((n, 3), f32)
@@ -352,7 +366,7 @@ def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoin
     ok = np.nonzero(end.segments + 1 <= max_depth if max_depth >= 0 else np.ones(e, bool))[0]
     if len(ok) == 0:
         return out
-    sp = end.sp.subset(ok)
+    sp = end.sp if len(ok) == e else end.sp.subset(ok)
     wo, weight, pdf_b, delta = bsdf.sample(sp, end.wi[ok], rng.random(len(ok)), rng.random((len(ok), 2)),
                                            mode="radiance")
     live = np.any(weight > 0, axis=1) & np.all(np.isfinite(weight), axis=1)
