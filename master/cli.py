@@ -4,7 +4,8 @@
                [--direct-only] [every render parameter flag of common.params, e.g. --max-depth, --seed]
     igi master [--bind tcp://127.0.0.1:5555] [SCENE]
     igi worker --connect tcp://HOST:5555 [--threads T]
-    igi serve SCENE [--workers N] [--bind ...] [--http HOST:PORT]
+    igi serve SCENE [--workers N] [--bind ...] [--http HOST:PORT] [--pub tcp://HOST:PORT]
+    igi record tcp://127.0.0.1:5556 -o DIR [--count N] [--format png|exr]   (master/record.py)
     igi bench scaling [...]        (and every other master/bench_<name>.py module)
 
 ``igi render`` renders through the master + local worker processes (one per core by default),
@@ -34,6 +35,8 @@ import sys
 import threading
 import time
 from pathlib import Path
+
+import numpy as np
 
 log = logging.getLogger("igi")
 
@@ -153,7 +156,7 @@ class Progress:
         self.t0 = time.monotonic()
         self._last_pct = -1
 
-    def update(self, done: int) -> None:
+    def update(self, done: int, error: float | None = None) -> None:
         el = time.monotonic() - self.t0
         rate = done / el if el > 0 else 0.0
         eta = (self.total - done) / rate if rate > 0 else 0.0
@@ -161,6 +164,8 @@ class Progress:
         fill = int(width * done / self.total)
         line = (f"{self.label} [{'#' * fill}{'-' * (width - fill)}] {done}/{self.total} frames "
                 f"{rate:.2f} fps ETA {eta:.0f} s")
+        if error is not None:
+            line += f" est. relMSE {error:.2e}"
         if self.tty:
             self.stream.write("\r" + line + ("\n" if done >= self.total else ""))
             self.stream.flush()
@@ -188,7 +193,7 @@ def write_image(path: str, image) -> None:
 # ---------------------------------------------------------------------------- subcommands
 
 def cmd_render(args: argparse.Namespace) -> int:
-    if Path(args.output).suffix.lower() not in (".exr", ".png"):
+    if args.output and Path(args.output).suffix.lower() not in (".exr", ".png"):
         raise UsageError(f"output must end in .exr or .png: {args.output}")
     for name in ("width", "height", "frames"):
         v = getattr(args, name)
@@ -198,12 +203,72 @@ def cmd_render(args: argparse.Namespace) -> int:
         raise UsageError("--workers must be >= 0")
     params = params_from(args)
     scene = load_scene_file(args.scene)
+    if args.plan:
+        from common.geometry import Geometry
+        from common.lights import LightSampler
+        from common.render_plan import analyze
+
+        geom = Geometry(scene)
+        print("\n".join(analyze(scene, geom, LightSampler(scene, geom)).lines()))
+        if not args.output:
+            return 0
+    if not args.output:
+        raise UsageError("-o/--output is required (unless --plan alone)")
     progress = Progress(args.frames) if not args.quiet else None
+    tracker = ErrorTracker()
 
-    def on_frame(i, _img):
+    def on_frame(i, img):
+        err = tracker.add(i, img)
         if progress:
-            progress.update(i + 1)
+            progress.update(i + 1, err)
+        if args.until_error is not None and err is not None and err <= args.until_error:
+            raise Converged(img, i + 1, err)
 
+    try:
+        image = _render_frames(args, scene, params, on_frame)
+    except Converged as c:
+        image = c.image
+        args.frames = c.frames
+    write_image(args.output, image)
+    if not args.quiet:
+        est = tracker.error
+        extra = f", estimated relMSE {est:.2e}" if est is not None else ""
+        print(f"wrote {args.output} ({image.shape[1]}x{image.shape[0]}, {args.frames} frame(s){extra})",
+              file=sys.stderr)
+    return 0
+
+
+class Converged(Exception):
+    """--until-error reached: carries the accumulated image."""
+
+    def __init__(self, image, frames: int, error: float):
+        super().__init__(f"converged after {frames} frames (estimated relMSE {error:.2e})")
+        self.image, self.frames, self.error = image, frames, error
+
+
+class ErrorTracker:
+    """Live error estimate from the running means the renderers report (issue 11).
+
+    Frame i is recovered from consecutive means, (i+1)·m_i − i·m_{i−1}, and fed to an
+    Accumulator, whose even/odd halves estimate the relMSE of the mean without a reference."""
+
+    def __init__(self):
+        from master.accumulation import Accumulator
+
+        self.acc = Accumulator()
+        self.prev = None
+        self.error = None
+
+    def add(self, i: int, mean) -> float | None:
+        mean = np.asarray(mean, np.float64)
+        frame = mean if self.prev is None or i == 0 else (i + 1) * mean - i * self.prev
+        self.prev = mean
+        self.acc.add(frame)
+        self.error = self.acc.relative_error()
+        return self.error
+
+
+def _render_frames(args, scene, params, on_frame):
     if args.workers == 0:
         from master.local import render_local
 
@@ -237,10 +302,7 @@ def cmd_render(args: argparse.Namespace) -> int:
                 done.set()
                 broker.stop()
                 workers.stop()
-    write_image(args.output, image)
-    if not args.quiet:
-        print(f"wrote {args.output} ({image.shape[1]}x{image.shape[0]}, {args.frames} frame(s))", file=sys.stderr)
-    return 0
+    return image
 
 
 def _start_viewer(broker, args):
@@ -361,7 +423,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("render", help="render a scene to an EXR (linear) or PNG (sRGB) file")
     r.add_argument("scene", help="Mitsuba XML or OBJ scene file")
-    r.add_argument("-o", "--output", required=True, help="output image, .exr or .png")
+    r.add_argument("-o", "--output", default=None, help="output image, .exr or .png")
+    r.add_argument("--plan", action="store_true", help="print the render plan (passes and why)")
+    r.add_argument("--until-error", type=float, default=None, metavar="E",
+                   help="stop once the estimated relMSE (even/odd frame halves) is <= E; "
+                        "--frames is then the maximum")
     r.add_argument("--frames", type=int, default=1, help="frames to accumulate (default 1)")
     r.add_argument("--width", type=int, default=None, help="image width (default: the scene's)")
     r.add_argument("--height", type=int, default=None, help="image height (default: the scene's)")
@@ -396,8 +462,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--width", type=int, default=None, help="stream width (default: the scene's)")
     s.add_argument("--height", type=int, default=None, help="stream height (default: the scene's)")
     s.add_argument("--stats-interval", type=float, default=5.0, help="seconds between stats lines (0: none)")
+    s.add_argument("--pub", default=None, help="ZeroMQ frame feed (default tcp://127.0.0.1:5556; none: off)")
     _add_render_params(s)
     s.set_defaults(func=cmd_serve)
+
+    from master import record
+
+    rec = sub.add_parser("record", help=record.HELP)
+    record.add_arguments(rec)
+    rec.set_defaults(func=record.run)
 
     b = sub.add_parser("bench", help="benchmarks (scaling, ...)")
     bsub = b.add_subparsers(dest="bench", metavar="BENCH")
