@@ -48,6 +48,7 @@ task ERROR) returns one slot.
 """
 from __future__ import annotations
 
+import logging
 import math
 import re
 from dataclasses import dataclass
@@ -432,3 +433,111 @@ def spec_from_body(body: dict):
                      fov_x=body["fov_x"], width=body["width"], height=body["height"],
                      params=body["params"], scene_version=body["scene_version"],
                      jitter=tuple(body["jitter"]))
+
+
+# --------------------------------------------------------------------------- CURVE (issue 8)
+# Optional authentication + encryption between master and workers (ZeroMQ CURVE, pyzmq's
+# zmq.auth). Key directory layout, as written by generate_keys():
+#
+#   DIR/master.key, DIR/master.key_secret   the master's keypair (the secret stays on the master)
+#   DIR/workers/NAME.key                    public keys of the workers the master accepts
+#   DIR/NAME.key_secret (+ DIR/NAME.key)    a worker's keypair (copied to that worker only)
+#
+# The master needs master.key_secret and workers/; a worker needs its NAME.key_secret and
+# master.key. curve_server()/curve_client() return the ``configure_socket`` hooks of
+# master.broker.Broker and worker.node.WorkerNode. A peer whose public key is not in
+# workers/ (or that speaks plain NULL security, or expects another master key) fails the
+# handshake: it never gets a message through, the scene included.
+
+CURVE_MASTER = "master"
+CURVE_WORKERS_DIR = "workers"
+
+
+def generate_keys(directory, workers=("worker",)) -> dict:
+    """Create the master keypair and one keypair per worker name in ``directory`` (see the
+    layout above; existing keys are kept). Returns {"master": path, "workers": {name: secret path}}."""
+    import shutil
+    from pathlib import Path
+
+    import zmq.auth
+
+    d = Path(directory)
+    pub = d / CURVE_WORKERS_DIR
+    pub.mkdir(parents=True, exist_ok=True)
+    if not (d / f"{CURVE_MASTER}.key_secret").exists():
+        zmq.auth.create_certificates(str(d), CURVE_MASTER)
+    out = {"master": str(d / f"{CURVE_MASTER}.key_secret"), "workers": {}}
+    for name in workers:
+        if not re.fullmatch(r"[A-Za-z0-9_.-]{1,64}", name) or name == CURVE_MASTER:
+            raise ValueError(f"bad worker key name {name!r} (letters, digits, '_', '.', '-')")
+        if not (d / f"{name}.key_secret").exists():
+            zmq.auth.create_certificates(str(d), name)
+        shutil.copyfile(d / f"{name}.key", pub / f"{name}.key")
+        out["workers"][name] = str(d / f"{name}.key_secret")
+    for p in d.glob("*.key_secret"):
+        p.chmod(0o600)
+    return out
+
+
+def _load_cert(path, secret: bool):
+    from pathlib import Path
+
+    import zmq.auth
+
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"CURVE key file {p} not found (igi keys creates it)")
+    public, sec = zmq.auth.load_certificate(str(p))
+    if secret and not sec:
+        raise ValueError(f"{p} holds no secret key")
+    return public, sec
+
+
+class CurveServer:
+    """``configure_socket`` hook for the master's ROUTER: CURVE server with the master's keypair;
+    a ZAP authenticator (one per ZeroMQ context, started on first use) accepts only the public
+    keys in DIR/workers/. Call :meth:`stop` when the broker is stopped."""
+
+    def __init__(self, directory):
+        from pathlib import Path
+
+        d = Path(directory)
+        self.public, self.secret = _load_cert(d / f"{CURVE_MASTER}.key_secret", secret=True)
+        self.allowed = d / CURVE_WORKERS_DIR
+        if not self.allowed.is_dir():
+            raise FileNotFoundError(f"{self.allowed}: no directory of accepted worker keys")
+        self._auths: list = []
+
+    def __call__(self, sock) -> None:
+        from zmq.auth.thread import ThreadAuthenticator
+
+        if not any(a.context is sock.context for a in self._auths):
+            auth = ThreadAuthenticator(sock.context, log=logging.getLogger("igi.auth"))
+            auth.start()
+            auth.configure_curve(domain="*", location=str(self.allowed))
+            self._auths.append(auth)
+        sock.curve_secretkey = self.secret
+        sock.curve_publickey = self.public
+        sock.curve_server = True
+
+    def stop(self) -> None:
+        for a in self._auths:
+            a.stop()
+        self._auths.clear()
+
+
+class CurveClient:
+    """``configure_socket`` hook for a worker's DEALER: its keypair DIR/NAME.key_secret and the
+    master's public key DIR/master.key."""
+
+    def __init__(self, directory, name: str = "worker"):
+        from pathlib import Path
+
+        d = Path(directory)
+        self.public, self.secret = _load_cert(d / f"{name}.key_secret", secret=True)
+        self.server_public, _ = _load_cert(d / f"{CURVE_MASTER}.key", secret=False)
+
+    def __call__(self, sock) -> None:
+        sock.curve_secretkey = self.secret
+        sock.curve_publickey = self.public
+        sock.curve_serverkey = self.server_public
