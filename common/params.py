@@ -131,6 +131,13 @@ def markdown_table() -> str:
     return "\n".join(rows)
 
 
+def parameters_doc() -> str:
+    """docs/parameters.md, generated: `python -c "import common.params as p; print(p.parameters_doc())" > docs/parameters.md`."""
+    return ("# Render parameters\n\nGenerated from `common/params.py` (the one declaration the CLI flags, "
+            "this page and the viewer's panel come from). Every flag works with `igi render` and "
+            "`igi serve`.\n\n" + markdown_table() + "\n")
+
+
 def viewer_schema() -> list[dict]:
     """Declarations the browser panel builds its controls from."""
     return [
