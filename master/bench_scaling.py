@@ -44,6 +44,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--warmup", type=int, default=2, help="frames before measuring (default 2)")
     p.add_argument("--merge-reps", type=int, default=5, help="repetitions of the merge+filter timing")
     p.add_argument("--task-pixels", type=int, default=None, help="pixels per task (default: the broker's)")
+    p.add_argument("--latency-inputs", type=int, default=5,
+                   help="camera inputs per point for the input-to-frame latency (master.viewer_latency; 0: skip)")
     p.add_argument("-o", "--out", default="artifacts/bench-scaling",
                    help="output prefix: writes PREFIX.json and PREFIX.png (default artifacts/bench-scaling)")
     add_params(p)
@@ -110,7 +112,7 @@ def merge_filter_rate(result, reps: int) -> dict:
 
 
 def run_point(scene, params, width: int, height: int, workers: int, frames: int, warmup: int,
-              task_pixels: int | None) -> tuple[dict, object]:
+              task_pixels: int | None, latency_inputs: int = 0) -> tuple[dict, object]:
     from .broker import Broker
     from .cli import LocalWorkers, wait_workers
 
@@ -128,6 +130,11 @@ def run_point(scene, params, width: int, height: int, workers: int, frames: int,
             wall = time.perf_counter() - t0
             s1 = broker.stats()
             last = broker.render_frame(broker.frame_spec(0, params, width=width, height=height))
+            latency = None
+            if latency_inputs > 0:  # camera input -> first frame showing it (the viewer's stream)
+                from .viewer_latency import stream_latency
+
+                latency = stream_latency(broker, params, width, height, latency_inputs)
         finally:
             broker.stop()
             procs.stop()
@@ -146,6 +153,7 @@ def run_point(scene, params, width: int, height: int, workers: int, frames: int,
         "render_s_per_frame": (s1["task_render_ms"] or 0) * tasks / frames / 1e3,
         "render_bound_fps": workers / max(1e-9, (s1["task_render_ms"] or 0) * tasks / frames / 1e3),
         "load_avg_before": load_before,
+        "input_latency": latency,
     }
     return point, last
 
@@ -211,10 +219,13 @@ def run(args: argparse.Namespace) -> int:
         last = None
         for c in counts:
             print(f"igi bench scaling: {key}, {c} worker(s) …", file=sys.stderr, flush=True)
-            point, last = run_point(scene, params, w, h, c, args.frames, args.warmup, args.task_pixels)
+            point, last = run_point(scene, params, w, h, c, args.frames, args.warmup, args.task_pixels,
+                                    getattr(args, "latency_inputs", 0))
             pts.append(point)
             print(f"  {point['fps']:.2f} fps, {point['bytes_per_frame'] / 1e3:.0f} kB/frame, "
-                  f"task latency {point['task_latency_ms']['mean']:.0f} ms", file=sys.stderr, flush=True)
+                  f"task latency {point['task_latency_ms']['mean']:.0f} ms"
+                  + (f", input→frame {point['input_latency']['mean_ms']:.0f} ms" if point["input_latency"] else ""),
+                  file=sys.stderr, flush=True)
         base = next((p for p in pts if p["workers"] == 1), None)
         for p in pts:
             p["efficiency"] = (p["fps"] / (base["fps"] * p["workers"])) if base else None
