@@ -21,7 +21,7 @@ from common.scene import DIFFUSE, GLOSSY_KINDS, PLASTIC, Scene
 from common.sobol_stream import rng as make_rng
 
 from .caustics import PhotonSet, build_photon_set, default_radius, gather_photons
-from .shading import bsdf_direct, gather_vpls, trace_eye
+from .shading import bsdf_direct, clamp_compensation, gather_vpls, trace_eye
 from .vpl import VPLSet, build_vpl_set
 
 DEFAULT_CLAMP = 1e-3  # minimum squared VPL distance, as a fraction of the squared scene diagonal
@@ -125,9 +125,14 @@ class Renderer:
                         params.specular_depth, rng)
         index = accumulation_index(spec)
         vpls = self.vpl_set(spec.seed, tile.k, params, roulette=index > 0 and params.consistent)
-        albedo, irr = gather_vpls(self.geom, eye.end, vpls, clamp_distance2(params, self.geom.diagonal),
-                                  params.max_depth, force_general=self.plan is None)
+        clamp_d2 = clamp_distance2(params, self.geom.diagonal)
+        albedo, irr = gather_vpls(self.geom, eye.end, vpls, clamp_d2, params.max_depth,
+                                  force_general=self.plan is None)
         end = eye.end
+        if index > 0 and params.consistent:
+            # Accumulating: give back what the clamp took (not while the view moves).
+            irr = irr + clamp_compensation(self.scene, self.geom, self.lights, end, albedo, vpls,
+                                           clamp_d2, params.max_depth, rng)
         irr = irr + bsdf_direct(self.scene, self.geom, self.lights, end, albedo, vpls.direct_count,
                                 params.max_depth, rng)
         photons = self.photon_set(spec.seed, tile.k, params, index)

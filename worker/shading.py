@@ -397,3 +397,57 @@ def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoin
     contrib = weight * le * w_mis[:, None] / np.maximum(albedo[ok], 1e-6)
     out[ok] = np.nan_to_num(contrib, nan=0.0, posinf=0.0, neginf=0.0)
     return out
+
+
+def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints,
+                       albedo: np.ndarray, vpls: VPLSet, clamp_d2: float, max_depth: int,
+                       rng: np.random.Generator) -> np.ndarray:
+    """Energy the VPL clamp removed, added back by short BSDF-sampled gather rays
+    (Kollig & Keller 2004; pbrt-v2's igi integrator), per unit albedo.
+
+    The clamp replaces 1/d² by 1/max(d², c) for surface VPLs, i.e. it drops the fraction
+    (1 - d²/c) of the light a point y closer than √c sends to x. A BSDF-sampled ray from x
+    limited to √c finds such points; the radiance leaving y toward x (VPLs and emitters at y,
+    with y's own MIS ray) times (1 - d²/c) times the sample weight is exactly that share.
+    """
+    e = len(end)
+    out = np.zeros((e, 3))
+    if e == 0 or clamp_d2 <= 0 or not np.any(vpls.kind == VPL_SURFACE):
+        return out
+    ok = np.nonzero((end.segments + 2 <= max_depth) if max_depth >= 0 else np.ones(e, bool))[0]
+    if len(ok) == 0:
+        return out
+    sp = end.sp if len(ok) == e else end.sp.subset(ok)
+    wo, weight, _pdf, delta = bsdf.sample(sp, end.wi[ok], rng.random(len(ok)), rng.random((len(ok), 2)),
+                                          mode="radiance")
+    live = ~delta & np.any(weight > 0, axis=1) & np.all(np.isfinite(weight), axis=1)
+    ok, wo, weight = ok[live], wo[live], weight[live]
+    if len(ok) == 0:
+        return out
+    d = to_world(wo, end.ns[ok])
+    o = geom.offset(end.position[ok], end.ng[ok], d)
+    hits = geom.intersect(o, d)
+    r = np.sqrt(clamp_d2)
+    near = hits.valid & (hits.t < r)
+    if not near.any():
+        return out
+    sel = np.nonzero(near)[0]
+    y_sp = bsdf.gather(scene.materials, hits.material[sel], hits.uv[sel])
+    y = EndPoints(np.arange(len(sel)), hits.position[sel], hits.ns[sel], hits.ng[sel],
+                  to_local(-d[sel], hits.ns[sel]), y_sp, np.ones((len(sel), 3)),
+                  end.segments[ok[sel]] + 1, np.ones(len(sel), bool), hits.t[sel])
+    nd = ~np.isin(y_sp.kind, SPECULAR_KINDS) & (y_sp.kind != NULL)
+    if not nd.any():
+        return out
+    keep = np.nonzero(nd)[0]
+    y = EndPoints(y.pixel[keep], y.position[keep], y.ns[keep], y.ng[keep], y.wi[keep],
+                  y.sp.subset(keep), y.throughput[keep], y.segments[keep], y.main[keep], y.distance[keep])
+    a_y, irr_y = gather_vpls(geom, y, vpls, clamp_d2, max_depth)
+    irr_y = irr_y + bsdf_direct(scene, geom, lights, y, a_y, vpls.direct_count, max_depth, rng)
+    l_y = a_y * irr_y  # radiance leaving y toward x
+    t = hits.t[sel][keep]
+    share = np.clip(1.0 - t * t / clamp_d2, 0.0, 1.0)
+    rows = ok[sel][keep]
+    contrib = weight[sel][keep] * l_y * share[:, None] / np.maximum(albedo[rows], 1e-6)
+    np.add.at(out, rows, np.nan_to_num(contrib, nan=0.0, posinf=0.0, neginf=0.0))
+    return out
