@@ -128,19 +128,19 @@ def test_roulette_walks_converge_to_the_untruncated_series():
 def test_clamp_compensation_restores_the_clamped_energy():
     # A deliberately large clamp (d_min² = 0.05 diag²) darkens the furnace by ~4% at
     # max_depth 3 (1 + 0.5 + 0.25 expected). While accumulating, the short gather rays give
-    # the clamped share back: within 1% (>2 sigma of the 60-frame estimate's ~0.25% error).
-    scene = furnace_box(0.5, 1.0, 18, 18)
+    # the clamped share back: within 1% (the 40-frame estimate is deterministic for its seeds; its spread is ~0.4%).
+    scene = furnace_box(0.5, 1.0, 12, 12)
     r = Renderer(scene)
     got = {}
     for consistent in (False, True):
         p = make_params(interleave=3, clamp=0.05, light_path_length=1, indirect_vpls=8, direct_vpls=16,
                         consistent=consistent, max_depth=3)
         means = []
-        for seed in range(1, 61):
-            spec = FrameSpec(0, seed, tuple(scene.camera.to_world.ravel()), scene.camera.fov_x, 18, 18,
+        for seed in range(1, 41):
+            spec = FrameSpec(0, seed, tuple(scene.camera.to_world.ravel()), scene.camera.fov_x, 12, 12,
                              params_to_dict(p))
             means.append(np.mean([float((b.reflectance * b.irradiance + b.unfiltered).mean())
-                                  for b in (r.render_tile(spec, Tile(k, 0, 0, 6, 6)) for k in range(9))]))
+                                  for b in (r.render_tile(spec, Tile(k, 0, 0, 4, 4)) for k in range(9))]))
         got[consistent] = float(np.mean(means))
     assert got[False] < 1.75 * 0.98  # the clamp's bias is real
     assert got[True] == pytest.approx(1.75, rel=0.01)
