@@ -40,20 +40,7 @@ def rays_for_camera(cam: Camera, px: np.ndarray, py: np.ndarray, jitter=(0.5, 0.
 
 
 def look_at(origin, target, up) -> np.ndarray:
-    """Mitsuba's lookat transform (columns: left, up, forward, origin)."""
-    origin = np.asarray(origin, np.float64)
-    d = np.asarray(target, np.float64) - origin
-    d /= np.linalg.norm(d)
-    left = np.cross(np.asarray(up, np.float64), d)
-    ln = np.linalg.norm(left)
-    if ln < 1e-12:  # up parallel to the view direction: pick any perpendicular
-        left = np.cross([1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0], d)
-        ln = np.linalg.norm(left)
-    left /= ln
-    new_up = np.cross(d, left)
-    m = np.eye(4)
-    m[:3, 0] = left
-    m[:3, 1] = new_up
-    m[:3, 2] = d
-    m[:3, 3] = origin
-    return m
+    """Mitsuba's lookat transform (columns: left, up, forward, origin); see common.transform."""
+    from .transform import look_at as _look_at
+
+    return _look_at(origin, target, up)
