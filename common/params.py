@@ -61,7 +61,7 @@ PARAMS: tuple[Param, ...] = (
           "walks, shrinking photon radius, fading image filter", "accumulate"),
     Param("ppm_alpha", float, 2 / 3, "photon radius shrink per accumulated frame: r²ᵢ₊₁ = r²ᵢ(i+α)/(i+1)",
           "accumulate", 0.05, 1.0),
-    Param("filter_frames", int, 8,
+    Param("filter_frames", int, 32,
           "accumulated frames after which the discontinuity buffer is faded out (-1: always filter)",
           "accumulate", -1, 100000),
     Param("seed", int, 0, "seed of the first frame's Sobol scrambling", "accumulate", 0, 2**31 - 1, viewer=False),
