@@ -19,10 +19,19 @@ Two parts, both also run (smaller) by the tests:
   and rendered at 12×12, as are every ``--render-every``-th other one and every scene with a
   hostile snippet: the render must not raise and its pixels must be finite.
 
-    igi bench stress [--mutations 2000] [--seed 0] [--timeout 20] [--skip-stress] [-o PREFIX]
+- **Wire fuzzing**: random and mutated protocol messages (byte flips, truncation, garbage and
+  missing/extra fields, wrong kinds and versions, msgpack depth and container-size bombs,
+  multi-frame) to the bare decoder, to a live master's ROUTER (several peers) and from a fake
+  master to a live worker; then an oversize message (MAX_MESSAGE_SIZE + 1 through ZeroMQ, and a
+  raw ZMTP frame header announcing 1 TiB) to each. Counts: messages tried, dropped (and their
+  log lines), refused, whether each side still renders afterwards (crashes = 0).
+
+    igi bench stress [--mutations 2000] [--wire-messages 1000] [--seed 0] [--timeout 20]
+                     [--skip-stress] [--skip-fuzz] [-o PREFIX]
 
 Writes ``PREFIX.json`` (default ``artifacts/bench-stress.json``) with counts: cases, finite,
-files tried, outcomes, errors by type, crashes, hangs, max load time, max child RSS.
+files tried, outcomes, errors by type, crashes, hangs, max load time, max child RSS, messages
+tried, dropped, refused.
 """
 from __future__ import annotations
 
@@ -39,6 +48,8 @@ import traceback
 from collections import Counter, defaultdict
 from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 HELP = "stress scenes (finite images, transformed = untransformed) + scene-file fuzzing, JSON counts"
 
@@ -771,6 +782,463 @@ def run_stress(width: int = 48, height: int = 48, names: list[str] | None = None
             "width": width, "height": height, "results": results}
 
 
+# ----------------------------------------------------------------------------- wire fuzzing
+
+def _tests_path() -> None:
+    tests = REPO_ROOT / "tests"
+    if str(tests) not in sys.path:
+        sys.path.insert(0, str(tests))
+
+
+def _fuzz_scene(width: int = 24, height: int = 18):
+    _tests_path()
+    from cluster_helpers import mini_cornell
+
+    return mini_cornell(width, height)
+
+
+def wire_templates(direction: str, scene_blob: bytes | None = None) -> list[bytes]:
+    """Valid frames of every message kind a peer sends in ``direction`` ("to_master" or
+    "to_worker"); the mutants are derived from them."""
+    from common import protocol as P
+    from common.params import make_params, params_to_dict
+
+    h = "ab" * 32
+    if direction == "to_master":
+        return [
+            P.encode(P.HELLO, {"name": "fz", "host": "h", "pid": 1, "threads": 2, "credit": 6, "scenes": [h],
+                               "renderer": "igi", "cores": 2}),
+            P.encode(P.RESULT, {"frame": 0, "task": 3, "epoch": 7, "count": 4, "data": b"\x00" * 64,
+                                "timings": {"render": 0.5}, "sets": [[0, 1]], "rays": 99}),
+            P.encode(P.HEARTBEAT, {"queued": 2}),
+            P.encode(P.ERROR, {"code": "task_failed", "message": "x", "frame": 0, "task": 1, "epoch": 2}),
+            P.encode(P.BYE, {"reason": "fuzz"}),
+            P.encode(P.HEARTBEAT, {}),
+        ]
+    blob = scene_blob if scene_blob is not None else b"IGSC" + os.urandom(64)
+    return [
+        P.encode(P.WELCOME, {"worker": "w", "heartbeat": 1.0, "liveness": 1000}),
+        P.encode(P.SCENE, {"hash": h, "blob": None, "base_version": 0, "edits": []}),
+        P.encode(P.SCENE, {"hash": h, "blob": blob, "base_version": 0, "edits": []}),
+        P.encode(P.EDIT, {"hash": h, "version": 1, "edit": {"op": "set_material", "material": 0,
+                                                              "param": "diffuse", "value": 0.5}}),
+        P.encode(P.FRAME, {"frame": 5, "hash": h, "scene_version": 0, "seed": 1, "camera": [0.0] * 16,
+                           "fov_x": 40.0, "width": 8, "height": 8, "params": params_to_dict(make_params()),
+                           "jitter": [0.5, 0.5]}),
+        P.encode(P.TASK, {"frame": 5, "task": 0, "epoch": 1, "k": 0, "tile": [0, 0, 3, 3]}),
+        P.encode(P.HEARTBEAT, {}),
+        P.encode(P.ERROR, {"code": "x", "message": "y"}),
+    ]
+
+
+_WIRE_GARBAGE = [None, True, -1, 0, 2**31, 2**53, 2**64 - 1, -(2**63), 1e308, float("nan"), float("inf"), -0.0,
+                 "", "x" * 300, "\u0000", b"", b"\xff" * 70, [], [[[[[]]]]], {}, {"a": 1},
+                 [1.0] * 17, [0, 0, 0, 0], [5, 5, 1, 1], {"op": "transform_mesh", "mesh": 10**9, "matrix": [1] * 16}]
+
+
+def wire_mutant(templates: list[bytes], seed: int, index: int) -> tuple[str, list[bytes]]:
+    """Mutant ``index`` for ``seed``: (mutator name, frames of one ZeroMQ message)."""
+    import msgpack
+
+    rng = random.Random(seed * 7_000_003 + index)
+    base = rng.choice(templates)
+    op = rng.choices(["byte_flip", "truncate", "random_bytes", "field_garbage", "field_extra", "field_missing",
+                      "kind", "version", "shape", "deep", "container_bomb", "multipart", "valid"],
+                     weights=[4, 2, 2, 5, 1, 1, 1, 1, 1, 0.5, 0.5, 0.5, 1])[0]
+    if op == "byte_flip":
+        return op, [m_byte_flip(base, rng, "wire")]
+    if op == "truncate":
+        return op, [base[:rng.randrange(len(base))]]
+    if op == "random_bytes":
+        return op, [bytes(rng.randrange(256) for _ in range(rng.choice([0, 1, 3, 40, 1000])))]
+    if op == "multipart":
+        return op, [base, base[:5]]
+    if op == "deep":  # nested arrays deeper than any unpacker stack
+        d = rng.choice([100, 2000, 100_000])
+        return op, [b"\x93\x01\xa4TASK" + b"\x91" * d + b"\xc0"]
+    if op == "container_bomb":  # headers announcing 2^32-1 entries / bytes, no payload
+        return op, [rng.choice([b"\xdd\xff\xff\xff\xff", b"\xdf\xff\xff\xff\xff", b"\xc6\xff\xff\xff\xff",
+                                b"\x93\x01\xa4TASK\xdf\xff\xff\xff\xff", b"\xdb\xff\xff\xff\xff" + b"a" * 10])]
+    version, kind, body = msgpack.unpackb(base, raw=False)
+    if op == "field_garbage" and body:
+        body[rng.choice(list(body))] = rng.choice(_WIRE_GARBAGE)
+    elif op == "field_extra":
+        body[rng.choice(["extra", "x" * 100, "", "blob"])] = rng.choice(_WIRE_GARBAGE)
+    elif op == "field_missing" and body:
+        del body[rng.choice(list(body))]
+    elif op == "kind":
+        kind = rng.choice(["HELLO", "RESULT", "TASK", "FRAME", "SCENE", "WELCOME", "EDIT", "NOPE", "", "hello",
+                           "x" * 1000, 5, None])
+    elif op == "version":
+        version = rng.choice([0, 2, -1, 2**64 - 1, "1", None, 1.0, True])
+    elif op == "shape":
+        return op, [msgpack.packb(rng.choice([[version, kind], [version, kind, body, 1], {"v": version},
+                                              [version, kind, [body]], "text", 1, None]), use_bin_type=True)]
+    return op, [msgpack.packb([version, kind, body], use_bin_type=True)]
+
+
+def expected_rejection(frames: list[bytes], max_size: int) -> str | None:
+    """How the receiving side must treat the message: None (valid), "drop" or "refuse"."""
+    from common import protocol as P
+
+    if len(frames) != 1:
+        return "drop"
+    try:
+        P.decode(frames[0], max_size=max_size)
+    except P.VersionMismatch:
+        return "refuse"
+    except P.ProtocolError:
+        return "drop"
+    return None
+
+
+class _CountLog:
+    """Counts WARNING+ records of a logger whose message contains ``needle``."""
+
+    def __init__(self, name: str, needle: str):
+        import logging
+
+        self.logger = logging.getLogger(name)
+        self.needle = needle
+        self.count = 0
+        self.total = 0
+        self.handler = logging.Handler(logging.WARNING)
+        self.handler.emit = self._emit
+        self._old_level = self.logger.level
+
+    def _emit(self, record) -> None:
+        self.total += 1
+        if self.needle in record.getMessage():
+            self.count += 1
+
+    def __enter__(self):
+        import logging
+
+        self.logger.addHandler(self.handler)
+        if self.logger.getEffectiveLevel() > logging.WARNING:
+            self.logger.setLevel(logging.WARNING)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.logger.removeHandler(self.handler)
+        self.logger.setLevel(self._old_level)
+
+
+def _zmtp_greeting(as_server: bool) -> bytes:
+    return b"\xff" + b"\x00" * 8 + b"\x7f" + b"\x03\x00" + b"NULL".ljust(20, b"\x00") + bytes([as_server]) + b"\x00" * 31
+
+
+def _zmtp_ready(socket_type: bytes) -> bytes:
+    import struct
+
+    def prop(n: bytes, v: bytes) -> bytes:
+        return bytes([len(n)]) + n + struct.pack(">I", len(v)) + v
+
+    body = b"\x05READY" + prop(b"Socket-Type", socket_type) + prop(b"Identity", b"")
+    return bytes([0x04, len(body)]) + body
+
+
+def _recv_exact(s, n: int) -> bytes:
+    out = b""
+    while len(out) < n:
+        chunk = s.recv(n - len(out))
+        if not chunk:
+            raise ConnectionError("closed")
+        out += chunk
+    return out
+
+
+def zmtp_oversize_refused(s, as_server: bool, socket_type: bytes, size: int = 1 << 40, wait: float = 10.0) -> bool:
+    """Over a connected TCP socket ``s``: ZMTP 3 handshake (NULL security), then a message frame
+    header announcing ``size`` bytes. True when the peer closes the connection at once (the
+    size is refused before anything is allocated or read)."""
+    import struct
+
+    s.settimeout(wait)
+    s.sendall(_zmtp_greeting(as_server))
+    _recv_exact(s, 64)
+    s.sendall(_zmtp_ready(socket_type))
+    flags, n = _recv_exact(s, 2)
+    _recv_exact(s, n if not flags & 0x02 else struct.unpack(">Q", bytes([n]) + _recv_exact(s, 7))[0])
+    s.sendall(bytes([0x02]) + struct.pack(">Q", size) + b"\x00" * 64)
+    try:
+        while True:  # the peer may have queued messages of its own (a worker's HELLO): skip them
+            if s.recv(65536) == b"":
+                return True
+    except (ConnectionResetError, BrokenPipeError):
+        return True
+    except OSError:  # timeout: the peer kept the connection open, waiting for 1 TiB
+        return False
+
+
+def fuzz_master(messages: int = 500, seed: int = 0, oversize: bool = True) -> dict:
+    """Random and mutated messages to a live Broker's ROUTER from several peers; then the
+    broker must still render a frame with a real worker. Counts per expected treatment."""
+    import socket as pysocket
+    import threading
+
+    import zmq
+
+    from common import protocol as P
+    from master.broker import Broker
+    from worker.node import WorkerNode
+
+    ctx = zmq.Context()
+    broker = Broker(_fuzz_scene(), bind="tcp://127.0.0.1:*", heartbeat=0.5, context=ctx).start()
+    templates = wire_templates("to_master")
+    expect: Counter = Counter()
+    ops: Counter = Counter()
+    res: dict = {"messages_tried": 0}
+    t0 = time.perf_counter()
+    try:
+        with _CountLog("igi.master", "dropped message from") as drops, \
+                _CountLog("igi.master", "refused peer") as refusals:
+            before = broker.stats()
+            peers = []
+            for i in range(messages):
+                if i % 50 == 0:
+                    p = ctx.socket(zmq.DEALER)
+                    p.setsockopt(zmq.LINGER, 0)
+                    p.connect(broker.endpoint)
+                    peers.append(p)
+                op, frames = wire_mutant(templates, seed, i)
+                ops[op] += 1
+                expect[expected_rejection(frames, P.MAX_MESSAGE_SIZE) or "valid"] += 1
+                peers[-1].send_multipart(frames)
+            res["messages_tried"] = messages
+
+            def settled():
+                st = broker.stats()
+                return (st["messages_dropped"] - before["messages_dropped"] >= expect["drop"]
+                        and st["refused"] - before["refused"] >= expect["refuse"])
+
+            deadline = time.monotonic() + 30
+            while time.monotonic() < deadline and not settled():
+                time.sleep(0.05)
+            time.sleep(0.3)  # let the valid-but-misplaced ones be logged as well
+            after = broker.stats()
+            res.update({
+                "expected": dict(expect), "mutators": dict(ops),
+                "dropped": after["messages_dropped"] - before["messages_dropped"],
+                "refused": after["refused"] - before["refused"],
+                "drop_log_lines": drops.count, "refusal_log_lines": refusals.count,
+                "warning_log_lines": drops.total,
+            })
+            for p in peers:
+                p.close(0)
+        if oversize:
+            # over the limit by one byte through ZeroMQ itself, then a raw 1 TiB header
+            p = ctx.socket(zmq.DEALER)
+            p.setsockopt(zmq.LINGER, 0)
+            p.connect(broker.endpoint)
+            st = broker.stats()
+            p.send(b"\x00" * (P.MAX_MESSAGE_SIZE + 1))
+            time.sleep(1.0)
+            p.close(0)
+            res["oversize_delivered"] = broker.stats()["messages_dropped"] != st["messages_dropped"]
+            host, port = broker.endpoint.rsplit("/", 1)[-1].rsplit(":", 1)
+            with pysocket.create_connection((host, int(port)), timeout=10) as s:
+                res["oversize_header_refused"] = zmtp_oversize_refused(s, False, b"DEALER")
+        # still alive: a real worker joins and a frame renders
+        wctx = zmq.Context()
+        node = WorkerNode(broker.endpoint, threads=1, heartbeat=0.5, context=wctx)
+        th = threading.Thread(target=node.run, daemon=True)
+        th.start()
+        try:
+            fr = broker.render_frame(broker.frame_spec(0, {}), timeout=120)
+            res["serves_after"] = fr.tasks > 0 and bool(np.isfinite(fr.image()).all())
+        except Exception as e:  # noqa: BLE001
+            res["serves_after"] = False
+            res["serves_after_error"] = f"{type(e).__name__}: {e}"
+        finally:
+            node.stop()
+            th.join(15)
+            wctx.term()
+        res["crashes"] = int(not res["serves_after"])
+    finally:
+        broker.stop()
+        ctx.term()
+    res["seconds"] = time.perf_counter() - t0
+    return res
+
+
+def fuzz_worker(messages: int = 500, seed: int = 0, oversize: bool = True) -> dict:
+    """Random and mutated messages from a fake master (ROUTER) to a live WorkerNode; then the
+    worker must still render a task. Mutants the worker must obey by design — a well-formed
+    REFUSE, BYE or WELCOME, or another protocol version (it then refuses and exits) — are
+    skipped; no scene is valid during the fuzz, so no mutant can make it render."""
+    import socket as pysocket
+    import threading
+
+    import zmq
+
+    from common import protocol as P
+    from common.scene_codec import encode_scene, scene_hash
+    from worker.node import WorkerNode
+
+    scene = _fuzz_scene()
+    blob = encode_scene(scene)
+    h = scene_hash(blob)
+    ctx = zmq.Context()
+    router = ctx.socket(zmq.ROUTER)
+    router.setsockopt(zmq.LINGER, 0)
+    port = router.bind_to_random_port("tcp://127.0.0.1")
+    wctx = zmq.Context()
+    node = WorkerNode(f"tcp://127.0.0.1:{port}", threads=1, heartbeat=0.5, max_backoff=1.0, context=wctx)
+    th = threading.Thread(target=node.run, daemon=True)
+    state = {"ident": None, "hellos": 0}
+    welcome = P.encode(P.WELCOME, {"worker": "w", "heartbeat": 1.0, "liveness": 1000})
+
+    def pump(timeout_ms: int = 0):
+        """Receive everything pending; answer HELLO with WELCOME; return the other messages."""
+        out = []
+        while router.poll(timeout_ms):
+            ident, frame = router.recv_multipart()
+            timeout_ms = 0
+            m = P.decode(frame)
+            if m.kind == P.HELLO:
+                state["ident"], state["hellos"] = ident, state["hellos"] + 1
+                router.send_multipart([ident, welcome])
+            else:
+                out.append(m)
+        return out
+
+    res: dict = {"messages_tried": 0}
+    expect: Counter = Counter()
+    ops: Counter = Counter()
+    t0 = time.perf_counter()
+    try:
+        with _CountLog("igi.worker", "dropped") as drops:
+            th.start()
+            deadline = time.monotonic() + 30
+            while state["ident"] is None and time.monotonic() < deadline:
+                pump(100)
+            if state["ident"] is None:
+                raise RuntimeError("the worker never said HELLO")
+            templates = wire_templates("to_worker")
+            sent = 0
+            for i in range(messages):
+                op, frames = wire_mutant(templates, seed, i)
+                how = expected_rejection(frames, P.MAX_SCENE_MESSAGE_SIZE)
+                if how is None:
+                    kind = P.decode(frames[0], max_size=P.MAX_SCENE_MESSAGE_SIZE).kind
+                    if kind in (P.REFUSE, P.BYE, P.WELCOME):
+                        expect["skipped_by_design"] += 1
+                        continue
+                    how = "drop" if kind in (P.HELLO, P.RESULT) else "valid"
+                elif how == "refuse":
+                    expect["skipped_by_design"] += 1
+                    continue
+                if len(frames) != 1:
+                    how = "multipart"  # the worker's DEALER takes the first frame; see below
+                expect[how] += 1
+                ops[op] += 1
+                router.send_multipart([state["ident"]] + frames)
+                sent += 1
+                if i % 20 == 0:
+                    pump()
+            res["messages_tried"] = sent
+            deadline = time.monotonic() + 30
+            while time.monotonic() < deadline and drops.count < expect["drop"]:
+                pump(50)
+            pump(300)
+            res.update({"expected": dict(expect), "mutators": dict(ops), "drop_log_lines": drops.count,
+                        "warning_log_lines": drops.total, "reconnects": state["hellos"] - 1,
+                        "alive": th.is_alive()})
+        if oversize:
+            # a fake master on a raw socket: the worker must close the connection when a frame
+            # header announces 1 TiB (its limit is MAX_SCENE_MESSAGE_SIZE), then reconnect
+            lst = pysocket.create_server(("127.0.0.1", 0))
+            rctx = zmq.Context()
+            raw_node = WorkerNode(f"tcp://127.0.0.1:{lst.getsockname()[1]}", threads=1, heartbeat=0.5,
+                                  context=rctx)
+            rth = threading.Thread(target=raw_node.run, daemon=True)
+            rth.start()
+            lst.settimeout(20)
+            try:
+                conn, _ = lst.accept()
+                with conn:
+                    res["oversize_header_refused"] = zmtp_oversize_refused(conn, True, b"ROUTER")
+                conn2, _ = lst.accept()  # ZeroMQ reconnects by itself: the worker is fine
+                conn2.close()
+                res["reconnected_after_oversize"] = True
+            except OSError as e:
+                res.setdefault("oversize_header_refused", False)
+                res["reconnected_after_oversize"] = False
+                res["oversize_error"] = str(e)
+            finally:
+                raw_node.stop()
+                rth.join(15)
+                lst.close()
+                rctx.term()
+        # still alive: a valid scene, frame and task give a RESULT
+        from common.frame import FrameSpec
+        from common.params import make_params, params_to_dict
+
+        cam = scene.camera
+        spec = FrameSpec(frame=10**6, seed=0, camera_to_world=tuple(float(x) for x in cam.to_world.ravel()),
+                         fov_x=cam.fov_x, width=24, height=18, params=params_to_dict(make_params()))
+        ident = state["ident"]
+        router.send_multipart([ident, P.encode(P.SCENE, {"hash": h, "blob": blob, "base_version": 0, "edits": []},
+                                               check=False)])
+        router.send_multipart([ident, P.encode(P.FRAME, P.frame_body(spec, h))])
+        router.send_multipart([ident, P.encode(P.TASK, {"frame": spec.frame, "task": 0, "epoch": 1, "k": 0,
+                                                         "tile": [0, 0, 8, 6]})])
+        got = None
+        deadline = time.monotonic() + 120
+        seen: Counter = Counter()
+        while got is None and time.monotonic() < deadline:
+            for m in pump(200):
+                seen[f"{m.kind}:{m.body.get('code', '')}"] += 1
+                if m.kind in (P.RESULT, P.ERROR) and m.body.get("frame") == spec.frame:
+                    got = m
+        res["validation_messages"] = dict(seen)
+        res["serves_after"] = got is not None and got.kind == P.RESULT
+        res["worker_tasks_done"] = node.tasks_done
+        res["worker_state"] = {"heartbeat": node.heartbeat, "liveness": node.liveness, "session": node._session}
+        if got is not None and got.kind == P.ERROR:
+            res["serves_after_error"] = got.body["message"]
+        res["crashes"] = int(not (res["serves_after"] and res.get("alive", False)))
+    finally:
+        node.stop()
+        th.join(15)
+        router.close(0)
+        ctx.term()
+        wctx.term()
+    res["seconds"] = time.perf_counter() - t0
+    return res
+
+
+def fuzz_decode(messages: int = 20000, seed: int = 0) -> dict:
+    """The pure decoder on many mutants: a Message or a ProtocolError, never anything else."""
+    from common import protocol as P
+
+    out: Counter = Counter()
+    examples = []
+    t0 = time.perf_counter()
+    tpl = wire_templates("to_master") + wire_templates("to_worker")
+    for i in range(messages):
+        _, frames = wire_mutant(tpl, seed, i)
+        try:
+            P.decode(frames[0], max_size=P.MAX_SCENE_MESSAGE_SIZE)
+            out["message"] += 1
+        except P.VersionMismatch:
+            out["version_mismatch"] += 1
+        except P.ProtocolError:
+            out["protocol_error"] += 1
+        except Exception as e:  # noqa: BLE001
+            out["crash"] += 1
+            if len(examples) < 10:
+                examples.append({"index": i, "type": type(e).__name__, "message": str(e)[:200]})
+    return {"messages_tried": messages, "outcomes": dict(out), "crashes": out["crash"], "crash_examples": examples,
+            "seconds": time.perf_counter() - t0}
+
+
+def run_wire_fuzz(messages: int = 1000, seed: int = 0) -> dict:
+    return {"decode": fuzz_decode(messages * 20, seed), "master": fuzz_master(messages, seed),
+            "worker": fuzz_worker(messages, seed)}
+
+
 # -------------------------------------------------------------------------------------- CLI
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -781,7 +1249,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="render every N-th successfully loaded mutant at 12x12 (0: never; default 10)")
     p.add_argument("--size", default="48x48", help="stress-scene render size WxH (default 48x48)")
     p.add_argument("--skip-stress", action="store_true", help="fuzzing only")
-    p.add_argument("--skip-fuzz", action="store_true", help="stress scenes only")
+    p.add_argument("--skip-fuzz", action="store_true", help="no scene-file fuzzing")
+    p.add_argument("--wire-messages", type=int, default=1000,
+                   help="mutated messages to the master and to a worker (x20 to the bare decoder; 0: none)")
     p.add_argument("--keep-failures", default=None, help="directory to write every failing mutant into")
     p.add_argument("-o", "--out", default=DEFAULT_OUT, help=f"output prefix: writes PREFIX.json (default {DEFAULT_OUT})")
 
@@ -822,6 +1292,24 @@ def run(args: argparse.Namespace) -> int:
         result["fuzz"] = run_fuzz(args.mutations, args.seed, args.timeout, args.render_every,
                                   keep_failures=Path(args.keep_failures) if args.keep_failures else None,
                                   progress=tick)
+    if args.wire_messages > 0:
+        import logging
+
+        print(f"igi bench stress: wire fuzzing, {args.wire_messages} messages per side …", file=sys.stderr, flush=True)
+        quiet = [logging.getLogger(n) for n in ("igi.master", "igi.worker")]
+        null = logging.NullHandler()
+        for lg in quiet:  # one warning per dropped message is the behaviour under test, not output
+            lg.propagate = False
+            lg.addHandler(null)
+        try:
+            wire = run_wire_fuzz(args.wire_messages, args.seed)
+        finally:
+            for lg in quiet:
+                lg.propagate = True
+                lg.removeHandler(null)
+        wire["crashes"] = sum(int(wire[k].get("crashes", 0)) for k in ("decode", "master", "worker"))
+        wire["messages_tried"] = sum(int(wire[k]["messages_tried"]) for k in ("decode", "master", "worker"))
+        result["wire"] = wire
     result["seconds"] = time.perf_counter() - t0
     out = Path(args.out if args.out.endswith(".json") else args.out + ".json")
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -833,6 +1321,9 @@ def run(args: argparse.Namespace) -> int:
           f"crashes {f.get('crashes', '-')}, hangs {f.get('hangs', '-')}, accepted with problems "
           f"{f.get('accepted_with_problems', '-')}, "
           f"max load {f.get('max_load_seconds', 0):.2f} s -> {out}", file=sys.stderr)
-    failed = bool(s.get("failed")) or any(f.get(k) for k in ("crashes", "hangs", "nonfinite_images",
-                                                               "unclear_messages"))
+    wr = result.get("wire", {})
+    if wr:
+        print(f"igi bench stress: wire {wr['messages_tried']} messages, crashes {wr['crashes']}", file=sys.stderr)
+    failed = bool(s.get("failed")) or bool(wr.get("crashes")) or any(
+        f.get(k) for k in ("crashes", "hangs", "nonfinite_images", "unclear_messages"))
     return 1 if failed else 0
