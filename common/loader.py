@@ -14,7 +14,15 @@ def load_scene(path: str | Path, defaults: dict[str, str] | None = None) -> Scen
 
     Raises :class:`SceneError` for a missing file or an unknown extension.
     """
-    path = Path(path)
+    try:
+        return _load(Path(path), defaults)
+    except OSError as e:
+        # e.g. ENAMETOOLONG from a file name inside the scene: name it, don't crash.
+        raise SceneError(f"{path}: cannot read a file of this scene: {e.strerror or e} "
+                         f"({(e.filename or '')[:120]})") from None
+
+
+def _load(path: Path, defaults: dict[str, str] | None) -> Scene:
     ext = path.suffix.lower()
     if ext not in LOADERS:
         known = ", ".join(f"{k} ({v})" for k, v in LOADERS.items())

@@ -294,9 +294,13 @@ class _Props:
         self._expect(n, "float", "integer")
         s = self._value(n)
         try:
-            return float(s)
+            v = float(s)
         except ValueError:
             raise self.loader.error(n, f"<{n.tag} name='{name}'> value '{s}' is not a number") from None
+        if not (np.isfinite(v) and v > 0):
+            # Mitsuba refuses these too; a zero IOR would divide by zero in the BSDF tables.
+            raise self.loader.error(n, f"<{n.tag} name='{name}'> index of refraction {s} must be a positive number")
+        return v
 
     def texture(self, name: str, default) -> Texture:
         n = self.get(name)

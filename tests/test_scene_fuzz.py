@@ -4,8 +4,8 @@ blow-up. The engine is master/bench_stress.py (``igi bench stress`` runs thousan
 mutations); here a few hundred, each load in a child process with a time limit and an
 address-space limit (LoadWorker), so a hang or a blow-up fails the test instead of the machine.
 
-Known loader bugs found by the fuzzer are pinned by strict xfail tests below (they fail
-loudly once fixed, so the mark gets removed) and are the only crashes the random run tolerates.
+Loader bugs the fuzzer found (over-long file names, non-positive IORs) are fixed and kept as
+regression tests below; the random run tolerates no crash.
 """
 from __future__ import annotations
 
@@ -21,11 +21,8 @@ from master import bench_stress as bs
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
 HANG_LIMIT = 120.0  # seconds before a load counts as a hang (seed loads take ~0.1 s)
 
-# (exception type, regex on message + traceback): crashes already pinned by xfail tests below
-KNOWN_CRASHES = [
-    ("OSError", r"File name too long"),
-    ("ZeroDivisionError", r"rough_plastic_tables"),
-]
+# (exception type, regex on message + traceback) of tolerated crashes: none any more.
+KNOWN_CRASHES: list[tuple[str, str]] = []
 
 
 def _known(f: dict) -> bool:
@@ -179,17 +176,11 @@ def test_odd_parameters_the_loader_accepts_still_render_finite(snippet, worker, 
         assert r.get("rendered"), r
 
 
-# ------------------------------------------------------------------ known bugs, pinned
+# ------------------------------------------------------------------ fixed bugs, kept as regressions
 
 _LONG = "a" * 5000
 
 
-@pytest.mark.xfail(strict=True, raises=OSError, reason=(
-    "OSError ENAMETOOLONG escapes as a non-SceneError: pathlib's is_file()/exists() only swallow "
-    "ENOENT/ENOTDIR/EBADF/ELOOP. Raised from common/mitsuba_xml.py _Loader.resolve (q.is_file()), "
-    "common/obj_mtl.py _load_obj_scene (mtllib: lib_path.is_file()), common/image_io.py read_image "
-    "(path.is_file(), map_Kd / bitmap) and common/loader.py load_scene (path.exists()). Fix: catch "
-    "OSError there (or once in load_scene) and raise SceneError naming the file."))
 @pytest.mark.parametrize("where", ["xml-mesh", "obj-mtllib", "mtl-map_Kd", "top-level"])
 def test_overlong_file_names_give_a_scene_error(where, tmp_path):
     from common.loader import load_scene
@@ -213,11 +204,6 @@ def test_overlong_file_names_give_a_scene_error(where, tmp_path):
         load_scene(p)
 
 
-@pytest.mark.xfail(strict=True, raises=ZeroDivisionError, reason=(
-    "common/mitsuba_xml.py accepts int_ior <= 0 (and alpha < 0) for roughplastic; rendering then "
-    "raises ZeroDivisionError in common/microfacet.py rough_plastic_tables (1.0 / eta) via "
-    "common/bsdf.py _rough_tables. Fix: reject non-positive IORs at load (SceneError, as Mitsuba "
-    "does) and/or guard eta in the tables."))
 def test_roughplastic_with_zero_ior_is_rejected_or_renders(tmp_path):
     from common.loader import load_scene
     from common.scene import SceneError

@@ -95,11 +95,7 @@ def glossy_renderer():
 
 @pytest.mark.parametrize("clamp", [
     -1.0,
-    pytest.param(0.0, marks=pytest.mark.xfail(strict=True, reason=(
-        "worker/shading.py _gather_chunk: with clamp 0 a surface VPL at distance 0 gives "
-        "em = 1/max(d2, 0) = inf, weight = inf * 0 = NaN; `weight *= live` keeps the NaN "
-        "(NaN * False = NaN), the row's matrix product becomes NaN and the final nan_to_num "
-        "zeroes the end point's light from EVERY VPL; fix: weight = np.where(live, weight, 0)"))),
+    0.0,
 ])
 def test_vpl_exactly_on_the_shading_point_adds_light_and_stays_finite(glossy_renderer, clamp):
     from common.params import make_params

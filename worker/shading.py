@@ -325,7 +325,7 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
         tmax[cols.directional[jj]] = np.inf
         blocked = geom.occluded_local(ox, wij, np.maximum(tmax, f32(0)))
         live[ii[blocked], jj[blocked]] = False
-    weight *= live
+    weight = np.where(live, weight, f32(0))  # not `*=`: NaN * False stays NaN
     out = weight @ cols.color.astype(f32) if not len(gi) else np.zeros((n, 3), f32)
     if len(gi):
         lrows = np.nonzero(~gl)[0]
