@@ -94,9 +94,12 @@ def check_bind(address: str) -> None:
         log.warning("master bound to %s: reachable from the network, without authentication", address)
 
 
-def worker_command(endpoint: str, threads: int = 1, quiet: bool = True, name: str | None = None) -> list[str]:
+def worker_command(endpoint: str, threads: int = 1, quiet: bool = True, name: str | None = None,
+                   curve_keys: str | None = None) -> list[str]:
     cmd = [sys.executable, "-m", "worker.node", "--connect", endpoint, "--threads", str(threads),
            "--exit-with-master", "--parent-pid", str(os.getpid())]
+    if curve_keys:
+        cmd += ["--curve-keys", str(curve_keys), "--key-name", "worker"]
     if quiet:
         cmd.append("--quiet")
     if name:
@@ -114,10 +117,11 @@ def worker_env() -> dict:
 class LocalWorkers:
     """N worker processes on this machine, connected to ``endpoint``; stopped together."""
 
-    def __init__(self, endpoint: str, count: int, threads: int = 1, quiet: bool = True):
+    def __init__(self, endpoint: str, count: int, threads: int = 1, quiet: bool = True,
+                 curve_keys: str | None = None):
         self.procs: list[subprocess.Popen] = []
         for i in range(count):
-            self.procs.append(subprocess.Popen(worker_command(endpoint, threads, quiet, f"local{i}"),
+            self.procs.append(subprocess.Popen(worker_command(endpoint, threads, quiet, f"local{i}", curve_keys),
                                                env=worker_env(), stdin=subprocess.DEVNULL))
 
     def check(self) -> None:
@@ -329,8 +333,19 @@ def _serve(args, scene, local_workers: int) -> int:
         stop.set()
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
+    curve = None
+    keys = getattr(args, "curve_keys", None)
+    if keys:
+        from common import protocol as P
+
+        try:
+            if local_workers:
+                P.generate_keys(keys)  # the local workers' keypair ("worker"); existing keys are kept
+            curve = P.CurveServer(keys)
+        except (OSError, ValueError) as e:
+            raise UsageError(f"CURVE keys in {keys}: {e}") from None
     try:
-        broker = Broker(scene, bind=args.bind).start()
+        broker = Broker(scene, bind=args.bind, configure_socket=curve).start()
     except OSError as e:
         raise UsageError(str(e)) from None
     workers = None
@@ -338,7 +353,7 @@ def _serve(args, scene, local_workers: int) -> int:
     try:
         print(f"igi master listening on {broker.endpoint}", file=sys.stderr, flush=True)
         if local_workers:
-            workers = LocalWorkers(broker.endpoint, local_workers, quiet=not args.verbose)
+            workers = LocalWorkers(broker.endpoint, local_workers, quiet=not args.verbose, curve_keys=keys)
         if scene is not None:
             broker.start_stream(params, width=getattr(args, "width", None), height=getattr(args, "height", None))
             viewer = _start_viewer(broker, args)
@@ -364,8 +379,25 @@ def _serve(args, scene, local_workers: int) -> int:
             except Exception:
                 log.exception("stopping the viewer failed")
         broker.stop()
+        if curve is not None:
+            curve.stop()
         if workers is not None:
             workers.stop()
+    return 0
+
+
+def cmd_keys(args: argparse.Namespace) -> int:
+    from common import protocol as P
+
+    try:
+        out = P.generate_keys(args.directory, workers=tuple(args.worker or ["worker"]))
+    except (OSError, ValueError) as e:
+        raise UsageError(str(e)) from None
+    print(f"master secret key: {out['master']}")
+    for name, path in out["workers"].items():
+        print(f"worker {name!r} secret key: {path}")
+    print(f"give the master {args.directory} (its secret key + {P.CURVE_WORKERS_DIR}/ of accepted worker keys); "
+          f"give each worker its NAME.key_secret and master.key", file=sys.stderr)
     return 0
 
 
@@ -440,6 +472,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     m = sub.add_parser("master", help="run a master that remote workers connect to")
     m.add_argument("scene", nargs="?", help="scene to stream (optional)")
+    m.add_argument("--curve-keys", default=os.environ.get("IGI_KEYS_DIR") or None, metavar="DIR",
+                    help="require CURVE-authenticated, encrypted workers (keys from `igi keys DIR`; "
+                         "default: $IGI_KEYS_DIR)")
     m.add_argument("--bind", default=DEFAULT_BIND, help=f"ZeroMQ address to bind (default {DEFAULT_BIND}; "
                    "anything but loopback exposes the master to the network)")
     m.add_argument("--http", default=None, help="viewer address HOST:PORT (when the viewer is installed)")
@@ -453,10 +488,18 @@ def build_parser() -> argparse.ArgumentParser:
     worker_args(w)
     w.set_defaults(func=cmd_worker)
 
+    k = sub.add_parser("keys", help="generate CURVE keys for authenticated, encrypted master/worker links")
+    k.add_argument("directory", help="folder for the keys (created)")
+    k.add_argument("--worker", action="append", help="worker key name (repeatable; default: worker)")
+    k.set_defaults(func=cmd_keys)
+
     s = sub.add_parser("serve", help="master + N local workers (+ the viewer) until Ctrl-C")
     s.add_argument("scene", help="Mitsuba XML or OBJ scene file")
     s.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="local worker processes (default: one per core)")
+    s.add_argument("--curve-keys", default=os.environ.get("IGI_KEYS_DIR") or None, metavar="DIR",
+                    help="require CURVE-authenticated, encrypted workers (keys from `igi keys DIR`; "
+                         "default: $IGI_KEYS_DIR)")
     s.add_argument("--bind", default=DEFAULT_BIND, help=f"ZeroMQ address to bind (default {DEFAULT_BIND})")
     s.add_argument("--http", default="127.0.0.1:8000", help="viewer address HOST:PORT (default 127.0.0.1:8000)")
     s.add_argument("--width", type=int, default=None, help="stream width (default: the scene's)")

@@ -469,15 +469,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="exit when the master says BYE instead of waiting for it to come back")
     parser.add_argument("--parent-pid", type=int, default=None, help=argparse.SUPPRESS)
     parser.add_argument("-q", "--quiet", action="store_true", help="log warnings and errors only")
+    parser.add_argument("--curve-keys", default=os.environ.get("IGI_KEYS_DIR") or None, metavar="DIR",
+                        help="CURVE authentication + encryption with the keys made by `igi keys DIR` "
+                             "(default: $IGI_KEYS_DIR; none: plain TCP)")
+    parser.add_argument("--key-name", default="worker", help="this worker's keypair in DIR (default: worker)")
 
 
 def run_from_args(args: argparse.Namespace) -> int:
     if args.threads < 1:
         print("igi worker: --threads must be >= 1", file=sys.stderr)
         return 2
+    configure = None
+    if getattr(args, "curve_keys", None):
+        try:
+            configure = P.CurveClient(args.curve_keys, args.key_name)
+        except (OSError, ValueError) as e:
+            print(f"igi worker: CURVE keys: {e}", file=sys.stderr)
+            return 2
     node = WorkerNode(args.connect, threads=args.threads, credit=args.credit, name=args.name,
                       heartbeat=args.heartbeat, exit_with_master=args.exit_with_master,
-                      parent_pid=args.parent_pid)
+                      parent_pid=args.parent_pid, configure_socket=configure)
 
     def on_signal(signum, _frame):
         node.stop(signal.Signals(signum).name)
