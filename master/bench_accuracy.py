@@ -36,7 +36,7 @@ def caustic_mask(name: str, block: int) -> np.ndarray | None:
         return None
     f = block_average(read_image(full), block).mean(axis=-1)
     d = block_average(read_image(direct), block).mean(axis=-1)
-    mask = (f > 3 * d + 0.05) & (f > 0.2) & (np.abs(f - d) / np.maximum(f, 1e-6) < 0.999)
+    mask = (f > 3 * d + 0.05) & (f > 0.2) & (np.abs(f - d) / np.maximum(f, 1e-6) > 0.01)
     return mask
 
 
@@ -81,6 +81,11 @@ def measure(scenes: list[str], frames: list[int], scale: float = 0.5, variants: 
             results.append({"scene": name, "variant": variant, "params": params, "rows": rows,
                             "load_and_build_seconds": load_s, "size": [w, h],
                             "caustic_pixels": int(mask.sum()) if mask is not None else 0})
+            if out:  # after every run, so a long sweep that is stopped keeps what it measured
+                Path(out).parent.mkdir(parents=True, exist_ok=True)
+                Path(out).write_text(json.dumps({"benchmark": "accuracy", "machine": machine_info(),
+                                                 "scale": scale, "reference_block": block,
+                                                 "results": results}, indent=2))
     doc = {"benchmark": "accuracy", "machine": machine_info(), "scale": scale,
            "reference_block": block, "results": results}
     if out:
