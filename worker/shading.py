@@ -230,7 +230,6 @@ class _VPLColumns:
             self.side[rows] = np.where(vpls.wi_local[rows, 2] >= 0, 1.0, -1.0)
             color[rows[lam]] *= sp.diffuse[lam] / np.pi
             self.glossy[rows[~lam]] = True
-            self.glossy_sp_index = np.nonzero(~lam)[0]
         self.color = color
         self.spot_params = vpls.wi_local[self.spot]
         lp = vpls.light_pdf if vpls.light_pdf is not None else np.zeros(len(kind))
