@@ -888,13 +888,12 @@ class Broker:
             self._encode_times.append(timings["encode"])
         t_merge = time.perf_counter()
         try:
-            from common.codec import decode
-
             count = tile_pixel_count(t.tile, f.assembler.n, f.spec.width, f.spec.height)
             if body["count"] != count:
                 raise ValueError(f"{body['count']} pixels, tile has {count}")
-            bufs = decode(body["data"], count)
-            f.assembler.add(t.tile, bufs)
+            # validated and decompressed here; float conversion, scatter and filter happen
+            # once per frame, in parallel stripes, when the frame's image is made
+            f.assembler.add_wire(t.tile, body["data"])
         except Exception as e:
             log.warning("bad result for task %s from %s: %s; re-queued", key, w.name, e)
             self._task_failed(f, t, f"bad result: {e}")
