@@ -13,7 +13,7 @@ the reference is averaged over. So the test asserts
 and, so the bound cannot pass by being swamped by noise, that igi's own noise estimate is
 small (≤ 0.1, about Mitsuba's own 64-spp error on the noisiest scenes). Scenes whose direct light is very noisy for any unbiased method (the 13-light
 hall, the window-lit living room: Mitsuba's 64 spp image has relMSE 0.04-0.09 there) are
-compared at b = 16 with more frames; the others at b = 2.
+compared at b = 8 with more frames; the others at b = 2.
 """
 from __future__ import annotations
 
@@ -37,8 +37,8 @@ CASES = {
     "cornell-box-water": (2, 2),
     "veach-ajar": (4, 8),
     "veach-bidir": (2, 4),
-    "modern-hall": (16, 32),
-    "grey-white-room": (16, 32),
+    "modern-hall": (8, 32),
+    "grey-white-room": (8, 32),
 }
 
 
