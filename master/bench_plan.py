@@ -40,6 +40,9 @@ def measure(names: list[str], frames: int, scale: float) -> dict:
         row = {"scene": name, "size": [w, h], "frames": frames}
         for label, use_plan in (("plan", True), ("forced", False)):
             r = Renderer(scene, use_plan=use_plan)
+            # Warm-up (BSDF tables, texture means, set caches of seed 99) so neither variant
+            # pays one-time costs inside the timing.
+            render_local(scene, {"seed": 99}, 1, width=w, height=h, renderer=r)
             t0 = time.perf_counter()
             img = render_local(scene, {}, frames, width=w, height=h, renderer=r)
             row[f"{label}_seconds"] = time.perf_counter() - t0
