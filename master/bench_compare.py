@@ -263,12 +263,15 @@ class MitsubaPT:
         spp = self.spp_for(seconds)
         img, t, wall = self.timed(spp, seed)
         attempts = 1
+        cpu = self.last_cpu_s
         if (t > 1.15 * seconds and spp > 1) or t < 0.8 * seconds:
             b = max((t - self.a) / spp, 1e-6)
-            spp = max(1, int((seconds - self.a) / b))
-            img, t, wall = self.timed(spp, seed)
+            spp2 = max(1, int((seconds - self.a) / b))
+            img2, t2, wall2 = self.timed(spp2, seed)
             attempts = 2
-        return {"image": img, "spp": spp, "time_s": wall, "cpu_s": self.last_cpu_s, "attempts": attempts}
+            if abs(math.log(t2 / seconds)) < abs(math.log(t / seconds)):  # keep the closer of the two
+                img, t, wall, spp, cpu = img2, t2, wall2, spp2, self.last_cpu_s
+        return {"image": img, "spp": spp, "time_s": wall, "cpu_s": cpu, "attempts": attempts}
 
 
 # ---------------------------------------------------------------------------- igi
@@ -277,19 +280,7 @@ class _Stop(Exception):
     pass
 
 
-def warm_up(setup: bq.SceneSetup, params) -> float:
-    """One small frame on a throwaway Renderer (another seed), so the measured run does not pay
-    this process's one-time costs (lazy imports, first-call allocations) — as Mitsuba's warm-up
-    does not pay JIT compilation. The measured run's own VPL/photon sets are not cached by it."""
-    from dataclasses import replace
-
-    from master.local import render_local
-    from worker.renderer import Renderer
-
-    t0 = time.perf_counter()
-    render_local(setup.scene, replace(params, seed=(int(params.seed) + 99991) % 2**31), frames=1,
-                 width=max(1, setup.width // 4), height=max(1, setup.height // 4), renderer=Renderer(setup.scene))
-    return time.perf_counter() - t0
+warm_up = bq.warm_up
 
 
 def igi_budget_run(setup: bq.SceneSetup, params, budgets: list[float], converged_frames: int,

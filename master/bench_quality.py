@@ -428,6 +428,21 @@ def fit_bias_noise(frames, errors) -> dict | None:
 
 # ---------------------------------------------------------------------------- rendering
 
+def warm_up(setup: "SceneSetup", params) -> float:
+    """One small frame on a throwaway Renderer (another seed), so measured runs do not pay this
+    process's one-time costs (lazy imports, first-call allocations); a later Renderer does not
+    see its cached VPL/photon sets."""
+    from dataclasses import replace
+
+    from master.local import render_local
+    from worker.renderer import Renderer
+
+    t0 = time.perf_counter()
+    render_local(setup.scene, replace(params, seed=(int(params.seed) + 99991) % 2**31), frames=1,
+                 width=max(1, setup.width // 4), height=max(1, setup.height // 4), renderer=Renderer(setup.scene))
+    return time.perf_counter() - t0
+
+
 def render_config(setup: SceneSetup, params, frames: list[int], save_dir: Path | None = None,
                   label: str = "") -> dict:
     """Render one configuration up to max(frames); score the running mean at each count."""
@@ -677,6 +692,7 @@ def run_quality(args: argparse.Namespace) -> dict:
         configs = make_configs(base, sweeps, args.grid)
         entry = setup.describe()
         entry.update({"points": [], "configs": [], "pareto": {}})
+        entry["warmup_s"] = warm_up(setup, base)  # not counted, as for Mitsuba's JIT warm-up
         for c in configs:
             print(f"igi bench quality: {setup.name} {setup.width}x{setup.height} [{c['label']}] "
                   f"{max(frames)} frames …", file=sys.stderr, flush=True)
