@@ -19,13 +19,14 @@ import numpy as np
 
 from common import bsdf
 from common.geometry import Geometry
-from common.lights import (VPL_AREA, VPL_DIRECTIONAL, VPL_POINT, VPL_SPOT, VPL_SURFACE,
-                           LightSampler, luminance, spot_falloff, to_local, to_world)
+from common.lights import (VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE, LightSampler, luminance,
+                           to_local, to_world)
 from common.scene import DIFFUSE, NULL, SPECULAR_KINDS, Scene
 
+from .kernels import vpl_gather as vg
 from .vpl import VPLSet, concat_surface
 
-PAIR_CHUNK = 1 << 18  # (end point, VPL) pairs evaluated per batch: bounds memory, keeps Embree batches large
+PAIR_CHUNK = 1 << 17  # (end point, VPL) pairs per kernel call: bounds memory, keeps Embree batches large
 
 
 @dataclass
@@ -197,31 +198,33 @@ def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
     m = len(vpls)
     if e == 0 or m == 0:
         return albedo, irr
-    cols = _VPLColumns(vpls, geom, force_general)
+    cols = _VPLColumns(vpls, geom, clamp_d2, force_general)
     chunk = max(1, PAIR_CHUNK // m)
     for s in range(0, e, chunk):
         sl = slice(s, min(e, s + chunk))
-        irr[sl] = _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo[sl])
+        irr[sl] = _gather_chunk(geom, end, sl, vpls, cols, max_depth, albedo[sl])
     return albedo, irr
 
 
 class _VPLColumns:
-    """Per-VPL constants of the gather, computed once per set and call."""
+    """Per-VPL constants of the gather as flat kernel arrays, computed once per set and call."""
 
-    def __init__(self, vpls: VPLSet, geom: Geometry, force_general: bool = False):
+    def __init__(self, vpls: VPLSet, geom: Geometry, clamp_d2: float, force_general: bool = False):
         kind = vpls.kind
+        m = len(kind)
+        f32 = np.float32
         self.directional = kind == VPL_DIRECTIONAL
         self.area = kind == VPL_AREA
-        self.spot = kind == VPL_SPOT
-        self.surface = kind == VPL_SURFACE
-        self.pos = (vpls.position - geom.center).astype(np.float32)
-        self.normal = vpls.normal.astype(np.float32)
+        spot = kind == VPL_SPOT
+        surface = kind == VPL_SURFACE
+        self.pos = np.ascontiguousarray(vpls.position - geom.center, dtype=f32)
+        self.normal = np.ascontiguousarray(vpls.normal, dtype=f32)
         color = vpls.power.astype(np.float64).copy()
-        self.glossy = np.zeros(len(kind), bool)
-        self.surf_rows = np.nonzero(self.surface)[0]
+        self.glossy = np.zeros(m, bool)
+        self.surf_rows = np.nonzero(surface)[0]
         # Surface VPLs: Lambertian ones fold rho/π into their colour and radiate on the side
         # their light arrived from; the others need their BSDF per pair.
-        self.side = np.ones(len(kind), np.float32)
+        self.side = np.ones(m, f32)
         if len(self.surf_rows):
             sp = vpls.surface
             # force_general: every surface VPL through the full BSDF (the plan-off baseline).
@@ -230,127 +233,91 @@ class _VPLColumns:
             self.side[rows] = np.where(vpls.wi_local[rows, 2] >= 0, 1.0, -1.0)
             color[rows[lam]] *= sp.diffuse[lam] / np.pi
             self.glossy[rows[~lam]] = True
-        self.color = color
-        self.spot_params = vpls.wi_local[self.spot]
-        lp = vpls.light_pdf if vpls.light_pdf is not None else np.zeros(len(kind))
-        self.light_pdf = lp.astype(np.float32)
+        self.color = np.ascontiguousarray(color)
+        # Spots carry (_, beam, cutoff) degrees in wi_local; cutoff < 0 marks "not a spot".
+        self.spot_cutoff = np.where(spot, vpls.wi_local[:, 2], -1.0).astype(np.float64)
+        self.spot_beam = np.where(spot, vpls.wi_local[:, 1], 0.0).astype(np.float64)
+        lp = vpls.light_pdf if vpls.light_pdf is not None else np.zeros(m)
+        self.light_pdf = lp.astype(f32)
         # Emitter samples with a non-delta pdf take part in MIS (area lights, environment).
         self.mis = (lp > 0) & (self.area | self.directional) & (vpls.direct_count > 0)
         # Columns whose emission has a cos θ_y factor (area emitters, Lambertian surface VPLs).
-        self.cos_y_factor = self.area | (self.surface & ~self.glossy)
+        self.cos_y_factor = self.area | (surface & ~self.glossy)
+        # Lower bound of the squared distance: the clamp for surface VPLs only (clamping
+        # emitter samples would bias direct light); directional columns have d² = 1.
+        self.min_d2 = np.where(surface, f32(clamp_d2), f32(1e-30)).astype(f32)
+        self.depth = vpls.depth.astype(np.int64)
+        self.direct_count = int(vpls.direct_count)
 
-    def min_d2(self, clamp_d2: float) -> np.ndarray:
-        """Per-column lower bound of the squared distance: the clamp for surface VPLs only
-        (clamping emitter samples would bias direct light); directional columns have d² = 1."""
-        return np.where(self.surface, np.float32(clamp_d2), np.float32(1e-30)).astype(np.float32)
 
-
-def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
+def _gather_chunk(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,
+                  max_depth: int, albedo: np.ndarray) -> np.ndarray:
     f32 = np.float32
-    x = (end.position[sl] - geom.center).astype(f32)
-    ns = end.ns[sl].astype(f32)
-    n = len(x)
-    m = len(vpls)
-    # Pair geometry: end point i (rows) x VPL j (columns).
-    dvec = cols.pos[None, :, :] - x[:, None, :]
-    if cols.directional.any():
-        dvec[:, cols.directional] = -cols.normal[cols.directional][None]
-    d2 = np.einsum("ijk,ijk->ij", dvec, dvec)
-    inv_d = 1.0 / np.sqrt(np.maximum(d2, f32(1e-30)))
-    side = np.where(end.wi[sl, 2] >= 0, f32(1), f32(-1))
-    # Cosines straight from the unnormalized offsets: the unit directions are only formed
-    # for the pairs that need them (shadow rays, glossy BSDFs).
-    cos_x = np.einsum("ijk,ik->ij", dvec, ns) * inv_d * side[:, None]
-    cos_y = -np.einsum("ijk,jk->ij", dvec, cols.normal) * inv_d
-    # Emitter factor toward x (scalar per pair; the VPL colour multiplies it later), built
-    # with per-column vectors so no column gather/scatter copies the (n, m) arrays.
-    em = 1.0 / np.maximum(d2, cols.min_d2(clamp_d2)[None, :])
-    em *= np.where(cols.cos_y_factor[None, :], np.maximum(cos_y * cols.side[None, :], f32(0)), f32(1))
-    if cols.spot.any():
-        sp_cols = np.nonzero(cols.spot)[0]
-        for jj, j in enumerate(sp_cols):
-            em[:, j] *= spot_falloff(cos_y[:, j], cols.spot_params[jj, 2], cols.spot_params[jj, 1]).astype(f32)
-    if max_depth >= 0:
-        seg = end.segments[sl][:, None] + 1 + vpls.depth[None, :]
-        em *= seg <= max_depth
-    front_ok = end.sp.twosided[sl] | (end.wi[sl, 2] > 0)
-    lam = (end.sp.kind[sl] == DIFFUSE) & front_ok
-    gl = (end.sp.kind[sl] != DIFFUSE) & (end.sp.kind[sl] != NULL)
-    # Receiver: Lambertian rows take cos/π (per unit albedo), glossy rows their BSDF.
-    recv = np.where(lam[:, None], np.maximum(cos_x, 0) * f32(1 / np.pi), f32(0))
-    gi = np.nonzero(gl)[0]
-    if len(gi):
-        wo_x = (dvec[gi] * inv_d[gi][:, :, None]).reshape(-1, 3).astype(np.float64)
-        nx = np.repeat(end.ns[sl][gi], m, axis=0)
-        rows = np.arange(sl.start, sl.stop)[gi]
-        spx = end.sp.subset(np.repeat(rows, m))
-        wi_x = np.repeat(end.wi[rows], m, axis=0)
-        wo_l = to_local(wo_x, nx)
-        fx = bsdf.eval(spx, wi_x, wo_l, mode="radiance").reshape(len(gi), m, 3)
-        fx = fx / np.maximum(albedo[gi], 1e-6)[:, None, :]
-        pdf_gl = bsdf.pdf(spx, wi_x, wo_l).reshape(len(gi), m)
-    if cols.mis.any():
-        # Multiple importance sampling of the emitter samples against the BSDF-sampled ray
-        # each end point also traces (power heuristic, D emitter samples per set).
-        pb = np.maximum(cos_x, 0) * f32(1 / np.pi)
-        if len(gi):
-            pb[gi] = pdf_gl
-        mc = cols.mis
-        pl = np.broadcast_to(cols.light_pdf[mc][None, :], (n, int(mc.sum()))).astype(f32)
-        area_mc = cols.area[mc]
-        pl = np.where(area_mc[None, :], pl * d2[:, mc] / np.maximum(cos_y[:, mc], f32(1e-7)), pl)
-        pl = pl * f32(vpls.direct_count)
-        em[:, mc] *= pl * pl / np.maximum(pl * pl + pb[:, mc] * pb[:, mc], f32(1e-30))
-    weight = em * recv
-    if len(gi):
-        weight[gi] = em[gi]  # glossy rows: the scalar part only, BSDF applied below
-    live = weight > 0
-    if cols.glossy.any():
-        live[:, cols.glossy] = em[:, cols.glossy] > 0
-    live &= np.isfinite(weight)
-    # Shadow rays for the live pairs only, in one Embree batch.
-    ii, jj = np.nonzero(live)
-    if len(ii):
-        # Everything in Embree's centred float32 frame: no float64 round trip per pair. Live
-        # pairs lie on the side of the surface the eye sees (cos_x > 0, reflective BSDFs), so
-        # one offset origin per end point serves all its shadow rays.
-        ng = end.ng[sl].astype(f32)
-        scale = geom.offset_scale(end.position[sl]).astype(f32) * side
-        o_rows = x + ng * scale[:, None]
-        id_ = inv_d[ii, jj]
-        wij = dvec[ii, jj] * id_[:, None]
-        ox = o_rows[ii]
-        tmax = (1.0 / id_) * f32(1 - 1e-4) - f32(2 * geom.eps)
-        tmax[cols.directional[jj]] = np.inf
-        blocked = geom.occluded_local(ox, wij, np.maximum(tmax, f32(0)))
-        live[ii[blocked], jj[blocked]] = False
-    weight = np.where(live, weight, f32(0))  # not `*=`: NaN * False stays NaN
-    out = weight @ cols.color.astype(f32) if not len(gi) else np.zeros((n, 3), f32)
-    if len(gi):
-        lrows = np.nonzero(~gl)[0]
-        out[lrows] = weight[lrows] @ cols.color.astype(f32)
-        # Glossy receivers: f_x(wi, w)/albedo per pair.
-        out[gi] = np.einsum("ij,ijk,jk->ik", weight[gi], fx, cols.color)
-    if cols.glossy.any():
-        # Glossy VPLs: f_y(ω_in, y->x) per pair replaces the Lambertian colour (which was
-        # left as raw flux for them).
-        gj = np.nonzero(cols.glossy)[0]
-        sub = vpls.surface.subset(np.searchsorted(cols.surf_rows, gj))
-        wo_y = -(dvec[:, gj] * inv_d[:, gj][:, :, None]).reshape(-1, 3).astype(np.float64)
-        ny = np.tile(vpls.normal[gj], (n, 1))
-        spy = sub.subset(np.tile(np.arange(len(gj)), n))
-        wi_y = np.tile(vpls.wi_local[gj], (n, 1))
-        fy = bsdf.eval(spy, wi_y, to_local(wo_y, ny), mode="importance").reshape(n, len(gj), 3)
-        # out already holds weight * flux for these columns; swap flux for flux * f_y.
-        wg = weight[:, gj]
-        rec = wg[:, :, None] * cols.color[gj][None]
-        if len(gi):
-            # glossy rows used fx already: rec must carry fx too
-            fxg = np.ones((n, len(gj), 3))
-            fxg[gi] = fx[:, gj]
-            rec = rec * fxg
-        out = out - rec.sum(axis=1) + (rec * fy).sum(axis=1)
-    return np.nan_to_num(out.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    pos = end.position[sl]
+    x = np.ascontiguousarray(pos - geom.center, dtype=f32)
+    ns = np.ascontiguousarray(end.ns[sl], dtype=f32)
+    ng = np.ascontiguousarray(end.ng[sl], dtype=f32)
+    n, m = len(x), len(vpls)
+    wz = end.wi[sl, 2]
+    side = np.where(wz >= 0, f32(1), f32(-1))
+    # Live pairs lie on the side of the surface the eye sees (cos_x > 0, reflective BSDFs),
+    # so one offset origin per end point serves all its shadow rays.
+    off = (geom.offset_scale(pos).astype(f32) * side).astype(f32)
+    kind = end.sp.kind[sl]
+    lam = (kind == DIFFUSE) & (end.sp.twosided[sl] | (wz > 0))
+    row = np.where(lam, vg.ROW_LAMBERT,
+                   np.where((kind != DIFFUSE) & (kind != NULL), vg.ROW_GLOSSY, vg.ROW_NONE)).astype(np.int8)
+    cap = n * m
+    pi = np.empty(cap, np.int64)
+    pj = np.empty(cap, np.int64)
+    w = np.empty(cap, f32)
+    pl = np.empty(cap, f32)
+    o = np.empty((cap, 3), f32)
+    d = np.empty((cap, 3), f32)
+    t = np.empty(cap, f32)
+    k = vg.pair_weights(x, ns, ng, off, side, row, end.segments[sl].astype(np.int64),
+                        cols.pos, cols.normal, cols.directional, cols.min_d2, cols.cos_y_factor,
+                        cols.side, cols.spot_cutoff, cols.spot_beam, cols.depth, cols.mis,
+                        cols.light_pdf, cols.area, cols.direct_count, max_depth, f32(2 * geom.eps),
+                        pi, pj, w, pl, o, d, t)
+    pi, pj, w, pl, o, d, t = pi[:k], pj[:k], w[:k], pl[:k], o[:k], d[:k], t[:k]
+    blocked = geom.occluded_local(o, d, t) if k else np.zeros(0, bool)
+    factor = _bsdf_factors(end, sl, vpls, cols, row, pi, pj, pl, d, blocked, albedo)
+    out = np.zeros((n, 3))
+    vg.accumulate(n, pi, pj, w, blocked, cols.color, factor, out)
+    return out
+
+
+def _bsdf_factors(end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns, row: np.ndarray,
+                  pi: np.ndarray, pj: np.ndarray, pl: np.ndarray, d: np.ndarray,
+                  blocked: np.ndarray, albedo: np.ndarray) -> np.ndarray:
+    """Per-pair RGB factors for the unoccluded pairs with a non-Lambertian end: the receiver's
+    f_x(wi, ω)/albedo and its MIS weight against emitter samples, and a glossy VPL's
+    f_y(ω_in, y→x) in place of its Lambertian colour. Empty (0, 3) when no pair needs one."""
+    gr = (row[pi] == vg.ROW_GLOSSY) & ~blocked
+    gc = cols.glossy[pj] & ~blocked
+    if not gr.any() and not gc.any():
+        return np.zeros((0, 3))
+    factor = np.ones((len(pi), 3))
+    if gr.any():
+        sel = np.nonzero(gr)[0]
+        rows = sl.start + pi[sel]
+        spx = end.sp.subset(rows)
+        wi_x = end.wi[rows]
+        wo_l = to_local(d[sel].astype(np.float64), end.ns[rows])
+        fx = bsdf.eval(spx, wi_x, wo_l, mode="radiance") / np.maximum(albedo[pi[sel]], 1e-6)
+        pls = pl[sel].astype(np.float64)
+        if np.any(pls > 0):
+            pb = bsdf.pdf(spx, wi_x, wo_l)
+            fx *= np.where(pls > 0, pls * pls / np.maximum(pls * pls + pb * pb, 1e-30), 1.0)[:, None]
+        factor[sel] = fx
+    if gc.any():
+        sel = np.nonzero(gc)[0]
+        j = pj[sel]
+        sub = vpls.surface.subset(np.searchsorted(cols.surf_rows, j))
+        wo_y = to_local(-d[sel].astype(np.float64), vpls.normal[j])
+        factor[sel] *= bsdf.eval(sub, vpls.wi_local[j], wo_y, mode="importance")
+    return factor
 
 
 def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints,

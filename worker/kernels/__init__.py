@@ -1,0 +1,5 @@
+"""Compiled kernels (numba, ``nogil``): the inner loops of the worker, one module per family.
+
+Each kernel works on flat float32/float64 arrays and hands rays to Embree in large batches;
+Python only orchestrates. The numpy originals are kept under ``tests/`` as oracles.
+"""

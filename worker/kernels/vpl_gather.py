@@ -1,0 +1,146 @@
+"""The VPL gather (Wald et al. 2002 §4, the first sum): end points × VPLs, fused.
+
+Three steps per chunk of end points, none with an (end points × VPLs) temporary:
+
+1. :func:`pair_weights` — for every (end point x, VPL y) pair: geometry, the clamped
+   1/max(d², c) term, emitter cosine, spot falloff, path-length limit, Lambertian receiver
+   cos/π and the MIS weight of emitter samples against the BSDF ray; pairs that can carry
+   light are written, in row-major order, straight into Embree's float32 shadow-ray arrays.
+2. Embree's occlusion query on that batch (outside: it releases the GIL itself).
+3. :func:`accumulate` — the unoccluded pairs' weight × VPL colour (× per-pair BSDF factors
+   for glossy receivers or senders, computed by the caller on the compact pair list) summed
+   per end point.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+INV_PI = 1.0 / math.pi
+
+# Per-row flags (receiver kind).
+ROW_NONE = 0  # absorbs (NULL) or a back-facing one-sided Lambertian surface
+ROW_LAMBERT = 1  # Lambertian: weight carries cos/π, colour is per unit albedo
+ROW_GLOSSY = 2  # any other BSDF: weight is the emitter factor only, BSDF applied per pair
+
+
+@njit(cache=True, nogil=True)
+def spot_falloff(cos_theta: float, cutoff_deg: float, beam_deg: float) -> float:
+    """Mitsuba 3's spot falloff (as common.lights.spot_falloff): 1 in the beam, linear in
+    angle to 0 at the cutoff."""
+    cutoff = math.radians(cutoff_deg)
+    beam = math.radians(min(beam_deg, cutoff_deg))
+    if not cos_theta > math.cos(cutoff):
+        return 0.0
+    c = min(max(cos_theta, -1.0), 1.0)
+    ang = math.acos(c)
+    if ang <= beam:
+        return 1.0
+    width = max(cutoff - beam, 1e-12)
+    return min(max((cutoff - ang) / width, 0.0), 1.0)
+
+
+@njit(cache=True, nogil=True)
+def pair_weights(x, ns, ng, off, side, row, seg,
+                 vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam,
+                 vdepth, mis, light_pdf, area, direct_count, max_depth, eps2,
+                 out_i, out_j, out_w, out_pl, out_o, out_d, out_t):
+    """Fill the live pairs of rows x (n, 3) × VPL columns; returns how many were written.
+
+    x, ns, ng: float32 (n, 3) end points in Embree's centred frame; off: float32 (n,) offset
+    length along ng, signed to the eye's side (``side``); row: ROW_* per end point; seg: eye
+    segments. Per column: vpos/vnormal float32 (m, 3), directional/cos_factor/mis/area bool,
+    min_d2/vside/light_pdf float32, spot_cutoff/spot_beam degrees (cutoff < 0: not a spot),
+    vdepth int. out_pl: the MIS light pdf of glossy-row pairs (0 elsewhere) — their BSDF pdf
+    is the caller's, so their MIS weight is applied by the caller.
+    """
+    n = x.shape[0]
+    m = vpos.shape[0]
+    k = 0
+    f1e30 = np.float32(1e-30)
+    for i in range(n):
+        r = row[i]
+        if r == ROW_NONE:
+            continue
+        xi0, xi1, xi2 = x[i, 0], x[i, 1], x[i, 2]
+        n0, n1, n2 = ns[i, 0], ns[i, 1], ns[i, 2]
+        s = side[i]
+        o0 = xi0 + ng[i, 0] * off[i]
+        o1 = xi1 + ng[i, 1] * off[i]
+        o2 = xi2 + ng[i, 2] * off[i]
+        for j in range(m):
+            if max_depth >= 0 and seg[i] + 1 + vdepth[j] > max_depth:
+                continue
+            if directional[j]:
+                d0, d1, d2_ = -vnormal[j, 0], -vnormal[j, 1], -vnormal[j, 2]
+            else:
+                d0 = vpos[j, 0] - xi0
+                d1 = vpos[j, 1] - xi1
+                d2_ = vpos[j, 2] - xi2
+            dd = d0 * d0 + d1 * d1 + d2_ * d2_
+            inv_d = np.float32(1.0) / np.float32(math.sqrt(max(dd, f1e30)))
+            cos_x = (d0 * n0 + d1 * n1 + d2_ * n2) * inv_d * s
+            cos_y = -(d0 * vnormal[j, 0] + d1 * vnormal[j, 1] + d2_ * vnormal[j, 2]) * inv_d
+            em = np.float32(1.0) / max(dd, min_d2[j])
+            if cos_factor[j]:
+                em *= max(cos_y * vside[j], np.float32(0.0))
+            if spot_cutoff[j] >= 0.0:
+                em *= np.float32(spot_falloff(cos_y, spot_cutoff[j], spot_beam[j]))
+            if em <= 0.0:
+                continue
+            pl = np.float32(0.0)
+            if mis[j]:
+                pl = light_pdf[j]
+                if area[j]:
+                    pl = pl * dd / max(cos_y, np.float32(1e-7))
+                pl = pl * np.float32(direct_count)
+            if r == ROW_LAMBERT:
+                recv = max(cos_x, np.float32(0.0)) * np.float32(INV_PI)
+                w = em * recv
+                if mis[j]:
+                    w *= pl * pl / max(pl * pl + recv * recv, f1e30)
+                pl = np.float32(0.0)
+            else:
+                w = em
+            if not (w > 0.0) or not math.isfinite(w):
+                continue
+            out_i[k] = i
+            out_j[k] = j
+            out_w[k] = w
+            out_pl[k] = pl
+            out_o[k, 0] = o0
+            out_o[k, 1] = o1
+            out_o[k, 2] = o2
+            out_d[k, 0] = d0 * inv_d
+            out_d[k, 1] = d1 * inv_d
+            out_d[k, 2] = d2_ * inv_d
+            if directional[j]:
+                out_t[k] = np.float32(3.0e38)
+            else:
+                t = (np.float32(1.0) / inv_d) * np.float32(1 - 1e-4) - eps2
+                out_t[k] = max(t, np.float32(0.0))
+            k += 1
+    return k
+
+
+@njit(cache=True, nogil=True)
+def accumulate(n, pi, pj, w, blocked, color, factor, out):
+    """out[i] += w · colour_j (· factor, when factor has rows) over the unoccluded pairs."""
+    use_factor = factor.shape[0] > 0
+    for k in range(pi.shape[0]):
+        if blocked[k]:
+            continue
+        i = pi[k]
+        j = pj[k]
+        wk = np.float64(w[k])
+        for c in range(3):
+            v = wk * color[j, c]
+            if use_factor:
+                v *= factor[k, c]
+            out[i, c] += v
+    for i in range(n):
+        for c in range(3):
+            if not math.isfinite(out[i, c]):
+                out[i, c] = 0.0
