@@ -185,3 +185,20 @@ def test_gather_same_side_tests():
         g.gather(q, None, power, photon_normals=pn)
     with pytest.raises(ValueError):
         g.gather(q, qn, power, kernel="gauss")
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_compiled_query_equals_numpy_query_pair_for_pair(seed):
+    """The compiled query returns exactly the numpy implementation's pairs, in its order,
+    including balls on cell borders and non-finite queries."""
+    g = np.random.default_rng(seed)
+    r = 0.25
+    pts = np.concatenate([g.random((400, 3)) * 4 - 2, np.round(g.random((100, 3)) * 16) * (r / 2)])
+    grid = HashGrid(pts, r)
+    q = np.concatenate([g.random((300, 3)) * 5 - 2.5, pts[:50] + r * np.array([1.0, 0, 0]),
+                        np.array([[np.nan, 0, 0], [np.inf, 1, 1], [1e300, 0, 0]])])
+    got = grid.query(q)
+    want = grid._query_numpy(q)
+    assert len(want[0]) > 0
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])

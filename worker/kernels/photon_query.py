@@ -1,0 +1,96 @@
+"""The hashed-grid photon query (Wald et al. 2002 §4.1), compiled: per query, the 2×2×2 cells
+of size 2r around it (a third layer where rounding widens the ball's cell span), each found by
+binary search in the sorted occupied-cell keys, and the photons within r.
+
+Two passes (count, then fill) so the pair arrays are allocated once at their exact size.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+_CELL_LIMIT = float(2 ** 60)
+
+
+@njit(cache=True, nogil=True)
+def _cell(v: float, inv: float) -> tuple:
+    c = math.floor(v * inv)
+    if not math.isfinite(c) or abs(c) >= _CELL_LIMIT:
+        return False, 0
+    return True, np.int64(c)
+
+
+@njit(cache=True, nogil=True)
+def _find(keys, key) -> int:
+    lo, hi = 0, keys.shape[0]
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if keys[mid] < key:
+            lo = mid + 1
+        else:
+            hi = mid
+    if lo < keys.shape[0] and keys[lo] == key:
+        return lo
+    return -1
+
+
+@njit(cache=True, nogil=True)
+def _visit(q, r, inv, origin, ext, keys, starts, counts, order, points, out_p, out_q, fill):
+    r2 = r * r
+    ey, ez = ext[1], ext[2]
+    total = 0
+    for i in range(q.shape[0]):
+        lo = np.empty(3, np.int64)
+        hi = np.empty(3, np.int64)
+        ok = True
+        for a in range(3):
+            g1, c1 = _cell(q[i, a] - r, inv)
+            g2, c2 = _cell(q[i, a] + r, inv)
+            if not (g1 and g2):
+                ok = False
+                break
+            lo[a] = c1
+            hi[a] = max(c2, c1 + 1)
+        if not ok:
+            continue
+        for cx in range(lo[0], hi[0] + 1):
+            rx = cx - origin[0]
+            if rx < 0 or rx >= ext[0]:
+                continue
+            for cy in range(lo[1], hi[1] + 1):
+                ry = cy - origin[1]
+                if ry < 0 or ry >= ey:
+                    continue
+                for cz in range(lo[2], hi[2] + 1):
+                    rz = cz - origin[2]
+                    if rz < 0 or rz >= ez:
+                        continue
+                    h = _find(keys, (rx * ey + ry) * ez + rz)
+                    if h < 0:
+                        continue
+                    s = starts[h]
+                    for t in range(s, s + counts[h]):
+                        p = order[t]
+                        d0 = points[p, 0] - q[i, 0]
+                        d1 = points[p, 1] - q[i, 1]
+                        d2 = points[p, 2] - q[i, 2]
+                        if d0 * d0 + d1 * d1 + d2 * d2 <= r2:
+                            if fill:
+                                out_p[total] = p
+                                out_q[total] = i
+                            total += 1
+    return total
+
+
+@njit(cache=True, nogil=True)
+def query(q, r, inv, origin, ext, keys, starts, counts, order, points):
+    """(photon index, query index) of every photon within r of each query, grouped by
+    ascending query index; queries outside the grid's key space find nothing."""
+    empty = np.empty(0, np.int64)
+    n = _visit(q, r, inv, origin, ext, keys, starts, counts, order, points, empty, empty, False)
+    out_p = np.empty(n, np.int64)
+    out_q = np.empty(n, np.int64)
+    _visit(q, r, inv, origin, ext, keys, starts, counts, order, points, out_p, out_q, True)
+    return out_p, out_q
