@@ -1,0 +1,1 @@
+"""Compiled kernels (numba, ``nogil``) shared by worker and master: the math defined once."""

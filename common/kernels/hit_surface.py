@@ -1,0 +1,56 @@
+"""Hit reconstruction from Embree's (primID, u, v, t): position from the centred float32
+triangle, geometric and interpolated shading normal (ng turned to the shading normal's side,
+as Mitsuba orients by the shading frame), texture coordinates, material/emitter/mesh ids."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def reconstruct(valid, prim, u, v, t, center, v0c, e1c, e2c, fn32, smooth, tri_normals, faces,
+                vertex_uvs, need_uv, material_of, emitter_of, mesh_of,
+                pos, ng, ns, uv, tt, mat, em, mesh):
+    one = np.float32(1.0)
+    for i in range(valid.shape[0]):
+        ok = valid[i]
+        p = prim[i] if ok else 0
+        u32 = np.float32(u[i])
+        v32 = np.float32(v[i])
+        for a in range(3):
+            pos[i, a] = np.float64(v0c[p, a] + u32 * e1c[p, a] + v32 * e2c[p, a]) + center[a]
+        g0, g1, g2 = fn32[p, 0], fn32[p, 1], fn32[p, 2]
+        s0, s1, s2 = g0, g1, g2
+        if ok and smooth[p]:
+            w0 = one - u32 - v32
+            a0 = w0 * tri_normals[p, 0, 0] + u32 * tri_normals[p, 1, 0] + v32 * tri_normals[p, 2, 0]
+            a1 = w0 * tri_normals[p, 0, 1] + u32 * tri_normals[p, 1, 1] + v32 * tri_normals[p, 2, 1]
+            a2 = w0 * tri_normals[p, 0, 2] + u32 * tri_normals[p, 1, 2] + v32 * tri_normals[p, 2, 2]
+            ln = np.float32(math.sqrt(a0 * a0 + a1 * a1 + a2 * a2))
+            if ln > 1e-12:
+                inv = max(ln, np.float32(1e-30))
+                s0, s1, s2 = a0 / inv, a1 / inv, a2 / inv
+                if g0 * s0 + g1 * s1 + g2 * s2 < 0:
+                    g0, g1, g2 = -g0, -g1, -g2
+        ng[i, 0], ng[i, 1], ng[i, 2] = g0, g1, g2
+        ns[i, 0], ns[i, 1], ns[i, 2] = s0, s1, s2
+        if need_uv:
+            w = 1.0 - u[i] - v[i]
+            f0, f1, f2 = faces[p, 0], faces[p, 1], faces[p, 2]
+            for c in range(2):
+                uv[i, c] = w * vertex_uvs[f0, c] + u[i] * vertex_uvs[f1, c] + v[i] * vertex_uvs[f2, c]
+        else:
+            uv[i, 0] = 0.0
+            uv[i, 1] = 0.0
+        if ok:
+            tt[i] = t[i]
+            mat[i] = material_of[p]
+            em[i] = emitter_of[p]
+            mesh[i] = mesh_of[p]
+        else:
+            tt[i] = np.inf
+            mat[i] = -1
+            em[i] = -1
+            mesh[i] = -1
