@@ -42,28 +42,25 @@ def _visit(q, r, inv, origin, ext, keys, starts, counts, order, points, out_p, o
     ey, ez = ext[1], ext[2]
     total = 0
     for i in range(q.shape[0]):
-        lo = np.empty(3, np.int64)
-        hi = np.empty(3, np.int64)
-        ok = True
-        for a in range(3):
-            g1, c1 = _cell(q[i, a] - r, inv)
-            g2, c2 = _cell(q[i, a] + r, inv)
-            if not (g1 and g2):
-                ok = False
-                break
-            lo[a] = c1
-            hi[a] = max(c2, c1 + 1)
-        if not ok:
+        g0, lx = _cell(q[i, 0] - r, inv)
+        g1, hx = _cell(q[i, 0] + r, inv)
+        g2, ly = _cell(q[i, 1] - r, inv)
+        g3, hy = _cell(q[i, 1] + r, inv)
+        g4, lz = _cell(q[i, 2] - r, inv)
+        g5, hz = _cell(q[i, 2] + r, inv)
+        if not (g0 and g1 and g2 and g3 and g4 and g5):
             continue
-        for cx in range(lo[0], hi[0] + 1):
+        # Rounding can widen the ball's span to a third layer; never less than two.
+        hx, hy, hz = max(hx, lx + 1), max(hy, ly + 1), max(hz, lz + 1)
+        for cx in range(lx, hx + 1):
             rx = cx - origin[0]
             if rx < 0 or rx >= ext[0]:
                 continue
-            for cy in range(lo[1], hi[1] + 1):
+            for cy in range(ly, hy + 1):
                 ry = cy - origin[1]
                 if ry < 0 or ry >= ey:
                     continue
-                for cz in range(lo[2], hi[2] + 1):
+                for cz in range(lz, hz + 1):
                     rz = cz - origin[2]
                     if rz < 0 or rz >= ez:
                         continue
