@@ -35,6 +35,11 @@ PARAMS: tuple[Param, ...] = (
     Param("clamp", float, -1.0,
           "minimum squared VPL distance as a fraction of the squared scene diagonal (-1: scene default 1e-3)",
           "vpl", -1.0, 1.0),
+    Param("vpl_importance", int, -1,
+          "indirect VPLs kept by their contribution to the view (Georgiev & Slusallek 2010): "
+          "-1 auto (when a pilot set's contributions are uneven), 0 off, 1 on", "vpl", -1, 1),
+    Param("vpl_oversample", int, 8, "candidate light walks per kept walk when VPLs are importance-sampled",
+          "vpl", 1, 64),
     Param("light_samples", int, 0,
           "emitters sampled per set in many-light scenes (0: all emitters share the direct VPLs by power)",
           "vpl", 0, 1024),

@@ -48,9 +48,14 @@ class FramePlan:
 
 
 def frame_plan(scene_changed: bool, params_changed: bool, camera_changed: bool,
-               accumulate_enabled: bool = True) -> FramePlan:
+               accumulate_enabled: bool = True, view_dependent_sets: bool = False) -> FramePlan:
+    """``view_dependent_sets``: the VPLs are importance-sampled for the view (the worker's
+    pilot turned vpl_importance on), so a camera move rebuilds them for the new view."""
     if scene_changed or params_changed:
         return FramePlan(True, False, "scene or parameters changed: new sets, restart accumulation")
+    if camera_changed and view_dependent_sets:
+        return FramePlan(True, False, "camera moved: VPL sets importance-sampled for the new view "
+                                      "(same seed), restart accumulation")
     if camera_changed:
         # Sets depend on the scene and seed only: keep the seed, reuse cached sets, no flicker.
         return FramePlan(False, False, "only the camera moved: sets reused, no preprocessing")

@@ -208,12 +208,15 @@ def cmd_render(args: argparse.Namespace) -> int:
     params = params_from(args)
     scene = load_scene_file(args.scene)
     if args.plan:
-        from common.geometry import Geometry
-        from common.lights import LightSampler
-        from common.render_plan import analyze
+        from master.local import resolve_camera
+        from worker.renderer import Renderer
+        from worker.vpl_importance import View
 
-        geom = Geometry(scene)
-        print("\n".join(analyze(scene, geom, LightSampler(scene, geom)).lines()))
+        r = Renderer(scene)
+        print("\n".join(r.plan.lines()))
+        cam, fov_x, w, h = resolve_camera(scene, None, args.width, args.height)
+        r.importance_on(params, View(tuple(np.asarray(cam, np.float64).ravel()), fov_x, w, h))
+        print(r.importance_notes or "off vpl_importance      no indirect VPLs or turned off")
         if not args.output:
             return 0
     if not args.output:

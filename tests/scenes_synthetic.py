@@ -52,3 +52,33 @@ def furnace_box(albedo: float, radiance: float, width=32, height=32) -> Scene:
         meshes.append(Mesh(f"wall{i}", v, f, 0, emitter=i))
     cam = Camera(look_at([1.0, 1.0, 1.9], [1.0, 1.0, 0.0], [0, 1, 0]), fov=60, width=width, height=height)
     return Scene(meshes, mats, emitters, cam, source="furnace")
+
+
+def two_rooms(width=32, height=24) -> Scene:
+    """Two diffuse rooms side by side ([0,2] and [2,4] along x, 2 high and deep) joined by a
+    narrow door in the wall x = 2; the only light is a ceiling quad in the left room and the
+    camera looks at the door from the right room: nearly all light it sees is indirect and
+    came through the gap (the veach-ajar situation)."""
+    mats = [Material("wall", DIFFUSE, diffuse=Texture.constant(0.7)),
+            Material("black", DIFFUSE, diffuse=Texture.constant(0.0))]
+    meshes = []
+    for i, (v, f) in enumerate(box_faces(2.0)):
+        if i != 3:  # face 3 (x = 2) is the shared wall, built below with its door
+            meshes.append(Mesh(f"left{i}", v, f, 0))
+        if i != 2:  # face 2 (x = 0) moved by 2 is the same shared wall
+            meshes.append(Mesh(f"right{i}", v + np.array([2.0, 0, 0]), f, 0))
+    # The shared wall x = 2 with a door 0.3 wide, 1.6 high at z in [0.85, 1.15]: four quads,
+    # two-sided by being duplicated with both windings.
+    pieces = [quad([2, 0, 0], [0, 0, 0.85], [0, 2, 0]), quad([2, 0, 1.15], [0, 0, 0.85], [0, 2, 0]),
+              quad([2, 1.6, 0.85], [0, 0, 0.3], [0, 0.4, 0])]
+    for j, (v, f) in enumerate(pieces):
+        meshes.append(Mesh(f"door wall {j}a", v, f, 0))
+        meshes.append(Mesh(f"door wall {j}b", v, f[:, ::-1].copy(), 0))
+    lv, lf = quad([0.7, 1.99, 0.7], [0.6, 0, 0], [0, 0, 0.6])
+    n = np.cross(lv[1] - lv[0], lv[2] - lv[0])
+    if n[1] > 0:  # face down into the room
+        lf = lf[:, ::-1].copy()
+    meshes.append(Mesh("light", lv, lf, 1, emitter=0))
+    emitters = [Emitter(AREA, radiance=np.full(3, 20.0), mesh=len(meshes) - 1)]
+    cam = Camera(look_at([3.8, 1.0, 1.0], [2.0, 0.8, 1.0], [0, 1, 0]), fov=80, width=width, height=height)
+    return Scene(meshes, mats, emitters, cam, source="two rooms")

@@ -86,12 +86,14 @@ def test_frame_plan_rules():
     static = frame_plan(False, False, False)
     assert static.accumulate and static.rebuild_sets  # nothing moved: next seed, accumulate
     assert not frame_plan(False, False, False, accumulate_enabled=False).accumulate
+    follow = frame_plan(False, False, True, view_dependent_sets=True)
+    assert follow.rebuild_sets and not follow.accumulate and "importance" in follow.reason
 
 
 def test_camera_only_motion_costs_no_preprocessing():
     scene = load_scene(SHARED / "scenes" / "cornell-box-sphere" / "scene.xml")
     r = Renderer(scene)
-    p = params_to_dict(make_params(accumulate=False))
+    p = params_to_dict(make_params(accumulate=False, vpl_importance=0))
     cam = scene.camera
 
     def frame(to_world):
@@ -106,6 +108,25 @@ def test_camera_only_motion_costs_no_preprocessing():
     frame(moved)
     assert r.stats["sets_built"] == built  # the same VPL sets, from the cache
     assert r.stats["set_hits"] >= 9
+
+
+def test_camera_move_rebuilds_importance_sampled_sets_only():
+    scene = load_scene(SHARED / "scenes" / "cornell-box-sphere" / "scene.xml")
+    r = Renderer(scene)
+    p = params_to_dict(make_params(accumulate=False, vpl_importance=1))
+    cam = scene.camera
+
+    def frame(to_world):
+        spec = FrameSpec(0, 0, tuple(np.asarray(to_world).ravel()), cam.fov_x, 48, 36, p)
+        for k in range(9):
+            r.render_tile(spec, Tile(k, 0, 0, 16, 12))
+        return r.stats["sets_built"]
+
+    built = frame(cam.to_world)
+    assert frame(cam.to_world) == built  # same view: cached
+    moved = cam.to_world.copy()
+    moved[:3, 3] += [0.1, 0.05, 0.0]
+    assert frame(moved) == built + 9  # the VPLs follow the view
 
 
 def test_plan_off_renders_the_same_image():

@@ -23,6 +23,7 @@ from common.sobol_stream import rng as make_rng
 from .caustics import PhotonSet, build_photon_set, default_radius, gather_photons
 from .shading import bsdf_direct, clamp_compensation, gather_vpls, trace_eye
 from .vpl import VPLSet, build_vpl_set
+from .vpl_importance import AUTO_ESS, View, build_importance_vpl_set
 
 DEFAULT_CLAMP = 1e-3  # minimum squared VPL distance, as a fraction of the squared scene diagonal
 
@@ -59,17 +60,39 @@ class Renderer:
         self._max_sets = max_cached_sets
         self._lock = threading.Lock()
         self.stats = {"sets_built": 0, "set_hits": 0}
+        self._pilot: dict[tuple, bool] = {}  # (scene version, view, sizes) -> importance sampling on?
+        self.importance_notes = ""
 
     # -- per-set preprocessing --------------------------------------------------------------
-    def vpl_set(self, seed: int, k: int, params: Params, roulette: bool = False) -> VPLSet:
-        key = (self.scene_version, seed, k, params.direct_vpls, params.indirect_vpls,
-               params.light_path_length, params.max_depth, roulette)
+    def importance_on(self, params: Params, view: View | None) -> bool:
+        """Importance-sample this view's VPLs? Auto: a pilot candidate set (seed 0, k 0) scored
+        on the view; on when its contributions are uneven (few candidates carry the light)."""
+        if view is None or params.vpl_importance == 0 or params.indirect_vpls == 0:
+            return False
+        if params.vpl_importance == 1:
+            return True
+        key = ("pilot", self.scene_version, view.key, params.indirect_vpls, params.light_path_length,
+               params.vpl_oversample, params.max_depth, params.clamp)
         with self._lock:
-            hit = self._sets.get(key)
-            if hit is not None:
-                self._sets.move_to_end(key)
-                self.stats["set_hits"] += 1
-                return hit
+            hit = self._pilot.get(key)
+        if hit is None:
+            _, st = self._build_importance(0, 0, params, view, False)
+            hit = st.ess < AUTO_ESS
+            with self._lock:
+                self._pilot[key] = hit
+                self.importance_notes = (f"{'ON ' if hit else 'off'} vpl_importance      pilot: effective "
+                                         f"share {st.ess:.2f} of {st.candidates} candidate VPLs "
+                                         f"(on below {AUTO_ESS})")
+        return hit
+
+    def _build_importance(self, seed, k, params, view, roulette):
+        direct, indirect, length = self._set_sizes(params)
+        return build_importance_vpl_set(
+            self.scene, self.geom, self.lights, seed, k, direct, indirect, length, view,
+            params.vpl_oversample, clamp_distance2(params, self.geom.diagonal), params.max_depth,
+            params.specular_depth, roulette=roulette and params.max_depth < 0)
+
+    def _set_sizes(self, params: Params) -> tuple[int, int, int]:
         direct = params.direct_vpls
         if self.plan is not None and self.plan.point_light:
             direct = min(direct, 1)  # a point-like emitter: more samples on it add nothing
@@ -79,8 +102,26 @@ class Renderer:
             # max_depth - 2 bounces could never contribute.
             length = min(length, params.max_depth - 2)
         indirect = params.indirect_vpls if length > 0 else 0
-        s = build_vpl_set(self.scene, self.geom, self.lights, seed, k, direct if params.max_depth != 1 else 0,
-                          indirect, max(length, 1), roulette=roulette and params.max_depth < 0)
+        return (direct if params.max_depth != 1 else 0), indirect, max(length, 1)
+
+    def vpl_set(self, seed: int, k: int, params: Params, roulette: bool = False,
+                view: View | None = None) -> VPLSet:
+        importance = self.importance_on(params, view)
+        key = (self.scene_version, seed, k, params.direct_vpls, params.indirect_vpls,
+               params.light_path_length, params.max_depth, roulette,
+               (view.key, params.vpl_oversample, params.clamp, params.specular_depth) if importance else None)
+        with self._lock:
+            hit = self._sets.get(key)
+            if hit is not None:
+                self._sets.move_to_end(key)
+                self.stats["set_hits"] += 1
+                return hit
+        if importance:
+            s, _ = self._build_importance(seed, k, params, view, roulette)
+        else:
+            direct, indirect, length = self._set_sizes(params)
+            s = build_vpl_set(self.scene, self.geom, self.lights, seed, k, direct, indirect, length,
+                              roulette=roulette and params.max_depth < 0)
         with self._lock:
             self._sets[key] = s
             self.stats["sets_built"] += 1
@@ -124,7 +165,9 @@ class Renderer:
         eye = trace_eye(self.scene, self.geom, self.lights, o, d, params.max_depth,
                         params.specular_depth, rng)
         index = accumulation_index(spec)
-        vpls = self.vpl_set(spec.seed, tile.k, params, roulette=index > 0 and params.consistent)
+        view = View(tuple(np.asarray(spec.camera_to_world, np.float64).ravel()), spec.fov_x, spec.width,
+                    spec.height)
+        vpls = self.vpl_set(spec.seed, tile.k, params, roulette=index > 0 and params.consistent, view=view)
         clamp_d2 = clamp_distance2(params, self.geom.diagonal)
         albedo, irr = gather_vpls(self.geom, eye.end, vpls, clamp_d2, params.max_depth,
                                   force_general=self.plan is None)

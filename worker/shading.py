@@ -206,6 +206,28 @@ def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
     return albedo, irr
 
 
+def contribution_per_vpl(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
+                         max_depth: int) -> np.ndarray:
+    """(M,) luminance each VPL sends toward the eye through the end points (radiance ×
+    path throughput, summed over end points): the importance of a VPL to this view."""
+    e, m = len(end), len(vpls)
+    out = np.zeros(m)
+    if e == 0 or m == 0:
+        return out
+    albedo = bsdf.albedo(end.sp, end.wi).astype(np.float64)
+    cols = _VPLColumns(vpls, geom, clamp_d2)
+    chunk = max(1, PAIR_CHUNK // m)
+    for s in range(0, e, chunk):
+        sl = slice(s, min(e, s + chunk))
+        pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, albedo[sl])
+        rgb = cols.color[pj] * (albedo[sl][pi] * end.throughput[sl][pi])
+        if len(factor):
+            rgb = rgb * factor
+        lum = np.where(blocked, 0.0, luminance(rgb) * w)
+        out += np.bincount(pj, weights=np.nan_to_num(lum, nan=0.0, posinf=0.0, neginf=0.0), minlength=m)
+    return out
+
+
 class _VPLColumns:
     """Per-VPL constants of the gather as flat kernel arrays, computed once per set and call."""
 
@@ -252,6 +274,16 @@ class _VPLColumns:
 
 def _gather_chunk(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,
                   max_depth: int, albedo: np.ndarray) -> np.ndarray:
+    pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, albedo)
+    out = np.zeros((sl.stop - sl.start, 3))
+    vg.accumulate(len(out), pi, pj, w, blocked, cols.color, factor, out)
+    return out
+
+
+def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,
+                      max_depth: int, albedo: np.ndarray) -> tuple:
+    """The chunk's live (end point, VPL) pairs after Embree's occlusion test: (row, column,
+    scalar weight, blocked, per-pair RGB factor or an empty (0, 3) array)."""
     f32 = np.float32
     pos = end.position[sl]
     x = np.ascontiguousarray(pos - geom.center, dtype=f32)
@@ -283,9 +315,7 @@ def _gather_chunk(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols:
     pi, pj, w, pl, o, d, t = pi[:k], pj[:k], w[:k], pl[:k], o[:k], d[:k], t[:k]
     blocked = geom.occluded_local(o, d, t) if k else np.zeros(0, bool)
     factor = _bsdf_factors(end, sl, vpls, cols, row, pi, pj, pl, d, blocked, albedo)
-    out = np.zeros((n, 3))
-    vg.accumulate(n, pi, pj, w, blocked, cols.color, factor, out)
-    return out
+    return pi, pj, w, blocked, factor
 
 
 def _bsdf_factors(end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns, row: np.ndarray,

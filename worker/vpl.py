@@ -163,6 +163,22 @@ def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarr
                   np.concatenate(wi_l), sp_all, bool(np.all(sp_all.kind == 0)))
 
 
+def subset_vpls(vpls: VPLSet, rows: np.ndarray, power_scale: np.ndarray | None = None) -> VPLSet:
+    """The VPLs ``rows`` (ascending), their powers optionally scaled per row of ``vpls``."""
+    rows = np.asarray(rows, np.int64)
+    power = vpls.power[rows] if power_scale is None else vpls.power[rows] * power_scale[rows][:, None]
+    surface = None
+    if vpls.surface is not None:
+        # surface BSDF rows are the VPL_SURFACE rows in order: map the kept ones
+        surf_rank = np.cumsum(vpls.kind == VPL_SURFACE) - 1
+        kept = rows[vpls.kind[rows] == VPL_SURFACE]
+        surface = vpls.surface.subset(surf_rank[kept]) if len(kept) else None
+    lp = vpls.light_pdf[rows] if vpls.light_pdf is not None else None
+    return VPLSet(vpls.kind[rows], vpls.position[rows], vpls.normal[rows], vpls.ng[rows], power,
+                  vpls.depth[rows], vpls.wi_local[rows], surface,
+                  bool(surface is None or np.all(surface.kind == 0)), lp, vpls.direct_count)
+
+
 def concat_surface(sps: list) -> "bsdf.SurfacePoints":
     """Concatenate SurfacePoints batches field by field."""
     first = sps[0]

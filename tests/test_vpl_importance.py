@@ -1,0 +1,102 @@
+"""Importance-sampled VPLs (worker.vpl_importance, Georgiev & Slusallek 2010): the acceptance
+probabilities, unbiasedness against plain instant radiosity, lower variance where light comes
+through a gap, and determinism across workers."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from common.camera import camera_rays
+from common.params import make_params
+from common.sobol_stream import rng
+from scenes_synthetic import furnace_box, two_rooms
+from worker.renderer import Renderer, clamp_distance2
+from worker.shading import gather_vpls, trace_eye
+from worker.vpl import build_vpl_set
+from worker.vpl_importance import (View, acceptance, build_importance_vpl_set, effective_share)
+
+
+def _view(scene) -> View:
+    c = scene.camera
+    return View(tuple(np.asarray(c.to_world, np.float64).ravel()), c.fov_x, c.width, c.height)
+
+
+def _end_points(r: Renderer, w=24, h=18):
+    cam = r.scene.camera
+    ys, xs = np.mgrid[0:h, 0:w]
+    o, d = camera_rays(cam.to_world, cam.fov_x, w, h, xs.ravel() * cam.width / w, ys.ravel() * cam.height / h)
+    return trace_eye(r.scene, r.geom, r.lights, o, d, -1, 8, rng(0, 7)).end
+
+
+def test_acceptance_sums_to_target_within_floor_and_one():
+    g = np.random.default_rng(3)
+    phi = np.concatenate([g.lognormal(0, 3, 200), np.zeros(50)])
+    for mix in (1.0, 0.5):
+        p = acceptance(phi, 30.0, mix)
+        assert abs(p.sum() - 30.0) < 1e-6 * 30
+        assert np.all(p <= 1.0) and np.all(p > 0)
+        assert p.min() >= (1 - mix) * 30 / len(phi) - 1e-12  # the defensive floor
+        order = np.argsort(phi)
+        assert np.all(np.diff(p[order]) >= -1e-12)  # more contribution, never less likely
+    assert np.allclose(acceptance(np.zeros(10), 4.0), 0.4)  # nothing in view: uniform
+    assert np.all(acceptance(phi[:5], 10.0) == 1.0)  # fewer candidates than wanted: keep all
+
+
+def test_effective_share():
+    assert effective_share(np.ones(10)) == pytest.approx(1.0)
+    assert effective_share(np.array([1.0, 0, 0, 0])) == pytest.approx(0.25)
+
+
+def _totals(r, end, params, importance, seeds):
+    c2 = clamp_distance2(params, r.geom.diagonal)
+    view = _view(r.scene)
+    out = []
+    for s in seeds:
+        if importance:
+            v, _ = build_importance_vpl_set(r.scene, r.geom, r.lights, s, 0, 0, 18, 4, view, 8, c2, -1, 8)
+        else:
+            v = build_vpl_set(r.scene, r.geom, r.lights, s, 0, 0, 18, 4)
+        albedo, irr = gather_vpls(r.geom, end, v, c2, -1)
+        out.append(float((albedo * irr).sum()))
+    return np.array(out)
+
+
+def test_importance_sampling_is_unbiased_and_less_noisy_through_a_door():
+    r = Renderer(two_rooms())
+    end = _end_points(r)
+    params = make_params()
+    seeds = range(120)
+    plain = _totals(r, end, params, False, seeds)
+    imp = _totals(r, end, params, True, seeds)
+    assert plain.mean() > 0
+    se = np.sqrt(plain.var(ddof=1) / len(plain) + imp.var(ddof=1) / len(imp))
+    assert abs(plain.mean() - imp.mean()) < 4 * se  # same expectation (indirect light only)
+    assert imp.std() < 0.7 * plain.std()  # VPLs where the camera looks: less noise
+
+
+def test_importance_sampled_furnace_matches_plain_expectation():
+    r = Renderer(furnace_box(0.5, 1.0))
+    end = _end_points(r, 12, 12)
+    params = make_params()
+    seeds = range(40)
+    plain = _totals(r, end, params, False, seeds)
+    imp = _totals(r, end, params, True, seeds)
+    se = np.sqrt(plain.var(ddof=1) / len(plain) + imp.var(ddof=1) / len(imp))
+    assert abs(plain.mean() - imp.mean()) < 4 * se + 1e-9 * plain.mean()
+
+
+def test_every_worker_builds_the_same_importance_set():
+    scene = two_rooms()
+    params = make_params(vpl_importance=1)
+    a = Renderer(scene).vpl_set(5, 3, params, view=_view(scene))
+    b = Renderer(scene).vpl_set(5, 3, params, view=_view(scene))
+    np.testing.assert_array_equal(a.position, b.position)
+    np.testing.assert_array_equal(a.power, b.power)
+
+
+def test_auto_mode_turns_on_behind_a_door_and_says_why():
+    scene = two_rooms()
+    r = Renderer(scene)
+    assert r.importance_on(make_params(), _view(scene))
+    assert "vpl_importance" in r.importance_notes and "ON" in r.importance_notes
+    assert not r.importance_on(make_params(vpl_importance=0), _view(scene))
