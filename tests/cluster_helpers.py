@@ -1,4 +1,4 @@
-"""Shared by the cluster tests: a small non-trivial scene, fake workers speaking the protocol,
+"""Shared by the cluster tests: fake workers speaking the protocol,
 worker processes on loopback."""
 from __future__ import annotations
 
@@ -13,42 +13,10 @@ import numpy as np
 import zmq
 
 from common import protocol as P
-from common.camera import look_at
 from common.frame import Tile, TileBuffers
-from common.scene import AREA, DIFFUSE, NULL, Camera, Emitter, Material, Mesh, Scene, Texture
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
-
-
-def _quad(c, e1, e2):
-    c, e1, e2 = (np.asarray(x, float) for x in (c, e1, e2))
-    return np.array([c, c + e1, c + e1 + e2, c + e2]), np.array([[0, 1, 2], [0, 2, 3]], np.int32)
-
-
-def mini_cornell(width: int = 64, height: int = 48) -> Scene:
-    """A 2x2x2 box open towards the camera: white floor/ceiling/back, red left, green right,
-    a white block, and a small area light under the ceiling facing down."""
-    mats = [Material("white", DIFFUSE, diffuse=Texture.constant(0.7)),
-            Material("red", DIFFUSE, diffuse=Texture.constant([0.7, 0.1, 0.1])),
-            Material("green", DIFFUSE, diffuse=Texture.constant([0.1, 0.7, 0.1])),
-            Material("light", NULL)]
-    parts = [
-        ("floor", _quad([0, 0, 0], [0, 0, 2], [2, 0, 0]), 0),
-        ("ceiling", _quad([0, 2, 0], [2, 0, 0], [0, 0, 2]), 0),
-        ("back", _quad([0, 0, 0], [2, 0, 0], [0, 2, 0]), 0),
-        ("left", _quad([0, 0, 0], [0, 2, 0], [0, 0, 2]), 1),
-        ("right", _quad([2, 0, 0], [0, 0, 2], [0, 2, 0]), 2),
-        ("block_top", _quad([0.5, 0.6, 0.5], [0, 0, 0.6], [0.6, 0, 0]), 0),
-        ("block_front", _quad([0.5, 0, 1.1], [0.6, 0, 0], [0, 0.6, 0]), 0),
-        ("block_side", _quad([1.1, 0, 0.5], [0, 0.6, 0], [0, 0, 0.6]), 0),
-    ]
-    meshes = [Mesh(name, v, f, m) for name, (v, f), m in parts]
-    lv, lf = _quad([0.7, 1.98, 0.7], [0.6, 0, 0], [0, 0, 0.6])
-    meshes.append(Mesh("light", lv, lf, 3, emitter=0))
-    emitters = [Emitter(AREA, radiance=np.full(3, 12.0), mesh=len(meshes) - 1, name="light")]
-    cam = Camera(look_at([1.0, 1.0, 4.2], [1.0, 1.0, 0.0], [0, 1, 0]), fov=45, width=width, height=height)
-    return Scene(meshes, mats, emitters, cam, source="mini-cornell")
 
 
 def env() -> dict:

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 import zmq
 
-from cluster_helpers import FakeWorker, mini_cornell, wait_until
+from bench.stress_scenes import mini_cornell
+from cluster_helpers import FakeWorker, wait_until
 from common import protocol as P
 from master.broker import Broker, FrameCancelled
 

@@ -20,7 +20,8 @@ import numpy as np
 import pytest
 import zmq
 
-from cluster_helpers import mini_cornell, start_worker, stop_procs, wait_until
+from bench.stress_scenes import mini_cornell
+from cluster_helpers import start_worker, stop_procs, wait_until
 from common import protocol as P
 from common.params import make_params, params_to_dict
 from master.accumulation import sequence_spec

@@ -10,7 +10,8 @@ import threading
 import pytest
 import zmq
 
-from cluster_helpers import mini_cornell, wait_until
+from bench.stress_scenes import mini_cornell
+from cluster_helpers import wait_until
 from common import protocol as P
 from master.broker import Broker
 from worker.node import WorkerNode

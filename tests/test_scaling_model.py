@@ -1,4 +1,4 @@
-"""The scaling model (master/scaling_model.py) and the master's parallel wire path (issue 12).
+"""The scaling model (bench/scaling_model.py) and the master's parallel wire path (issue 12).
 
 The model: deterministic, monotone in the worker count up to the bottleneck, exact on a
 hand-computed case, and it names the right bottleneck in constructed cases. The master: the
@@ -18,7 +18,7 @@ from common.params import make_params, params_to_dict
 from master import parallel
 from master.discontinuity_buffer import filter_irradiance, window_offsets
 from master.frame_assembly import FrameAssembler, task_tiles, tile_pixel_count
-from master.scaling_model import LOOPBACK, NETWORKS, Config, Costs, Network, simulate
+from bench.scaling_model import LOOPBACK, NETWORKS, Config, Costs, Network, simulate
 
 ZERO_NET = Network("zero", float("inf"), 0.0)
 

@@ -7,7 +7,8 @@ import msgpack
 import numpy as np
 import pytest
 
-from cluster_helpers import SHARED, mini_cornell
+from bench.stress_scenes import mini_cornell
+from cluster_helpers import SHARED
 from common import scene_codec as sc
 from common.scene import SceneError, Texture
 

@@ -1,6 +1,6 @@
 """Scene-file fuzzing (issue 8): mutated Mitsuba XML / OBJ / MTL files give a Scene or a
 SceneError with a clear message — never another exception, never a hang, no XML entity
-blow-up. The engine is master/bench_stress.py (``igi bench stress`` runs thousands of
+blow-up. The engine is bench/stress.py (``igi bench stress`` runs thousands of
 mutations); here a few hundred, each load in a child process with a time limit and an
 address-space limit (LoadWorker), so a hang or a blow-up fails the test instead of the machine.
 
@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from master import bench_stress as bs
+from bench import stress as bs
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
 HANG_LIMIT = 120.0  # seconds before a load counts as a hang (seed loads take ~0.1 s)

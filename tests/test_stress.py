@@ -15,7 +15,7 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-import stress_scenes as ss
+from bench import stress_scenes as ss
 from common.metrics import relmse
 from master.accumulation import Accumulator
 

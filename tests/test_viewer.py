@@ -213,7 +213,7 @@ def test_websocket_frames_camera_params_select_move(served):
 
 
 def test_ws_latency_through_the_viewer(served):
-    from master.viewer_latency import ws_latency
+    from bench.viewer_latency import ws_latency
 
     res = ws_latency(served.url, inputs=3, timeout=90)
     assert res["inputs"] == 3 and 0 < res["min_ms"] <= res["max_ms"] < 90_000
@@ -396,7 +396,7 @@ def test_browser_viewer(served):
 @pytest.fixture()
 def quiet_broker():
     """A streaming broker on loopback without workers (no frames: enough for HTTP, picking, edits)."""
-    from cluster_helpers import mini_cornell
+    from bench.stress_scenes import mini_cornell
 
     from master.broker import Broker
 

@@ -1,12 +1,12 @@
 """Wire fuzzing (issue 8): random and mutated messages to the master's ROUTER and to a worker's
 DEALER are dropped with one log line each, nothing crashes, and oversize messages are refused
-before anything is allocated. Engine: master/bench_stress.py (fuzz_decode / fuzz_master /
+before anything is allocated. Engine: bench/stress.py (fuzz_decode / fuzz_master /
 fuzz_worker; ``igi bench stress`` runs more)."""
 from __future__ import annotations
 
 import json
 
-from master import bench_stress as bs
+from bench import stress as bs
 
 
 def test_decoder_gives_a_message_or_a_protocol_error_for_every_mutant():

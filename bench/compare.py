@@ -66,9 +66,10 @@ from pathlib import Path
 
 import numpy as np
 
-from master import bench_quality as bq
+from . import quality as bq
+from .paths import REPO_ROOT
+from .report import git_commit, machine_info
 
-HELP = "igi vs Mitsuba 3 path tracer at equal wall time (budgets), bias vs noise, flicker"
 
 DEFAULT_BUDGETS = "0.25,0.5,1,4"
 GOAL_RATIO = 0.5  # team goal: igi's error <= 0.5x Mitsuba PT's at equal time <= 1 s
@@ -90,7 +91,7 @@ _MITSUBA: dict | None = None  # the probed set-up, once per process
 PROBE_CODE = r"""
 import sys
 sys.path.insert(0, sys.argv[4])
-from master.bench_compare import _probe
+from bench.compare import _probe
 _probe(sys.argv[1], sys.argv[2], int(sys.argv[3]))
 """
 
@@ -136,7 +137,7 @@ def probe_variant(variant: str, scene_path: Path, max_depth: int, libllvm: str |
         env["DRJIT_LIBLLVM_PATH"] = libllvm
     try:
         r = subprocess.run([sys.executable, "-c", PROBE_CODE, variant, str(scene_path), str(max_depth),
-                            str(bq.REPO_ROOT)], env=env, capture_output=True, text=True, timeout=timeout)
+                            str(REPO_ROOT)], env=env, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
         return False, "probe timed out"
     if r.returncode == 0 and "PROBE-OK" in r.stdout:
@@ -816,7 +817,7 @@ def run_compare(args: argparse.Namespace) -> dict:
         if not mts.get("ok"):
             print(f"igi bench compare: Mitsuba not run: {mts.get('reason')}", file=sys.stderr)
     results = {
-        "benchmark": "igi bench compare", "machine": bq.machine(), "commit": bq.git_commit(),
+        "benchmark": "igi bench compare", "machine": machine_info(), "commit": git_commit(),
         "command": bq.command_line(), "load_avg_start": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
         "timing": {"igi": IGI_TIMING, "mitsuba": MITSUBA_TIMING, "clock": bq.CLOCK_NOTE},
         "settings": {"clock": args.clock, "budgets": budgets, "params": params_to_dict(params), "direct_only": bool(args.direct_only),

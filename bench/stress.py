@@ -2,7 +2,7 @@
 
 Two parts, both also run (smaller) by the tests:
 
-- **Stress scenes** (``tests/stress_scenes.py``, needs a source checkout and the shared
+- **Stress scenes** (``bench/stress_scenes.py``, needs a source checkout and the shared
   scenes): every case is rendered small through the distributed path; the JSON records whether
   the image is finite, its mean, and for transformed scenes the relMSE against the
   untransformed render together with the bound the tests enforce.
@@ -51,10 +51,9 @@ from pathlib import Path
 
 import numpy as np
 
-HELP = "stress scenes (finite images, transformed = untransformed) + scene-file fuzzing, JSON counts"
+from .paths import REPO_ROOT, SHARED_SCENES
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-SHARED_SCENES = REPO_ROOT.parent / "shared" / "scenes"
+
 DEFAULT_OUT = "artifacts/bench-stress"
 MEMORY_LIMIT_MB = 3072  # address-space limit of the loading child: a blow-up is a MemoryError, not an OOM
 MAX_MUTANT_BYTES = 8 << 20  # mutated files are cut to this size (large files are not the point here)
@@ -529,7 +528,7 @@ class LoadWorker:
 
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join([str(REPO_ROOT)] + [p for p in [env.get("PYTHONPATH")] if p])
-        code = f"from master.bench_stress import _child_main; _child_main({self.mem_limit_mb!r})"
+        code = f"from bench.stress import _child_main; _child_main({self.mem_limit_mb!r})"
         self.proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      stderr=subprocess.DEVNULL, env=env, cwd=str(REPO_ROOT), text=True, bufsize=1)
 
@@ -721,22 +720,13 @@ def run_fuzz(mutations: int = 2000, seed: int = 0, timeout: float = 20.0, render
 
 # ---------------------------------------------------------------------------- stress scenes
 
-def _stress_module():
-    tests = REPO_ROOT / "tests"
-    if str(tests) not in sys.path:
-        sys.path.insert(0, str(tests))
-    import stress_scenes
-
-    return stress_scenes
-
-
 def run_stress(width: int = 48, height: int = 48, names: list[str] | None = None, progress=None) -> dict:
     """Render every stress case (or ``names``); finite images, relMSE against the references."""
     import numpy as np
 
     from common.metrics import relmse
 
-    ss = _stress_module()
+    from . import stress_scenes as ss
     refs: dict = {}
     results = []
     tmp = Path(tempfile.mkdtemp(prefix="igi-stress-"))
@@ -784,15 +774,8 @@ def run_stress(width: int = 48, height: int = 48, names: list[str] | None = None
 
 # ----------------------------------------------------------------------------- wire fuzzing
 
-def _tests_path() -> None:
-    tests = REPO_ROOT / "tests"
-    if str(tests) not in sys.path:
-        sys.path.insert(0, str(tests))
-
-
 def _fuzz_scene(width: int = 24, height: int = 18):
-    _tests_path()
-    from cluster_helpers import mini_cornell
+    from .stress_scenes import mini_cornell
 
     return mini_cornell(width, height)
 
@@ -1257,8 +1240,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .cli import UsageError
-    from .machine import machine_info
+    from master.cli import UsageError
+    from .report import machine_info
 
     try:
         w, _, h = args.size.lower().partition("x")

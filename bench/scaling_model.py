@@ -41,7 +41,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from typing import Callable
 
-from . import scheduler
+from master import scheduler
 
 GBIT = 1e9
 
@@ -254,7 +254,7 @@ RESOURCES = ("workers", "master loop", "master finish", "master link", "worker l
 
 
 def _tiles(cfg: Config):
-    from .frame_assembly import task_tiles, tile_pixel_count
+    from master.frame_assembly import task_tiles, tile_pixel_count
 
     tiles = task_tiles(cfg.width, cfg.height, cfg.interleave, cfg.task_pixels)
     out = []
@@ -512,9 +512,9 @@ def calibrate(scene, params=None, width: int = 640, height: int = 480, sample: i
     from common.codec import encode
     from common.params import make_params, params_to_dict
 
-    from .accumulation import sequence_spec
-    from .frame_assembly import DEFAULT_TASK_PIXELS, task_tiles, tile_pixel_count
-    from .local import resolve_camera
+    from master.accumulation import sequence_spec
+    from master.frame_assembly import DEFAULT_TASK_PIXELS, task_tiles, tile_pixel_count
+    from master.local import resolve_camera
 
     from worker.renderer import Renderer
 
@@ -611,7 +611,7 @@ def synthetic_wire(buffers: dict, width: int, height: int, n: int, task_pixels: 
     from common.codec import encode
     from common.interleave import extract
 
-    from .frame_assembly import task_tiles
+    from master.frame_assembly import task_tiles
 
     H0, W0 = buffers["depth"].shape
     ys = (np.arange(height) * H0 // height)
@@ -630,9 +630,9 @@ def measure_master(width: int, height: int, n: int, wire: list, pdict: dict, tas
 
     from common import protocol as P
 
-    from . import parallel
-    from .accumulation import Accumulator
-    from .frame_assembly import FrameAssembler
+    from master import parallel
+    from master.accumulation import Accumulator
+    from master.frame_assembly import FrameAssembler
 
     cpu = time.process_time
     px_frame = width * height
@@ -696,7 +696,7 @@ def measure_master(width: int, height: int, n: int, wire: list, pdict: dict, tas
 
 
 def _tile_px(t, n, w, h) -> int:
-    from .frame_assembly import tile_pixel_count
+    from master.frame_assembly import tile_pixel_count
 
     return tile_pixel_count(t, n, w, h)
 

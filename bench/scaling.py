@@ -18,7 +18,7 @@ master does per frame — on one core, repeated ``--merge-reps`` times.
 Writes ``OUT.json`` (machine: cpu model, cores, python, numpy; settings; figures) and
 ``OUT.png`` (frames/s and efficiency against workers, one line per size).
 
-``--model`` adds the calibrated scaling model (``master/scaling_model.py``): it measures the
+``--model`` adds the calibrated scaling model (``bench/scaling_model.py``): it measures the
 costs on this machine in the same run (per-task render and set-build time of the scene with
 these settings, encode time and bytes per pixel, the master's per-result and per-frame costs),
 checks the model against the real runs above (same worker counts, same host: the background
@@ -33,14 +33,15 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 from pathlib import Path
 
-HELP = "frames/s against worker count, bytes per frame, master merge+filter Mpixel/s, task latency"
+from .paths import REPO_ROOT, shared_scene
+from .report import machine_info, pyplot
 
-DEFAULT_SCENE = Path(__file__).resolve().parents[2] / "shared" / "scenes" / "cornell-box-sphere" / "scene.xml"
+
+DEFAULT_SCENE = shared_scene("cornell-box-sphere")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -73,28 +74,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_params(p)
 
 
-def machine_info() -> dict:
-    import numpy
-
-    cpu = platform.processor() or ""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        import zmq
-
-        zmq_v = zmq.zmq_version()
-    except Exception:  # pragma: no cover
-        zmq_v = None
-    return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(),
-            "numpy": numpy.__version__, "zmq": zmq_v, "platform": platform.platform(),
-            "load_avg": os.getloadavg() if hasattr(os, "getloadavg") else None}
-
-
 def _parse_sizes(text: str) -> list[tuple[int, int]]:
     out = []
     for part in text.split(","):
@@ -111,7 +90,7 @@ def merge_filter_rate(result, reps: int) -> dict:
     from common.codec import encode
     from common.interleave import extract
 
-    from .frame_assembly import task_tiles
+    from master.frame_assembly import task_tiles
     from .scaling_model import measure_master
 
     spec = result.spec
@@ -149,8 +128,8 @@ def _proc_cpu_s(pid: int, tid: int | None = None) -> float:
 
 def run_point(scene, params, width: int, height: int, workers: int, frames: int, warmup: int,
               task_pixels: int | None, latency_inputs: int = 0) -> tuple[dict, object]:
-    from .broker import Broker
-    from .cli import LocalWorkers, wait_workers
+    from master.broker import Broker
+    from master.cli import LocalWorkers, wait_workers
 
     kw = {} if task_pixels is None else {"task_pixels": task_pixels}
     load_before = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
@@ -220,13 +199,8 @@ def _background(j0, j1, own_s: float, wall: float) -> float | None:
 
 
 def plot(results: dict, path: Path) -> bool:
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        print("igi bench scaling: matplotlib not installed; no plot", file=sys.stderr)
+    plt = pyplot("scaling")
+    if plt is None:
         return False
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4))
     for size, pts in results["points"].items():
@@ -255,7 +229,7 @@ def plot(results: dict, path: Path) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .cli import UsageError, load_scene_file, params_from
+    from master.cli import UsageError, load_scene_file, params_from
 
     params = params_from(args)
     scene = load_scene_file(args.scene)
@@ -315,9 +289,9 @@ def run_model(args, scene, params, results: dict, lasts: dict) -> dict:
     from common.interleave import extract
     from common.params import params_to_dict
 
-    from . import parallel
+    from master import parallel
     from . import scaling_model as sm
-    from .frame_assembly import DEFAULT_TASK_PIXELS, task_tiles
+    from master.frame_assembly import DEFAULT_TASK_PIXELS, task_tiles
 
     say = lambda s: print(s, file=sys.stderr, flush=True)
     n = int(params.interleave)
@@ -459,9 +433,9 @@ def _baseline(rev, costs, lasts, src_key, n, pdict, tp, workers, kw, sizes) -> d
     from common.interleave import extract
 
     from . import scaling_model as sm
-    from .frame_assembly import task_tiles
+    from master.frame_assembly import task_tiles
 
-    root = Path(__file__).resolve().parents[1]
+    root = REPO_ROOT
 
     def load(path: str, name: str):
         text = subprocess.run(["git", "show", f"{rev}:{path}"], cwd=root, capture_output=True, text=True,
@@ -517,7 +491,7 @@ def report(results: dict, model: dict, args) -> str:
     a = L.append
     a("# Scaling past one machine: the calibrated model")
     a("")
-    a("Generated by `igi bench scaling --model` (`master/bench_scaling.py`, `master/scaling_model.py`); "
+    a("Generated by `igi bench scaling --model` (`bench/scaling.py`, `bench/scaling_model.py`); "
       "regenerate after any change to the renderer, the codec or the master with")
     a("")
     a("    igi bench scaling --model --frames 4 --latency-inputs 0 --baseline 323c1fd --docs docs/scaling.md")
@@ -715,7 +689,7 @@ STEADY_SETS_NOTE = "64"
 
 MODEL_NOTES = """## What the model is
 
-`master/scaling_model.py` simulates the frame loop of `Broker.render_sequence` event by event:
+`bench/scaling_model.py` simulates the frame loop of `Broker.render_sequence` event by event:
 `pipeline` (2) frames in flight; a frame's tasks dispatched by the broker's own scheduling
 policy (`master.scheduler.assign`: credit 3 per render thread, affinity to the workers
 holding the task's VPL/photon set, then least loaded); TASK latency; the worker's render

@@ -38,19 +38,15 @@ import itertools
 import json
 import math
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-HELP = "error vs wall time against the references over parameter sweeps (relMSE, RMSE, FLIP); Pareto front"
+from .paths import REFERENCES as REFERENCES_DIR, SHARED_SCENES as SCENES_DIR
+from .report import git_commit, machine_info, pyplot
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-SHARED = REPO_ROOT.parent / "shared"
-SCENES_DIR = SHARED / "scenes"
-REFERENCES_DIR = SHARED / "references"
 
 BLOCK = 4  # block size of the block-averaged relMSE (references/README.md)
 NOISY_FLOOR = 0.01  # full-resolution noise floor (relMSE) above which a reference counts as noisy
@@ -483,26 +479,6 @@ def render_config(setup: SceneSetup, params, frames: list[int], save_dir: Path |
 
 # ---------------------------------------------------------------------------- output
 
-def machine() -> dict:
-    from master.machine import machine_info
-
-    info = machine_info()
-    try:
-        info["load_avg"] = list(os.getloadavg())
-    except OSError:  # pragma: no cover
-        pass
-    return info
-
-
-def git_commit() -> str | None:
-    try:
-        r = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO_ROOT, capture_output=True,
-                           text=True, timeout=5)
-        return r.stdout.strip() or None
-    except Exception:  # pragma: no cover
-        return None
-
-
 def command_line() -> str:
     import shlex
 
@@ -559,13 +535,8 @@ def markdown(results: dict) -> str:
 
 
 def plot(results: dict, path: Path) -> bool:
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        print("igi bench quality: matplotlib not installed; no plot", file=sys.stderr)
+    plt = pyplot("quality")
+    if plt is None:
         return False
     scenes = list(results["scenes"].items())
     tk = clock_key(results["settings"]["clock"])
@@ -673,7 +644,7 @@ def run_quality(args: argparse.Namespace) -> dict:
     refdir = Path(args.references) if args.references else None
     out = Path(args.out)
     results = {
-        "benchmark": "igi bench quality", "machine": machine(), "commit": git_commit(),
+        "benchmark": "igi bench quality", "machine": machine_info(), "commit": git_commit(),
         "command": command_line(),
         "load_avg_start": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
         "timing": TIMING_NOTE, "clock_note": CLOCK_NOTE,

@@ -16,10 +16,10 @@ from pathlib import Path
 from common.image_io import read_image
 from common.loader import load_scene
 from common.metrics import block_average, relmse
-from master.machine import machine_info
 
-HELP = "wall time with the render plan vs every pass forced on, at equal error; camera-only cost"
-SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+from .paths import SHARED
+from .report import machine_info
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenes", nargs="*", default=None, help="shared scene names (default: all)")

@@ -12,10 +12,8 @@ from pathlib import Path
 
 from common.loader import load_scene
 from common.params import make_params
-from master.machine import machine_info
 
-
-HELP = "primary + shadow ray throughput of the whole pipeline against raw embreex on the same rays"
+from .report import machine_info
 
 
 def add_arguments(p) -> None:

@@ -11,7 +11,8 @@ each is a real change that restarts the frame.
 
 ``igi bench scaling`` reports :func:`stream_latency` per point; standalone:
 
-    python -m master.viewer_latency SCENE [--workers 2] [--size 96x96] [--inputs 10] [--ws]
+    igi bench viewer-latency SCENE [--workers 2] [--size 96x96] [--inputs 10] [--ws]
+    python -m bench.viewer_latency SCENE ...       (the same)
 """
 from __future__ import annotations
 
@@ -148,17 +149,24 @@ def ws_latency(url: str, inputs: int = 10, timeout: float = 60.0, token: str | N
     return asyncio.run(_ws_latency(url, inputs, timeout, token))
 
 
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m master.viewer_latency", description=__doc__.split("\n")[0])
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scene")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--size", default="96x96")
     p.add_argument("--inputs", type=int, default=10)
     p.add_argument("--ws", action="store_true", help="also through the viewer's WebSocket")
     p.add_argument("--photons", type=int, default=None)
-    a = p.parse_args(argv)
-    from .broker import Broker
-    from .cli import LocalWorkers, load_scene_file, wait_workers
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m bench.viewer_latency", description=__doc__.split("\n")[0])
+    add_arguments(p)
+    return run(p.parse_args(argv))
+
+
+def run(a: argparse.Namespace) -> int:
+    from master.broker import Broker
+    from master.cli import LocalWorkers, load_scene_file, wait_workers
 
     w, h = (int(x) for x in a.size.lower().split("x"))
     scene = load_scene_file(a.scene)
@@ -171,7 +179,7 @@ def main(argv=None) -> int:
             res = {"scene": a.scene, "size": a.size, "workers": a.workers,
                    "broker": measure_latency(broker, a.inputs)}
             if a.ws:
-                from . import viewer
+                from master import viewer
 
                 v = viewer.start(broker, "127.0.0.1", 0, None, pub=None, quiet=True)
                 try:

@@ -20,11 +20,11 @@ import numpy as np
 from common.image_io import read_image, write_png
 from common.loader import load_scene
 from common.metrics import block_average, relmse
-from master.machine import machine_info
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+from .paths import SHARED
+from .report import machine_info
+
 VARIANTS = {"paper": {"consistent": False}, "consistent": {}}
-HELP = "relMSE vs the Mitsuba references as frames accumulate (paper vs consistent), JSON + markdown"
 
 
 def caustic_mask(name: str, block: int) -> np.ndarray | None:

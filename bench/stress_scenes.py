@@ -9,7 +9,7 @@ into a directory the caller gives (a pytest ``tmp_path``, or a temporary directo
 :data:`CASES` lists every stress case as a :class:`StressCase`; ``build(tmp)`` returns the
 scene to render and, for the cases that must reproduce an untransformed image, ``reference``
 names the base scene and ``bound`` the largest allowed relMSE against it (the reasoning for
-each bound is in ``why``). ``tests/test_stress.py`` and ``master/bench_stress.py`` both run
+each bound is in ``why``). ``tests/test_stress.py`` and ``bench/stress.py`` both run
 this list.
 """
 from __future__ import annotations
@@ -26,7 +26,8 @@ import numpy as np
 from common.scene import (AREA, CONSTANT, DIELECTRIC, DIFFUSE, PLASTIC, POINT, ROUGHPLASTIC, SPOT,
                           THINDIELECTRIC, Emitter, Material, Scene, Texture)
 
-SHARED_SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
+from .paths import SHARED_SCENES
+
 
 
 # ---------------------------------------------------------------------------------------- loading
@@ -507,3 +508,38 @@ def lattice_photons(radius: float = 0.25, half: int = 6):
                         HashGrid(pos, radius), n)
     queries = np.concatenate([pos, pos + [radius, 0.0, 0.0], pos - [0.0, 0.0, radius]])
     return photons, queries
+
+
+# ---------------------------------------------------------------------------------------- synthetic
+
+def _quad(c, e1, e2):
+    c, e1, e2 = (np.asarray(x, float) for x in (c, e1, e2))
+    return np.array([c, c + e1, c + e1 + e2, c + e2]), np.array([[0, 1, 2], [0, 2, 3]], np.int32)
+
+
+def mini_cornell(width: int = 64, height: int = 48) -> Scene:
+    """A 2x2x2 box open towards the camera: white floor/ceiling/back, red left, green right,
+    a white block, and a small area light under the ceiling facing down."""
+    from common.camera import look_at
+    from common.scene import NULL, Camera, Mesh
+
+    mats = [Material("white", DIFFUSE, diffuse=Texture.constant(0.7)),
+            Material("red", DIFFUSE, diffuse=Texture.constant([0.7, 0.1, 0.1])),
+            Material("green", DIFFUSE, diffuse=Texture.constant([0.1, 0.7, 0.1])),
+            Material("light", NULL)]
+    parts = [
+        ("floor", _quad([0, 0, 0], [0, 0, 2], [2, 0, 0]), 0),
+        ("ceiling", _quad([0, 2, 0], [2, 0, 0], [0, 0, 2]), 0),
+        ("back", _quad([0, 0, 0], [2, 0, 0], [0, 2, 0]), 0),
+        ("left", _quad([0, 0, 0], [0, 2, 0], [0, 0, 2]), 1),
+        ("right", _quad([2, 0, 0], [0, 0, 2], [0, 2, 0]), 2),
+        ("block_top", _quad([0.5, 0.6, 0.5], [0, 0, 0.6], [0.6, 0, 0]), 0),
+        ("block_front", _quad([0.5, 0, 1.1], [0.6, 0, 0], [0, 0.6, 0]), 0),
+        ("block_side", _quad([1.1, 0, 0.5], [0, 0.6, 0], [0, 0, 0.6]), 0),
+    ]
+    meshes = [Mesh(name, v, f, m) for name, (v, f), m in parts]
+    lv, lf = _quad([0.7, 1.98, 0.7], [0.6, 0, 0], [0, 0, 0.6])
+    meshes.append(Mesh("light", lv, lf, 3, emitter=0))
+    emitters = [Emitter(AREA, radiance=np.full(3, 12.0), mesh=len(meshes) - 1, name="light")]
+    cam = Camera(look_at([1.0, 1.0, 4.2], [1.0, 1.0, 0.0], [0, 1, 0]), fov=45, width=width, height=height)
+    return Scene(meshes, mats, emitters, cam, source="mini-cornell")
