@@ -42,7 +42,7 @@ def caustic_mask(name: str, block: int) -> np.ndarray | None:
 
 def measure(scenes: list[str], frames: list[int], scale: float = 0.5, variants: list[str] | None = None,
         out: str | None = None, images: str | None = None, **overrides) -> dict:
-    from master.local import render_local
+    from master.inprocess import render_local
     from worker.renderer import Renderer
 
     block = int(round(1 / scale))

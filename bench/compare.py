@@ -14,7 +14,7 @@ that cannot compile Dr.Jit's kernels aborts the process): ``llvm_ad_rgb`` — re
 ``libLLVM`` found on the system via ``DRJIT_LIBLLVM_PATH`` (Debian: ``apt-get install -y
 libllvm19``) — then ``scalar_rgb``; the variant that ran is recorded.
 
-Equal time. igi renders with ``master.local.render_local`` (the distributed path in one
+Equal time. igi renders with ``master.inprocess.render_local`` (the distributed path in one
 process, one core), accumulating frames; the image at budget B is the running mean after the
 last frame that finished within B (at least one frame: ``over_budget`` says when one frame
 alone took longer). Counted: the frames (tracing, set building, codec round trip, merge,
@@ -76,7 +76,7 @@ GOAL_RATIO = 0.5  # team goal: igi's error <= 0.5x Mitsuba PT's at equal time <=
 GOAL_MAX_BUDGET = 1.0
 HEAVY_TAIL = 3.0  # single-frame errors whose mean exceeds 3x their median: outlier frames dominate
 
-IGI_TIMING = ("igi time: frames only, one process / one core (master.local.render_local: tracing, VPL and "
+IGI_TIMING = ("igi time: frames only, one process / one core (master.inprocess.render_local: tracing, VPL and "
               "photon set building, wire codec round trip, master merge + discontinuity filter + "
               "accumulation); scene load (load_s) and geometry/BVH build (setup_s) are not counted; "
               "image at budget B = running mean after the last frame finished within B (at least 1 frame)")
@@ -288,7 +288,7 @@ def igi_budget_run(setup: bq.SceneSetup, params, budgets: list[float], converged
                    clock: str = "wall") -> dict:
     """Accumulate frames until the largest budget is spent and ``converged_frames`` are done;
     score the running mean after every frame."""
-    from master.local import render_local
+    from master.inprocess import render_local
     from worker.renderer import Renderer
 
     warm_up(setup, params)
@@ -351,7 +351,7 @@ def igi_frame_bias(setup: bq.SceneSetup, params, frames: int) -> dict | None:
         return None
     from dataclasses import replace
 
-    from master.local import render_local
+    from master.inprocess import render_local
     from worker.renderer import Renderer
 
     from common.metrics import block_average, relmse
@@ -434,7 +434,7 @@ def igi_frames(setup, renderer, params, cameras, seeds) -> tuple[list[np.ndarray
     """One frame (accumulation off) per (camera, seed); returns the frames, mean wall and CPU time."""
     from dataclasses import replace
 
-    from master.local import render_local
+    from master.inprocess import render_local
 
     imgs, total, total_cpu = [], 0.0, 0.0
     for cam, seed in zip(cameras, seeds):
@@ -837,7 +837,7 @@ def run_compare(args: argparse.Namespace) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from master.cli import UsageError
+    from master.errors import UsageError
 
     try:
         results = run_compare(args)

@@ -28,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="artifacts/bench_plan.json")
 
 def measure(names: list[str], frames: int, scale: float) -> dict:
-    from master.local import render_local
+    from master.inprocess import render_local
     from worker.renderer import Renderer
 
     block = int(round(1 / scale))

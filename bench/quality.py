@@ -10,7 +10,7 @@ reference is ``../shared/references/<name>.exr`` (full GI) or ``<name>-direct.ex
 ``--direct-only`` (``max_depth`` 2).
 
 Every configuration — the base parameters, then each sweep value (one parameter at a time;
-``--grid``: the cartesian product) — is rendered once with ``master.local.render_local``
+``--grid``: the cartesian product) — is rendered once with ``master.inprocess.render_local``
 (exactly the distributed path, in one process) up to the largest ``--frames`` value; the
 running mean is scored at every listed frame count, so one render gives the error against
 frames and against time. A sweep value ``xF`` scales the parameter's declared default by F
@@ -60,7 +60,7 @@ CLOCK_NOTE = ("time_s is wall-clock time, cpu_s the process's CPU time over the 
               "the CPU time is what the same work costs on an idle core (wall time stretches with the load)")
 TIMING_NOTE = ("time_s: wall time of the frames only (eye rays, VPL/photon set building, shading, wire codec "
                "round trip, master merge + discontinuity filter + accumulation) in one process "
-               "(master.local.render_local); scene load (load_s) and geometry/BVH build (setup_s) are "
+               "(master.inprocess.render_local); scene load (load_s) and geometry/BVH build (setup_s) are "
                "recorded apart; computing the error is not counted")
 
 
@@ -430,7 +430,7 @@ def warm_up(setup: "SceneSetup", params) -> float:
     see its cached VPL/photon sets."""
     from dataclasses import replace
 
-    from master.local import render_local
+    from master.inprocess import render_local
     from worker.renderer import Renderer
 
     t0 = time.perf_counter()
@@ -442,7 +442,7 @@ def warm_up(setup: "SceneSetup", params) -> float:
 def render_config(setup: SceneSetup, params, frames: list[int], save_dir: Path | None = None,
                   label: str = "") -> dict:
     """Render one configuration up to max(frames); score the running mean at each count."""
-    from master.local import render_local
+    from master.inprocess import render_local
     from worker.renderer import Renderer
 
     t0 = time.perf_counter()
@@ -629,7 +629,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def base_params(args: argparse.Namespace):
-    from master.cli import UsageError, params_from
+    from master.cli import params_from
+    from master.errors import UsageError
 
     try:
         return params_from(args)
@@ -705,7 +706,7 @@ def _json_default(o):
 
 
 def run(args: argparse.Namespace) -> int:
-    from master.cli import UsageError
+    from master.errors import UsageError
 
     try:
         results = run_quality(args)

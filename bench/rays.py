@@ -34,7 +34,7 @@ def measure(scene_path: str, width: int | None = None, height: int | None = None
             out: str | None = None, **param_overrides) -> dict:
     from master.accumulation import sequence_spec
     from master.frame_assembly import task_tiles
-    from master.local import resolve_camera
+    from common.camera import resolve_camera
     from worker.renderer import Renderer
 
     scene = load_scene(scene_path)

@@ -129,7 +129,7 @@ def _proc_cpu_s(pid: int, tid: int | None = None) -> float:
 def run_point(scene, params, width: int, height: int, workers: int, frames: int, warmup: int,
               task_pixels: int | None, latency_inputs: int = 0) -> tuple[dict, object]:
     from master.broker import Broker
-    from master.cli import LocalWorkers, wait_workers
+    from master.local_workers import LocalWorkers, wait_workers
 
     kw = {} if task_pixels is None else {"task_pixels": task_pixels}
     load_before = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
@@ -229,7 +229,8 @@ def plot(results: dict, path: Path) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
-    from master.cli import UsageError, load_scene_file, params_from
+    from master.cli import load_scene_file, params_from
+    from master.errors import UsageError
 
     params = params_from(args)
     scene = load_scene_file(args.scene)

@@ -514,7 +514,7 @@ def calibrate(scene, params=None, width: int = 640, height: int = 480, sample: i
 
     from master.accumulation import sequence_spec
     from master.frame_assembly import DEFAULT_TASK_PIXELS, task_tiles, tile_pixel_count
-    from master.local import resolve_camera
+    from common.camera import resolve_camera
 
     from worker.renderer import Renderer
 

@@ -449,7 +449,7 @@ def scene_problems(scene) -> list[str]:
 def _render_tiny(scene) -> "tuple[bool, str]":
     import numpy as np
 
-    from master.local import render_local
+    from master.inprocess import render_local
 
     # one VPL/photon set (interleave 1): 5-10x cheaper than the default 3x3 sets, same code paths
     img = render_local(scene, {"photons": 50, "indirect_vpls": 8, "interleave": 1}, 1, width=12, height=12)
@@ -1240,7 +1240,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from master.cli import UsageError
+    from master.errors import UsageError
     from .report import machine_info
 
     try:

@@ -431,7 +431,7 @@ CASE_BY_NAME = {c.name: c for c in CASES}
 def render(scene: Scene, frames: int = 1, params: dict | None = None, width: int = 48,
            height: int = 48, renderer=None) -> np.ndarray:
     """A small image over the distributed path (tiles, wire codec, filter, accumulation)."""
-    from master.local import render_local
+    from master.inprocess import render_local
 
     return render_local(scene, dict(params or {}), frames, width=width, height=height, renderer=renderer)
 

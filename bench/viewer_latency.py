@@ -166,7 +166,8 @@ def main(argv=None) -> int:
 
 def run(a: argparse.Namespace) -> int:
     from master.broker import Broker
-    from master.cli import LocalWorkers, load_scene_file, wait_workers
+    from master.cli import load_scene_file
+    from master.local_workers import LocalWorkers, wait_workers
 
     w, h = (int(x) for x in a.size.lower().split("x"))
     scene = load_scene_file(a.scene)

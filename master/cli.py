@@ -30,7 +30,6 @@ import importlib
 import logging
 import os
 import signal
-import subprocess
 import sys
 import threading
 import time
@@ -38,17 +37,10 @@ from pathlib import Path
 
 import numpy as np
 
+from master.errors import RenderError, UsageError
+from master.local_workers import LocalWorkers, wait_workers
+
 log = logging.getLogger("igi")
-
-REPO_ROOT = Path(__file__).resolve().parents[1]
-
-
-class UsageError(Exception):
-    """A bad input: reported as one line and exit status 2."""
-
-
-class RenderError(Exception):
-    """The render could not finish (e.g. every local worker died): one line, exit status 1."""
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -92,62 +84,6 @@ def check_bind(address: str) -> None:
     host = address.split("://", 1)[-1].rsplit(":", 1)[0]
     if host not in ("127.0.0.1", "localhost", "[::1]", "::1") and not address.startswith(("ipc://", "inproc://")):
         log.warning("master bound to %s: reachable from the network, without authentication", address)
-
-
-def worker_command(endpoint: str, threads: int = 1, quiet: bool = True, name: str | None = None,
-                   curve_keys: str | None = None) -> list[str]:
-    cmd = [sys.executable, "-m", "worker.node", "--connect", endpoint, "--threads", str(threads),
-           "--exit-with-master", "--parent-pid", str(os.getpid())]
-    if curve_keys:
-        cmd += ["--curve-keys", str(curve_keys), "--key-name", "worker"]
-    if quiet:
-        cmd.append("--quiet")
-    if name:
-        cmd += ["--name", name]
-    return cmd
-
-
-def worker_env() -> dict:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO_ROOT), env.get("PYTHONPATH", "")) if p)
-    env.setdefault("OMP_NUM_THREADS", "1")
-    return env
-
-
-class LocalWorkers:
-    """N worker processes on this machine, connected to ``endpoint``; stopped together."""
-
-    def __init__(self, endpoint: str, count: int, threads: int = 1, quiet: bool = True,
-                 curve_keys: str | None = None):
-        self.procs: list[subprocess.Popen] = []
-        for i in range(count):
-            self.procs.append(subprocess.Popen(worker_command(endpoint, threads, quiet, f"local{i}", curve_keys),
-                                               env=worker_env(), stdin=subprocess.DEVNULL))
-
-    def check(self) -> None:
-        for p in self.procs:
-            if p.poll() is not None:
-                raise UsageError(f"a local worker exited with status {p.returncode} (see its log above)")
-
-    def stop(self, timeout: float = 5.0) -> None:
-        for p in self.procs:
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-        deadline = time.monotonic() + timeout
-        for p in self.procs:
-            try:
-                p.wait(max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
-
-
-def wait_workers(broker, workers: LocalWorkers, count: int, timeout: float = 120.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not broker.wait_for_workers(count, 0.2):
-        workers.check()
-        if time.monotonic() > deadline:
-            raise UsageError(f"only {len(broker.workers())} of {count} local workers connected in {timeout:.0f} s")
 
 
 class Progress:
@@ -274,7 +210,7 @@ class ErrorTracker:
 
 def _render_frames(args, scene, params, on_frame):
     if args.workers == 0:
-        from master.local import render_local
+        from master.inprocess import render_local
 
         image = render_local(scene, params, frames=args.frames, width=args.width, height=args.height,
                              on_frame=on_frame)

@@ -7,7 +7,6 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import zmq
@@ -15,8 +14,7 @@ import zmq
 from common import protocol as P
 from common.frame import Tile, TileBuffers
 
-ROOT = Path(__file__).resolve().parents[1]
-SHARED = ROOT.parent / "shared"
+from tests.support.paths import ROOT
 
 
 def env() -> dict:

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from conftest import SHARED
+from tests.support.paths import SHARED
 
 CORNELL = SHARED / "scenes" / "cornell-box" / "scene.xml"
 needs_shared = pytest.mark.skipif(not (CORNELL.exists() and (SHARED / "references" / "cornell-box.exr").exists()),

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-SHARED = ROOT.parent / "shared"
+from tests.support.paths import ROOT, SHARED
+
 CORNELL = SHARED / "scenes" / "cornell-box" / "scene.xml"
 
 

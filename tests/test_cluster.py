@@ -27,7 +27,7 @@ from common.params import make_params, params_to_dict
 from master.accumulation import sequence_spec
 from master.broker import Broker
 from master.frame_assembly import FrameAssembler, task_tiles
-from master.local import render_local, roundtrip
+from master.inprocess import render_local, roundtrip
 
 W, H = 64, 48
 REL = 2.0 ** -10

@@ -5,12 +5,12 @@ import socket
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-SCENE = ROOT.parent / "shared" / "scenes" / "cornell-box" / "scene.xml"
+from tests.support.paths import ROOT, SCENES
+
+SCENE = SCENES / "cornell-box" / "scene.xml"
 
 
 def _free_port() -> int:

@@ -25,9 +25,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.support.paths import ROOT, SCENES
+
 DEPLOY = ROOT / "deploy"
-SCENES = ROOT.parent / "shared" / "scenes"
 CORNELL = SCENES / "cornell-box" / "scene.xml"
 K8S_VERSIONS = ("1.27.0", None)  # oldest supported here, and the validator's latest
 
@@ -620,8 +620,6 @@ def workers(netns):
         NetNS.stop(p)
 
 
-
-
 @pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_netns_worker_retries_while_master_is_down(workers):
@@ -645,7 +643,7 @@ import json, re, subprocess, sys, time
 import numpy as np
 from master.broker import Broker
 from master.cli import load_scene_file, write_image
-from master.local import render_local
+from master.inprocess import render_local
 
 scene_path, bind, out, stats_out, frames, width, height = sys.argv[1:8]
 frames, width, height = int(frames), int(width), int(height)

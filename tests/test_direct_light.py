@@ -25,8 +25,8 @@ import pytest
 from common.image_io import read_image
 from common.loader import load_scene
 from common.metrics import block_average, relmse
-from conftest import SHARED
-from master.local import render_local
+from tests.support.paths import SHARED
+from master.inprocess import render_local
 from worker.renderer import Renderer
 
 CASES = {

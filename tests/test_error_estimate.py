@@ -4,9 +4,9 @@ from __future__ import annotations
 from common.image_io import read_image
 from common.loader import load_scene
 from common.metrics import block_average, relmse
-from conftest import SHARED
+from tests.support.paths import SHARED
 from master.cli import ErrorTracker
-from master.local import render_local
+from master.inprocess import render_local
 
 
 def test_error_estimate_within_factor_two_of_true_relmse():

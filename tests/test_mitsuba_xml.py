@@ -16,7 +16,8 @@ from common.mitsuba_xml import load_mitsuba
 from common.scene import (AREA, CONDUCTOR, CONSTANT, DIELECTRIC, DIFFUSE, DIRECTIONAL, PLASTIC, POINT,
                           ROUGHCONDUCTOR, ROUGHPLASTIC, SPOT, THINDIELECTRIC, SceneError)
 
-SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
+from tests.support.paths import SCENES
+
 needs_scenes = pytest.mark.skipif(not SCENES.is_dir(), reason="shared scenes not available")
 
 # Mitsuba 3.9.1's face_count summed over all shapes (the README's "Triangles" column; in 3.9.1 a

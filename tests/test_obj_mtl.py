@@ -9,7 +9,8 @@ from common.loader import load_scene
 from common.obj_mtl import _parse_fast, _parse_slow, load_obj_mesh, load_obj_scene, recompute_vertex_normals
 from common.scene import AREA, CONDUCTOR, DIELECTRIC, DIFFUSE, ROUGHPLASTIC, SceneError
 
-SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
+from tests.support.paths import SCENES
+
 needs_scenes = pytest.mark.skipif(not SCENES.is_dir(), reason="shared scenes not available")
 
 CUBE = """v -1 -1 -1

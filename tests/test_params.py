@@ -2,13 +2,12 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import pytest
 
 from common.params import PARAMS, add_arguments, make_params, parameters_doc, params_from_args, viewer_schema
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.support.paths import ROOT
 
 
 def test_docs_page_is_generated_from_the_declarations():

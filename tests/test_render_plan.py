@@ -12,7 +12,7 @@ from common.loader import load_scene
 from common.params import make_params, params_to_dict
 from common.render_plan import analyze, frame_plan
 from common.scene import AREA, DIFFUSE, Camera, Emitter, Material, Mesh, Scene, Texture
-from conftest import SHARED
+from tests.support.paths import SHARED
 from scenes_synthetic import box_faces, quad
 from worker.renderer import Renderer
 
@@ -112,7 +112,7 @@ def test_plan_off_renders_the_same_image():
     # Forcing every pass on (no plan) must not change the result on a Lambertian scene:
     # the skipped passes contribute nothing there.
     scene = load_scene(SHARED / "scenes" / "cornell-box" / "scene.xml")
-    from master.local import render_local
+    from master.inprocess import render_local
 
     a = render_local(scene, {}, 1, width=32, height=32, renderer=Renderer(scene))
     b = render_local(scene, {}, 1, width=32, height=32, renderer=Renderer(scene, use_plan=False))

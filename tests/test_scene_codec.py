@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from bench.stress_scenes import mini_cornell
-from cluster_helpers import SHARED
+from tests.support.paths import SHARED
 from common import scene_codec as sc
 from common.scene import SceneError, Texture
 

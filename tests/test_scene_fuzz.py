@@ -18,7 +18,6 @@ import pytest
 
 from bench import stress as bs
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
 HANG_LIMIT = 120.0  # seconds before a load counts as a hang (seed loads take ~0.1 s)
 
 # (exception type, regex on message + traceback) of tolerated crashes: none any more.
@@ -207,7 +206,7 @@ def test_overlong_file_names_give_a_scene_error(where, tmp_path):
 def test_roughplastic_with_zero_ior_is_rejected_or_renders(tmp_path):
     from common.loader import load_scene
     from common.scene import SceneError
-    from master.local import render_local
+    from master.inprocess import render_local
 
     p = tmp_path / "s.xml"
     p.write_text('<scene version="3.0.0"><bsdf type="roughplastic" id="rp"><float name="int_ior" value="0"/>'

@@ -1,14 +1,14 @@
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from common.sobol_stream import SobolStream, rng
 
-REPO = Path(__file__).resolve().parents[1]
+from tests.support.paths import ROOT as REPO
+
 
 _CHILD = """
 import sys

@@ -22,10 +22,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-SHARED = ROOT.parent / "shared"
+from tests.support.paths import ARTIFACTS, ROOT, SHARED
+
 CORNELL = SHARED / "scenes" / "cornell-box" / "scene.xml"
-ARTIFACTS = ROOT / "artifacts"
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]
@@ -528,7 +527,7 @@ def test_feed_address_in_use(quiet_broker):
     import zmq
 
     from master import viewer
-    from master.cli import UsageError
+    from master.errors import UsageError
 
     busy = zmq.Context.instance().socket(zmq.PUB)
     busy.setsockopt(zmq.LINGER, 0)

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,7 +14,7 @@ from scenes_synthetic import furnace_box
 from worker import vpl as vpl_mod
 from worker.renderer import Renderer
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.support.paths import ROOT
 
 
 def _furnace_mean(renderer, scene, frames, **overrides):

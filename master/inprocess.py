@@ -1,4 +1,5 @@
-"""Single-process rendering over exactly the distributed path's tasks: for tests and benchmarks.
+"""The in-process reference renderer: one process renders exactly the distributed path's tasks,
+for ``igi render --workers 0``, tests and benchmarks.
 
 :func:`render_local` calls ``Renderer.render_tile`` directly for every task of
 :func:`master.frame_assembly.task_tiles`, frame specs from
@@ -13,37 +14,12 @@ from typing import Callable
 
 import numpy as np
 
+from common.camera import resolve_camera
 from common.params import make_params, params_to_dict
-from common.scene import Camera, Scene
+from common.scene import Scene
 
 from .accumulation import Accumulator, accumulation_key, sequence_spec
 from .frame_assembly import DEFAULT_TASK_PIXELS, FrameAssembler, task_tiles
-
-
-def resolve_camera(scene: Scene, camera=None, width: int | None = None,
-                   height: int | None = None) -> tuple[tuple, float, int, int]:
-    """(camera_to_world as 16 floats, fov_x, width, height) from the scene's camera, overridden
-    by ``camera`` — a :class:`Camera`, a 4×4 / 16-float to_world matrix, or
-    ``(to_world, fov_x)`` — and an explicit resolution. Width/height given alone keep the
-    camera's aspect ratio for the other one."""
-    cam = scene.camera
-    to_world, fov_x = cam.to_world, cam.fov_x
-    cw, ch = cam.width, cam.height
-    if isinstance(camera, Camera):
-        to_world, fov_x, cw, ch = camera.to_world, camera.fov_x, camera.width, camera.height
-    elif camera is not None:
-        if isinstance(camera, tuple) and len(camera) == 2 and np.size(camera[0]) == 16:
-            to_world, fov_x = camera
-        else:
-            to_world = camera
-    m = np.asarray(to_world, np.float64).reshape(16)
-    if width is None and height is None:
-        width, height = cw, ch
-    elif width is None:
-        width = max(1, round(height * cw / ch))
-    elif height is None:
-        height = max(1, round(width * ch / cw))
-    return tuple(float(x) for x in m), float(fov_x), int(width), int(height)
 
 
 def roundtrip(buffers, enabled: bool = True):
