@@ -9,7 +9,7 @@ into a directory the caller gives (a pytest ``tmp_path``, or a temporary directo
 :data:`CASES` lists every stress case as a :class:`StressCase`; ``build(tmp)`` returns the
 scene to render and, for the cases that must reproduce an untransformed image, ``reference``
 names the base scene and ``bound`` the largest allowed relMSE against it (the reasoning for
-each bound is in ``why``). ``tests/test_stress.py`` and ``bench/stress.py`` both run
+each bound is in ``why``). ``tests/worker/test_stress.py`` and ``bench/stress.py`` both run
 this list.
 """
 from __future__ import annotations

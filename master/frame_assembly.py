@@ -11,7 +11,7 @@ Two ways in, one image out: :meth:`FrameAssembler.add` takes decoded float buffe
 compact per-sub-image byte planes (lz4 decompression plus one contiguous copy per tile, all on
 the receiving thread), so the float conversion, scatter into image space, filter and compose
 run once per frame, in parallel stripes (``master.parallel``), straight into the filter's
-padded planes. Both give bit-identical buffers and images (tests/test_scaling_model.py).
+padded planes. Both give bit-identical buffers and images (tests/bench/test_scaling_model.py).
 
 :func:`task_tiles` is THE task decomposition of a frame; the broker and ``render_local`` both
 use it, so both paths render exactly the same tiles.

@@ -11,7 +11,7 @@ import pytest
 import zmq
 
 from bench.stress_scenes import mini_cornell
-from cluster_helpers import wait_until
+from tests.support.cluster_helpers import wait_until
 from common import protocol as P
 from master.broker import Broker
 from worker.node import WorkerNode

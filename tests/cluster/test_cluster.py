@@ -21,7 +21,7 @@ import pytest
 import zmq
 
 from bench.stress_scenes import mini_cornell
-from cluster_helpers import start_worker, stop_procs, wait_until
+from tests.support.cluster_helpers import start_worker, stop_procs, wait_until
 from common import protocol as P
 from common.params import make_params, params_to_dict
 from master.accumulation import sequence_spec

@@ -10,7 +10,7 @@ from common.lights import LightSampler
 from common.loader import load_scene
 from common.scene import DIELECTRIC, DIFFUSE, POINT, Camera, Emitter, Material, Mesh, Scene, Texture
 from tests.support.paths import SHARED
-from scenes_synthetic import box_faces, quad
+from tests.support.scenes_synthetic import box_faces, quad
 from worker.caustics import build_photon_set, specular_targets
 from worker.renderer import Renderer
 

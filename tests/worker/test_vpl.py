@@ -10,7 +10,7 @@ import pytest
 from common.frame import FrameSpec, Tile
 from common.params import make_params, params_to_dict
 from common.sobol_stream import SobolStream
-from scenes_synthetic import furnace_box
+from tests.support.scenes_synthetic import furnace_box
 from worker import vpl as vpl_mod
 from worker.renderer import Renderer
 
@@ -71,8 +71,8 @@ def test_vpl_set_is_pure_function_of_scene_seed_k():
 
 _CHILD = """
 import sys, numpy as np
-sys.path[:0] = [{root!r}, {tests!r}]
-from scenes_synthetic import furnace_box
+sys.path[:0] = [{root!r}]
+from tests.support.scenes_synthetic import furnace_box
 from worker.renderer import Renderer
 from common.params import make_params
 s = Renderer(furnace_box(0.5, 1.0)).vpl_set(11, 5, make_params())
@@ -81,7 +81,7 @@ sys.stdout.write(np.concatenate([s.position.ravel(), s.power.ravel()]).tobytes()
 
 
 def test_vpl_set_identical_in_two_processes():
-    code = _CHILD.format(root=str(ROOT), tests=str(ROOT / "tests"))
+    code = _CHILD.format(root=str(ROOT))
     outs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
             for _ in range(2)]
     assert outs[0] == outs[1] and len(outs[0]) > 100

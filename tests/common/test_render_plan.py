@@ -13,7 +13,7 @@ from common.params import make_params, params_to_dict
 from common.render_plan import analyze, frame_plan
 from common.scene import AREA, DIFFUSE, Camera, Emitter, Material, Mesh, Scene, Texture
 from tests.support.paths import SHARED
-from scenes_synthetic import box_faces, quad
+from tests.support.scenes_synthetic import box_faces, quad
 from worker.renderer import Renderer
 
 _CACHE: dict = {}
