@@ -595,7 +595,7 @@ def report(results: dict, model: dict, args) -> str:
         a("")
         nets = [x["name"] for x in model["networks"]]
         a("Accumulating (a new seed, so new VPL/photon sets, every frame — the benchmark's case), per "
-          "network; last columns: the camera moving on 10 Gbit/s (seed and sets kept, DESIGN.md §1). "
+          "network; last columns: the camera moving on 10 Gbit/s (seed and sets kept: docs/design-notes.md). "
           "Cells: frames/s (bottleneck).")
         a("")
         a("| workers | " + " | ".join(nets) + " | bytes/frame | set builds/frame | camera moving, 10 Gbit/s "

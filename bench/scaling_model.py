@@ -109,7 +109,7 @@ class Config:
     shared_host_cores: int = 0  # > 0: master and all workers on ONE host with this many cores
     background: float = 0.0  # other runnable threads on the shared host (measured load)
     accumulate: bool = True  # a new seed (new sets) every frame, as when accumulating; False:
-    # the camera moves, the seed and the workers' sets stay (DESIGN.md §1): no set builds
+    # the camera moves, the seed and the workers' sets stay (docs/design-notes.md): no set builds
     prewarm_frames: int = 0  # sets of frames 0 .. prewarm-1 already held by every worker
     affinity_lookahead: int = 0  # 0: the broker's policy (scheduler.assign, strict queue order);
     # L > 0: a what-if policy: a free worker takes the first of the next L queued tasks whose set

@@ -4,7 +4,7 @@
 full-frame buffers (sub-image pixel (sx, sy) of set k lands on image pixel
 (sx·n + k mod n, sy·n + k div n)), knows when every pixel has arrived, and produces the image:
 discontinuity buffer over the irradiance (window ``filter_window``, -1 → n), multiplied by the
-pixel's own reflectance, plus the unfiltered part (DESIGN.md §1, paper §4.3).
+pixel's own reflectance, plus the unfiltered part (docs/design-notes.md, discontinuity buffer; paper §4.3).
 
 Two ways in, one image out: :meth:`FrameAssembler.add` takes decoded float buffers;
 :meth:`FrameAssembler.add_wire` (the broker) takes a task's wire bytes and keeps them in
