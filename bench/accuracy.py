@@ -22,7 +22,7 @@ from common.loader import load_scene
 from common.metrics import block_average, relmse
 
 from .paths import SHARED
-from .report import machine_info
+from .report import machine_info, md_table
 
 VARIANTS = {"paper": {"consistent": False}, "consistent": {}}
 
@@ -95,25 +95,22 @@ def measure(scenes: list[str], frames: list[int], scale: float = 0.5, variants: 
 
 
 def markdown(doc: dict) -> str:
-    lines = []
     frames = sorted({r["frames"] for res in doc["results"] for r in res["rows"]})
-    head = "| scene | variant | " + " | ".join(f"{f} fr relMSE (s)" for f in frames) + " |"
-    lines += [head, "|" + "---|" * (2 + len(frames))]
+    head = ["scene", "variant"] + [f"{f} fr relMSE (s)" for f in frames]
+    rows = []
     for res in doc["results"]:
         cells = {r["frames"]: r for r in res["rows"]}
-        row = f"| {res['scene']} | {res['variant']} | "
-        row += " | ".join(f"{cells[f]['relmse']:.4f} ({cells[f]['seconds']:.0f})" if f in cells else ""
-                          for f in frames)
-        lines.append(row + " |")
+        rows.append([res["scene"], res["variant"]] + [
+            f"{cells[f]['relmse']:.4f} ({cells[f]['seconds']:.0f})" if f in cells else "" for f in frames])
+    lines = md_table(head, rows)
     if any("relmse_caustic" in r for res in doc["results"] for r in res["rows"]):
-        lines += ["", "Caustic region only:", "", head.replace("relMSE (s)", "relMSE"),
-                  "|" + "---|" * (2 + len(frames))]
+        rows = []
         for res in doc["results"]:
             cells = {r["frames"]: r for r in res["rows"] if "relmse_caustic" in r}
-            if not cells:
-                continue
-            lines.append(f"| {res['scene']} | {res['variant']} | " + " | ".join(
-                f"{cells[f]['relmse_caustic']:.4f}" if f in cells else "" for f in frames) + " |")
+            if cells:
+                rows.append([res["scene"], res["variant"]] + [
+                    f"{cells[f]['relmse_caustic']:.4f}" if f in cells else "" for f in frames])
+        lines += ["", "Caustic region only:", ""] + md_table([h.replace("relMSE (s)", "relMSE") for h in head], rows)
     return "\n".join(lines)
 
 
