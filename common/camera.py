@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .scene import Camera
+from .scene import Camera, Scene
 
 
 def camera_rays(to_world: np.ndarray, fov_x: float, width: int, height: int,
@@ -44,3 +44,29 @@ def look_at(origin, target, up) -> np.ndarray:
     from .transform import look_at as _look_at
 
     return _look_at(origin, target, up)
+
+
+def resolve_camera(scene: Scene, camera=None, width: int | None = None,
+                   height: int | None = None) -> tuple[tuple, float, int, int]:
+    """(camera_to_world as 16 floats, fov_x, width, height) from the scene's camera, overridden
+    by ``camera`` — a :class:`Camera`, a 4×4 / 16-float to_world matrix, or
+    ``(to_world, fov_x)`` — and an explicit resolution. Width/height given alone keep the
+    camera's aspect ratio for the other one."""
+    cam = scene.camera
+    to_world, fov_x = cam.to_world, cam.fov_x
+    cw, ch = cam.width, cam.height
+    if isinstance(camera, Camera):
+        to_world, fov_x, cw, ch = camera.to_world, camera.fov_x, camera.width, camera.height
+    elif camera is not None:
+        if isinstance(camera, tuple) and len(camera) == 2 and np.size(camera[0]) == 16:
+            to_world, fov_x = camera
+        else:
+            to_world = camera
+    m = np.asarray(to_world, np.float64).reshape(16)
+    if width is None and height is None:
+        width, height = cw, ch
+    elif width is None:
+        width = max(1, round(height * cw / ch))
+    elif height is None:
+        height = max(1, round(width * ch / cw))
+    return tuple(float(x) for x in m), float(fov_x), int(width), int(height)

@@ -1,5 +1,5 @@
-"""Wire encoding of a task's TileBuffers (DESIGN.md §4; the paper's §4.3 "quantized and
-compressed").
+"""Wire encoding of a task's TileBuffers (docs/architecture.md; bytes per frame in
+docs/scaling.md; the paper's §4.3 "quantized and compressed").
 
 Layout after a 12-byte header (magic b"IGTB", version, flags, pixel count P):
 an lz4 frame holding, planar and byte-shuffled,

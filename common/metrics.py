@@ -1,4 +1,4 @@
-"""Error against a reference image (DESIGN.md §6): relMSE, RMSE, block-averaged relMSE, FLIP."""
+"""Error against a reference image (docs/accuracy.md): relMSE, RMSE, block-averaged relMSE, FLIP."""
 from __future__ import annotations
 
 import numpy as np

@@ -38,7 +38,7 @@ REFUSE     both  code ("version", "unsupported", ...), message, ours, theirs: th
                  sender will not talk to the receiver; a worker refused exits
 ========== ===== =====================================================================
 
-Reliability (DESIGN.md §5): each side sends HEARTBEAT when it has sent nothing else for
+Reliability (docs/scale-out.md, "The network contract"): each side sends HEARTBEAT when it has sent nothing else for
 :data:`HEARTBEAT_INTERVAL` seconds, and any message received counts as a sign of life; a peer
 silent for :data:`HEARTBEAT_LIVENESS` intervals is dead. The master gives every assignment a
 fresh ``epoch``; a RESULT is accepted only for the task's current epoch of an open frame.

@@ -11,6 +11,7 @@ import numpy as np
 
 from .lights import LightSampler
 from .scene import AREA, CONSTANT, DIRECTIONAL, GLOSSY_KINDS, POINT, SPECULAR_KINDS, SPOT, Scene
+from .specular import specular_targets
 
 MANY_LIGHTS = 8  # more emitters than this: direct VPLs subsample them by power (paper §5.1.4)
 SMALL_EMITTER = 0.01  # emitter extent below this fraction of the scene diagonal acts as a point
@@ -66,8 +67,6 @@ def frame_plan(scene_changed: bool, params_changed: bool, camera_changed: bool,
 
 def _emitters_reach_specular(scene: Scene, geom, lights: LightSampler, rays_per_target: int = 64) -> bool:
     """Is any mirror/glass object visible from some local emitter? (a few probe rays)."""
-    from worker.caustics import specular_targets
-
     centres, radii = specular_targets(scene, geom)
     if len(radii) == 0:
         return False

@@ -1,4 +1,4 @@
-"""Progressive accumulation of frames while nothing moves (DESIGN.md §1, paper §4.4, §5.2).
+"""Progressive accumulation of frames while nothing moves (docs/architecture.md, paper §4.4, §5.2).
 
 :class:`Accumulator` keeps float64 running sums (a float32 image added 1e6 times drifts by
 ~1e-10 relative, far below float16 wire quantization) and two independent halves — the even
@@ -102,7 +102,7 @@ class Accumulator:
         return (self._halves[0] / self._counts[0], self._halves[1] / self._counts[1])
 
     def relative_error(self) -> float | None:
-        """Estimated relMSE of the mean (DESIGN.md §6 metric with the mean as reference):
+        """Estimated relMSE of the mean (the relMSE of common/metrics.py, docs/accuracy.md, with the mean as reference):
         for two independent halves A, B of equal size, E[(A-B)²] = 2·Var(half) and
         Var(mean) = Var(half)/2, so relMSE(mean) ≈ mean((A-B)²/(mean²+0.01)) / 4."""
         h = self.halves()

@@ -402,7 +402,7 @@ class Broker:
                    height: int | None = None, frame: int | None = None) -> FrameSpec:
         """FrameSpec of the current scene version: accumulation index ``index``; camera and
         resolution from the scene unless given (see ``master.local.resolve_camera``)."""
-        from .local import resolve_camera
+        from common.camera import resolve_camera
 
         scene = self.scene
         if scene is None:
@@ -496,7 +496,7 @@ class Broker:
                      height: int | None = None) -> None:
         """Render frames continuously for the viewer: progressive accumulation while nothing
         changes; any change of camera / params / resolution / scene resets it."""
-        from .local import resolve_camera
+        from common.camera import resolve_camera
 
         scene = self.scene
         if scene is None:

@@ -6,14 +6,15 @@
     igi worker --connect tcp://HOST:5555 [--threads T]
     igi serve SCENE [--workers N] [--bind ...] [--http HOST:PORT] [--pub tcp://HOST:PORT]
     igi record tcp://127.0.0.1:5556 -o DIR [--count N] [--format png|exr]   (master/record.py)
-    igi bench scaling [...]        (and every other master/bench_<name>.py module)
+    igi bench NAME [...]           (NAME: scaling, quality, ...; the registry in bench/__init__.py)
 
 ``igi render`` renders through the master + local worker processes (one per core by default),
 the same path as ``igi serve``; ``--workers 0`` renders in this process (``render_local``), for
 debugging. Output by extension: ``.exr`` linear float, ``.png`` sRGB 8 bit.
 
-Bench registry: every module ``master/bench_<name>.py`` becomes ``igi bench <name>``; it
-defines ``HELP`` (one line), ``add_arguments(parser)`` and ``run(args) -> int``.
+Bench registry: ``igi bench NAME`` runs the module that ``bench.BENCHES[NAME]`` names (it
+defines ``add_arguments(parser)`` and ``run(args) -> int``); the ``bench`` package is imported
+only here, inside the bench subcommand.
 
 Viewer hook: ``igi serve`` (and ``igi master`` with a scene) calls
 ``master.viewer.start(broker, host, port, args)`` when that module exists; it returns an object
@@ -28,9 +29,7 @@ import argparse
 import importlib
 import logging
 import os
-import pkgutil
 import signal
-import subprocess
 import sys
 import threading
 import time
@@ -38,17 +37,10 @@ from pathlib import Path
 
 import numpy as np
 
+from master.errors import RenderError, UsageError
+from master.local_workers import LocalWorkers, wait_workers
+
 log = logging.getLogger("igi")
-
-REPO_ROOT = Path(__file__).resolve().parents[1]
-
-
-class UsageError(Exception):
-    """A bad input: reported as one line and exit status 2."""
-
-
-class RenderError(Exception):
-    """The render could not finish (e.g. every local worker died): one line, exit status 1."""
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -92,62 +84,6 @@ def check_bind(address: str) -> None:
     host = address.split("://", 1)[-1].rsplit(":", 1)[0]
     if host not in ("127.0.0.1", "localhost", "[::1]", "::1") and not address.startswith(("ipc://", "inproc://")):
         log.warning("master bound to %s: reachable from the network, without authentication", address)
-
-
-def worker_command(endpoint: str, threads: int = 1, quiet: bool = True, name: str | None = None,
-                   curve_keys: str | None = None) -> list[str]:
-    cmd = [sys.executable, "-m", "worker.node", "--connect", endpoint, "--threads", str(threads),
-           "--exit-with-master", "--parent-pid", str(os.getpid())]
-    if curve_keys:
-        cmd += ["--curve-keys", str(curve_keys), "--key-name", "worker"]
-    if quiet:
-        cmd.append("--quiet")
-    if name:
-        cmd += ["--name", name]
-    return cmd
-
-
-def worker_env() -> dict:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO_ROOT), env.get("PYTHONPATH", "")) if p)
-    env.setdefault("OMP_NUM_THREADS", "1")
-    return env
-
-
-class LocalWorkers:
-    """N worker processes on this machine, connected to ``endpoint``; stopped together."""
-
-    def __init__(self, endpoint: str, count: int, threads: int = 1, quiet: bool = True,
-                 curve_keys: str | None = None):
-        self.procs: list[subprocess.Popen] = []
-        for i in range(count):
-            self.procs.append(subprocess.Popen(worker_command(endpoint, threads, quiet, f"local{i}", curve_keys),
-                                               env=worker_env(), stdin=subprocess.DEVNULL))
-
-    def check(self) -> None:
-        for p in self.procs:
-            if p.poll() is not None:
-                raise UsageError(f"a local worker exited with status {p.returncode} (see its log above)")
-
-    def stop(self, timeout: float = 5.0) -> None:
-        for p in self.procs:
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-        deadline = time.monotonic() + timeout
-        for p in self.procs:
-            try:
-                p.wait(max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
-
-
-def wait_workers(broker, workers: LocalWorkers, count: int, timeout: float = 120.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not broker.wait_for_workers(count, 0.2):
-        workers.check()
-        if time.monotonic() > deadline:
-            raise UsageError(f"only {len(broker.workers())} of {count} local workers connected in {timeout:.0f} s")
 
 
 class Progress:
@@ -277,7 +213,7 @@ class ErrorTracker:
 
 def _render_frames(args, scene, params, on_frame):
     if args.workers == 0:
-        from master.local import render_local
+        from master.inprocess import render_local
 
         image = render_local(scene, params, frames=args.frames, width=args.width, height=args.height,
                              on_frame=on_frame)
@@ -424,21 +360,32 @@ def cmd_worker(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------- parser
 
-def bench_modules() -> dict[str, object]:
-    """``igi bench`` subcommands: every master/bench_<name>.py module."""
-    import master
+def cmd_bench(args: argparse.Namespace) -> int:
+    """``igi bench NAME ARGS...``: the benchmark's own parser and ``run`` (from the bench registry)."""
+    bargs = bench_parser(args.bench).parse_args(args.bench_args)
+    bargs.verbose, bargs.command, bargs.bench = args.verbose, args.command, args.bench
+    return bargs.func(bargs)
 
-    out = {}
-    for info in sorted(pkgutil.iter_modules(list(master.__path__)), key=lambda i: i.name):
-        if info.name.startswith("bench_"):
-            try:
-                mod = importlib.import_module(f"master.{info.name}")
-            except Exception as e:  # a broken bench module must not break the CLI
-                log.debug("bench module %s not loaded: %s", info.name, e)
-                continue
-            if hasattr(mod, "add_arguments") and hasattr(mod, "run"):
-                out[info.name[len("bench_"):]] = mod
-    return out
+
+def bench_parser(name: str) -> argparse.ArgumentParser:
+    """The parser of ``igi bench NAME``; parsed arguments carry ``func``, the module's ``run``."""
+    import bench  # master imports bench only inside cli.py's functions (tests/test_architecture.py)
+
+    mod = bench.load(name)
+    p = argparse.ArgumentParser(prog=f"igi bench {name}", description=bench.BENCHES[name].help)
+    mod.add_arguments(p)
+    p.set_defaults(func=mod.run)
+    return p
+
+
+def bench_names() -> dict[str, str]:
+    """``igi bench`` subcommands (name → one-line help) from the bench registry; empty when the
+    ``bench`` package is not installed."""
+    try:
+        import bench
+    except ImportError:
+        return {}
+    return {name: b.help for name, b in bench.BENCHES.items()}
 
 
 def _add_render_params(p: argparse.ArgumentParser) -> None:
@@ -518,13 +465,13 @@ def build_parser() -> argparse.ArgumentParser:
     record.add_arguments(rec)
     rec.set_defaults(func=record.run)
 
-    b = sub.add_parser("bench", help="benchmarks (scaling, ...)")
-    bsub = b.add_subparsers(dest="bench", metavar="BENCH")
-    bsub.required = True
-    for name, mod in bench_modules().items():
-        bp = bsub.add_parser(name, help=getattr(mod, "HELP", ""))
-        mod.add_arguments(bp)
-        bp.set_defaults(func=mod.run)
+    names = bench_names()
+    b = sub.add_parser("bench", help="benchmarks (scaling, quality, ...; igi bench NAME --help)",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       description="benchmarks:\n" + "\n".join(f"  {n:16s}{h}" for n, h in names.items()))
+    b.add_argument("bench", choices=list(names), metavar="BENCH", help="one of: " + ", ".join(names))
+    b.add_argument("bench_args", nargs=argparse.REMAINDER, metavar="...", help="the benchmark's arguments")
+    b.set_defaults(func=cmd_bench)
     return parser
 
 

@@ -4,14 +4,14 @@
 full-frame buffers (sub-image pixel (sx, sy) of set k lands on image pixel
 (sx·n + k mod n, sy·n + k div n)), knows when every pixel has arrived, and produces the image:
 discontinuity buffer over the irradiance (window ``filter_window``, -1 → n), multiplied by the
-pixel's own reflectance, plus the unfiltered part (DESIGN.md §1, paper §4.3).
+pixel's own reflectance, plus the unfiltered part (docs/design-notes.md, discontinuity buffer; paper §4.3).
 
 Two ways in, one image out: :meth:`FrameAssembler.add` takes decoded float buffers;
 :meth:`FrameAssembler.add_wire` (the broker) takes a task's wire bytes and keeps them in
 compact per-sub-image byte planes (lz4 decompression plus one contiguous copy per tile, all on
 the receiving thread), so the float conversion, scatter into image space, filter and compose
 run once per frame, in parallel stripes (``master.parallel``), straight into the filter's
-padded planes. Both give bit-identical buffers and images (tests/test_scaling_model.py).
+padded planes. Both give bit-identical buffers and images (tests/bench/test_scaling_model.py).
 
 :func:`task_tiles` is THE task decomposition of a frame; the broker and ``render_local`` both
 use it, so both paths render exactly the same tiles.

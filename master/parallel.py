@@ -4,7 +4,7 @@ numpy releases the GIL inside its ufunc loops, copies and ``take``, and lz4 rele
 decompressing, so frame finishing (wire → float conversion, discontinuity filter, compose) runs
 in parallel stripes on threads over shared arrays — no copies, no processes. Every parallel
 stage writes disjoint output elements with exactly the operations of the serial path, so the
-result does not depend on the number of threads (tests/test_scaling_model.py checks it).
+result does not depend on the number of threads (tests/bench/test_scaling_model.py checks it).
 
 Threads: ``IGI_MASTER_THREADS`` (default: the machine's cores), or :func:`set_threads`.
 With 1 thread everything runs inline in the caller.

@@ -99,7 +99,7 @@ def record(endpoint: str, output: str | Path, count: int = 10, fmt: str = "png",
 
 
 def run(args: argparse.Namespace) -> int:
-    from .cli import UsageError
+    from .errors import UsageError
 
     if not args.endpoint.startswith(("tcp://", "ipc://", "inproc://")):
         raise UsageError(f"endpoint must look like tcp://HOST:PORT, got {args.endpoint!r}")

@@ -4,7 +4,7 @@ No sockets, no clocks, no randomness: :func:`assign` maps (pending tasks in queu
 worker views) to a list of (task id, worker id) assignments, so the policy is tested alone
 (ipyparallel's schedulers are built the same way) and the broker only applies what it returns.
 
-Policy (DESIGN.md §1, §5):
+Policy (docs/architecture.md; the network side in docs/scale-out.md, "The network contract"):
 
 1. Tasks are taken strictly in queue order (the broker puts re-queued tasks at the front, see
    :func:`requeue_front`); when no worker has a free credit slot, assignment stops — later tasks

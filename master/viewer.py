@@ -865,10 +865,8 @@ def start(broker, host: str = "127.0.0.1", port: int = 8000, args=None, *, requi
     try:
         v.start()
     except OSError as e:
-        try:
-            from master.cli import UsageError
-        except ImportError:  # pragma: no cover
-            raise
+        from master.errors import UsageError
+
         raise UsageError(str(e)) from None
     if not quiet:
         print(f"igi viewer: {v.url}", file=sys.stderr, flush=True)

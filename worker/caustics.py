@@ -18,6 +18,7 @@ from common.geometry import Geometry
 from common.lights import LightSampler, to_local, to_world, uniform_sphere
 from common.scene import AREA, NULL, POINT, SPECULAR_KINDS, SPOT, Scene
 from common.sobol_stream import SobolStream
+from common.specular import specular_targets
 
 from .hash_grid import HashGrid
 
@@ -39,20 +40,6 @@ class PhotonSet:
 
     def __len__(self) -> int:
         return len(self.position)
-
-
-def specular_targets(scene: Scene, geom: Geometry) -> tuple[np.ndarray, np.ndarray]:
-    """Bounding spheres (centres, radii) of the meshes with a mirror or glass BSDF."""
-    centres, radii = [], []
-    for i, m in enumerate(scene.meshes):
-        if len(m.faces) == 0 or scene.materials[m.material].kind not in SPECULAR_KINDS:
-            continue
-        v = geom.vertices[geom.faces[geom.mesh_of == i]].reshape(-1, 3)
-        c = 0.5 * (v.min(axis=0) + v.max(axis=0))
-        r = float(np.linalg.norm(v - c, axis=1).max()) * (1 + 1e-6) + geom.eps
-        centres.append(c)
-        radii.append(r)
-    return np.array(centres).reshape(-1, 3), np.array(radii)
 
 
 def default_radius(diagonal: float, fraction: float) -> float:

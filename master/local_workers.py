@@ -1,0 +1,72 @@
+"""Worker processes on this machine (``igi render``, ``igi serve``, benchmarks): started with
+this Python, connected to a master's endpoint, stopped together; a dead one is a
+:class:`~master.errors.UsageError`."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from .errors import UsageError
+
+# the folder that holds the packages (a source checkout's root): on the workers' PYTHONPATH
+PACKAGE_ROOT = Path(__file__).resolve().parents[1]
+
+
+def worker_command(endpoint: str, threads: int = 1, quiet: bool = True, name: str | None = None,
+                   curve_keys: str | None = None) -> list[str]:
+    cmd = [sys.executable, "-m", "worker.node", "--connect", endpoint, "--threads", str(threads),
+           "--exit-with-master", "--parent-pid", str(os.getpid())]
+    if curve_keys:
+        cmd += ["--curve-keys", str(curve_keys), "--key-name", "worker"]
+    if quiet:
+        cmd.append("--quiet")
+    if name:
+        cmd += ["--name", name]
+    return cmd
+
+
+def worker_env() -> dict:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(PACKAGE_ROOT), env.get("PYTHONPATH", "")) if p)
+    env.setdefault("OMP_NUM_THREADS", "1")
+    return env
+
+
+class LocalWorkers:
+    """N worker processes on this machine, connected to ``endpoint``; stopped together."""
+
+    def __init__(self, endpoint: str, count: int, threads: int = 1, quiet: bool = True,
+                 curve_keys: str | None = None):
+        self.procs: list[subprocess.Popen] = []
+        for i in range(count):
+            self.procs.append(subprocess.Popen(worker_command(endpoint, threads, quiet, f"local{i}", curve_keys),
+                                               env=worker_env(), stdin=subprocess.DEVNULL))
+
+    def check(self) -> None:
+        for p in self.procs:
+            if p.poll() is not None:
+                raise UsageError(f"a local worker exited with status {p.returncode} (see its log above)")
+
+    def stop(self, timeout: float = 5.0) -> None:
+        for p in self.procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + timeout
+        for p in self.procs:
+            try:
+                p.wait(max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+
+def wait_workers(broker, workers: LocalWorkers, count: int, timeout: float = 120.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not broker.wait_for_workers(count, 0.2):
+        workers.check()
+        if time.monotonic() > deadline:
+            raise UsageError(f"only {len(broker.workers())} of {count} local workers connected in {timeout:.0f} s")

@@ -1,0 +1,443 @@
+"""Mitsuba 3 XML loading: the shared scenes, the XML subset, errors and warnings.
+
+Reference numbers marked "Mitsuba 3.9.1" were read back from Mitsuba 3.9.1 (scalar_rgb) while
+writing the loader; Mitsuba itself is not needed to run these tests.
+"""
+import re
+import struct
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from common.loader import load_scene
+from common.mitsuba_xml import load_mitsuba
+from common.scene import (AREA, CONDUCTOR, CONSTANT, DIELECTRIC, DIFFUSE, DIRECTIONAL, PLASTIC, POINT,
+                          ROUGHCONDUCTOR, ROUGHPLASTIC, SPOT, THINDIELECTRIC, SceneError)
+
+from tests.support.paths import SCENES
+
+needs_scenes = pytest.mark.skipif(not SCENES.is_dir(), reason="shared scenes not available")
+
+# Mitsuba 3.9.1's face_count summed over all shapes (the README's "Triangles" column; in 3.9.1 a
+# rectangle is a 2-triangle mesh and is included), emitters, film size.
+SHARED = {
+    "cornell-box": (36, 1, (512, 512)),
+    "cornell-box-sphere": (2188, 1, (640, 480)),
+    "cornell-box-glossy": (1112, 1, (640, 480)),
+    "cornell-box-water": (7088, 1, (640, 480)),
+    "veach-ajar": (4546, 1, (640, 480)),
+    "veach-bidir": (11544, 2, (512, 512)),
+    "modern-hall": (31247, 13, (640, 480)),
+    "grey-white-room": (139899, 1, (640, 480)),
+}
+
+TRI = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0.25\nvt 1 0.25\nvt 0 0.9\nf 1/1 2/2 3/3\n"
+
+
+def scene_file(tmp_path, body, files=None, version="3.0.0"):
+    """Write a scene.xml with `body` inside <scene>; `files` maps relative names to contents."""
+    for name, content in (files or {}).items():
+        p = tmp_path / name
+        p.parent.mkdir(parents=True, exist_ok=True)
+        (p.write_bytes if isinstance(content, bytes) else p.write_text)(content)
+    p = tmp_path / "scene.xml"
+    p.write_text(f'<?xml version="1.0"?>\n<scene version="{version}">\n{textwrap.dedent(body)}\n</scene>\n')
+    return p
+
+
+def line_of(path, needle):
+    for i, ln in enumerate(Path(path).read_text().splitlines(), 1):
+        if needle in ln:
+            return i
+    raise AssertionError(needle)
+
+
+def degenerate_removed(scene):
+    return sum(int(m.group(1)) for w in scene.warnings for m in [re.search(r"removed (\d+) degenerate", w)] if m)
+
+
+# ------------------------------------------------------------------------------ shared scenes
+
+
+@needs_scenes
+@pytest.mark.parametrize("name", sorted(SHARED))
+def test_shared_scene_loads_with_mitsuba_counts(name):
+    tris, n_emitters, film = SHARED[name]
+    s = load_scene(SCENES / name / "scene.xml")
+    # zero-area triangles are removed (with a warning); Mitsuba keeps them in face_count
+    assert s.triangle_count + degenerate_removed(s) == tris
+    assert len(s.emitters) == n_emitters
+    assert (s.camera.width, s.camera.height) == film
+    assert s.max_depth == -1
+    other = [w for w in s.warnings if "degenerate" not in w]
+    assert not other, other
+    for m in s.meshes:
+        assert m.vertices.dtype == np.float64 and m.faces.dtype == np.int32
+        assert 0 <= m.faces.min() and m.faces.max() < len(m.vertices)
+        assert np.all(np.isfinite(m.vertices))
+        assert 0 <= m.material < len(s.materials)
+        if m.normals is not None:
+            assert m.normals.shape == m.vertices.shape
+            np.testing.assert_allclose(np.linalg.norm(m.normals[m.faces.ravel()], axis=1), 1.0, atol=1e-6)
+        if m.uvs is not None:
+            assert m.uvs.shape == (len(m.vertices), 2)
+    for i, e in enumerate(s.emitters):
+        if e.kind == AREA:
+            assert s.meshes[e.mesh].emitter == i
+
+
+@needs_scenes
+def test_veach_ajar_details():
+    s = load_scene(SCENES / "veach-ajar" / "scene.xml")
+    mats = {m.name: m for m in s.materials}
+    floor = mats["FloorBSDF"]
+    assert floor.kind == ROUGHCONDUCTOR and floor.twosided and floor.distribution == "ggx"
+    assert floor.specular.filter == "nearest" and floor.specular.image.shape == (1280, 320, 3)
+    np.testing.assert_allclose(floor.eta, [1.65746, 0.880369, 0.521229])
+    assert mats["TableBSDF"].diffuse.image is not None  # file name with a space
+    landscape = next(m for m in s.meshes if m.name == "Landscape")  # named by the shape id
+    assert landscape.normals is None  # face_normals="true"
+    light = s.meshes[s.emitters[0].mesh]
+    assert light.name == "Light" and len(light.faces) == 2
+    np.testing.assert_allclose(s.emitters[0].radiance, 1000)
+    np.testing.assert_allclose(s.camera.to_world[0], [-0.137283, -0.0319925, -0.990015, 4.05402])
+    assert s.camera.fov == 60 and s.camera.fov_axis == "x"
+
+
+# ------------------------------------------------------------------------------ subset features
+
+
+def test_obj_shape_semantics_normals_uvs_and_texture_chain(tmp_path):
+    from PIL import Image
+
+    # 2x4 image, rows top to bottom red, green, blue, white
+    img = np.zeros((4, 2, 3), np.uint8)
+    img[0], img[1], img[2], img[3] = [255, 0, 0], [0, 255, 0], [0, 0, 255], [255, 255, 255]
+    Image.fromarray(img).save(tmp_path / "t.png")
+    p = scene_file(tmp_path, """
+        <bsdf type="diffuse" id="tex"><texture name="reflectance" type="bitmap">
+            <string name="filename" value="t.png"/><string name="filter_type" value="nearest"/></texture></bsdf>
+        <shape type="obj" id="smooth"><string name="filename" value="tri.obj"/><ref id="tex"/>
+            <transform name="to_world"><scale x="2"/></transform></shape>
+        <shape type="obj" id="flat"><string name="filename" value="tri.obj"/>
+            <boolean name="face_normals" value="true"/><boolean name="flip_normals" value="true"/></shape>
+    """, {"tri.obj": TRI})
+    s = load_mitsuba(p)
+    smooth, flat = s.meshes
+    np.testing.assert_allclose(smooth.vertices[1], [2, 0, 0])
+    np.testing.assert_allclose(smooth.normals, [[0, 0, 1]] * 3)  # recomputed after to_world
+    assert flat.normals is None
+    assert flat.faces.tolist() == [[2, 1, 0]]  # flip_normals reverses the winding
+    # Mitsuba: v_mitsuba = 1 - vt, bitmap row = v_mitsuba * H. The stored uv keeps vt; the chain
+    # must hit the same texel: vt v = 0.9 -> v_mitsuba 0.1 -> row 0 (red); vt v = 0.25 -> row 3 (white).
+    tex = s.materials[smooth.material].diffuse
+    np.testing.assert_allclose(smooth.uvs, [[0, 0.25], [1, 0.25], [0, 0.9]], atol=1e-7)
+    np.testing.assert_allclose(tex.eval(smooth.uvs[[2]]), [[1, 0, 0]])
+    np.testing.assert_allclose(tex.eval(smooth.uvs[[0]]), [[1, 1, 1]])
+    assert s.materials[flat.material].kind == DIFFUSE  # no BSDF: Mitsuba's default diffuse 0.5
+
+
+def test_rectangle_uv_normals_and_to_uv_match_mitsuba(tmp_path):
+    from PIL import Image
+
+    img = np.zeros((4, 2, 3), np.uint8)
+    img[0], img[1], img[2], img[3] = [255, 0, 0], [0, 255, 0], [0, 0, 255], [255, 255, 255]
+    Image.fromarray(img).save(tmp_path / "t.png")
+    p = scene_file(tmp_path, """
+        <shape type="rectangle">
+            <transform name="to_world"><scale x="-1" y="2"/></transform>
+            <bsdf type="diffuse"><texture name="reflectance" type="bitmap">
+                <string name="filename" value="t.png"/><string name="filter_type" value="nearest"/>
+                <boolean name="raw" value="true"/>
+                <transform name="to_uv"><scale y="2"/></transform></texture></bsdf>
+        </shape>
+    """)
+    s = load_mitsuba(p)
+    m = s.meshes[0]
+    # Mitsuba 3.9.1: rectangle mesh vertices (-1,-1),(1,-1),(-1,1),(1,1), faces (1,2,0),(1,3,2),
+    # vertex normals = inverse-transpose of +z (stays +z under this mirror)
+    assert m.faces.tolist() == [[1, 2, 0], [1, 3, 2]]
+    np.testing.assert_allclose(m.normals, [[0, 0, 1]] * 4)
+    # Mitsuba's si.uv = ((x+1)/2, (y+1)/2) in local coordinates; stored as (u, 1 - v)
+    np.testing.assert_allclose(m.uvs, [[0, 1], [1, 1], [0, 0], [1, 0]])
+    # Mitsuba 3.9.1 with to_uv scale(1,2): v_mitsuba 0.1 -> red, 0.3 -> blue, 0.6 -> red, 0.9 -> white
+    tex = s.materials[0].diffuse
+    v_m = np.array([0.1, 0.3, 0.6, 0.9])
+    got = tex.eval(np.stack([np.full(4, 0.25), 1 - v_m], axis=1))
+    np.testing.assert_allclose(got, [[1, 0, 0], [0, 0, 1], [1, 0, 0], [1, 1, 1]])
+
+
+def test_analytic_shapes(tmp_path):
+    p = scene_file(tmp_path, """
+        <shape type="cube"/>
+        <shape type="sphere"><point name="center" x="1" y="2" z="3"/><float name="radius" value="0.5"/></shape>
+        <shape type="disk"><transform name="to_world"><translate z="4"/></transform></shape>
+    """)
+    cube, sphere, disk = load_mitsuba(p).meshes
+    assert len(cube.faces) == 12 and len(cube.vertices) == 24
+    np.testing.assert_allclose(np.abs(cube.vertices), 1.0)
+    d = sphere.vertices - [1, 2, 3]
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 0.5)
+    np.testing.assert_allclose(sphere.normals, d / 0.5, atol=1e-12)
+    assert len(sphere.faces) >= 128 * 64
+    # outward winding: geometric normals agree with the shading normals
+    f = sphere.faces
+    g = np.cross(sphere.vertices[f[:, 1]] - sphere.vertices[f[:, 0]], sphere.vertices[f[:, 2]] - sphere.vertices[f[:, 0]])
+    assert np.all(np.einsum("ij,ij->i", g, sphere.normals[f[:, 0]]) > 0)
+    # Mitsuba's sphere uv = (phi/2pi, theta/pi), stored as (u, 1 - v): the north pole has v = 1
+    top = np.argmax(sphere.vertices[:, 2])
+    assert sphere.uvs[top, 1] == pytest.approx(1.0)
+    np.testing.assert_allclose(disk.vertices[:, 2], 4)
+    np.testing.assert_allclose(disk.normals, [[0, 0, 1]] * len(disk.vertices))
+    assert np.linalg.norm(disk.vertices[:, :2] - 0, axis=1).max() == pytest.approx(1.0)
+
+
+def test_ply_shapes_ascii_and_binary(tmp_path):
+    ascii_ply = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                 "property float u\nproperty float v\nelement face 1\nproperty list uchar int vertex_indices\n"
+                 "end_header\n0 0 0 0 0.1\n1 0 0 1 0.2\n0 1 0 0 0.9\n3 0 1 2\n")
+    verts = [(0, 0, 0, 0, 0, 1), (1, 0, 0, 0, 0, 1), (1, 1, 0, 0, 0, 1), (0, 1, 0, 0, 0, 1)]
+    binary_ply = (b"ply\nformat binary_little_endian 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+                  b"property float z\nproperty float nx\nproperty float ny\nproperty float nz\nelement face 1\n"
+                  b"property list uchar int vertex_indices\nend_header\n"
+                  + b"".join(struct.pack("<6f", *v) for v in verts) + struct.pack("<B4i", 4, 0, 1, 2, 3))
+    p = scene_file(tmp_path, """
+        <shape type="ply"><string name="filename" value="a.ply"/></shape>
+        <shape type="ply"><string name="filename" value="b.ply"/></shape>
+    """, {"a.ply": ascii_ply, "b.ply": binary_ply})
+    a, b = load_mitsuba(p).meshes
+    # Mitsuba 3.9.1's ply shape keeps the file's v (no flip), so the stored uv is (u, 1 - v)
+    np.testing.assert_allclose(a.uvs, [[0, 0.9], [1, 0.8], [0, 0.1]], atol=1e-7)
+    np.testing.assert_allclose(a.normals, [[0, 0, 1]] * 3)  # recomputed
+    assert b.faces.tolist() == [[0, 1, 2], [0, 2, 3]]
+    np.testing.assert_allclose(b.normals, [[0, 0, 1]] * 4)
+
+
+def test_bsdfs_and_mitsuba_defaults(tmp_path):
+    p = scene_file(tmp_path, """
+        <bsdf type="diffuse" id="d"/>
+        <bsdf type="conductor" id="c"/>
+        <bsdf type="conductor" id="au"><string name="material" value="Au"/></bsdf>
+        <bsdf type="roughconductor" id="rc"><rgb name="eta" value="2 2 2"/></bsdf>
+        <bsdf type="dielectric" id="g"/>
+        <bsdf type="dielectric" id="w"><string name="int_ior" value="water"/><string name="ext_ior" value="air"/></bsdf>
+        <bsdf type="thindielectric" id="t"><float name="int_ior" value="1.33"/></bsdf>
+        <bsdf type="plastic" id="p"><spectrum name="diffuse_reflectance" value="0.3"/></bsdf>
+        <bsdf type="roughplastic" id="rp"><boolean name="nonlinear" value="true"/></bsdf>
+        <bsdf type="twosided" id="two"><bsdf type="diffuse"><rgb name="reflectance" value="0.1, 0.2, 0.3"/></bsdf></bsdf>
+    """ + "".join(f'<shape type="cube"><ref id="{i}"/></shape>' for i in
+                  ["d", "c", "au", "rc", "g", "w", "t", "p", "rp", "two", "d"]))
+    s = load_mitsuba(p)
+    m = {x.name: x for x in s.materials}
+    assert len(s.materials) == 10  # a referenced BSDF is one material, however often it is used
+    assert s.meshes[0].material == s.meshes[-1].material
+    assert m["d"].kind == DIFFUSE and np.allclose(m["d"].diffuse.rgb, 0.5)
+    assert m["c"].kind == CONDUCTOR and not m["c"].eta.any() and not m["c"].k.any()  # perfect mirror
+    np.testing.assert_allclose(m["au"].eta, [0.143036, 0.375307, 1.442045])
+    assert m["rc"].kind == ROUGHCONDUCTOR and m["rc"].alpha == 0.1 and m["rc"].distribution == "beckmann"
+    np.testing.assert_allclose(m["rc"].k, 1.0)  # Mitsuba: k defaults to 1 when eta is given
+    assert m["g"].kind == DIELECTRIC and (m["g"].int_ior, m["g"].ext_ior) == (1.5046, 1.000277)
+    assert (m["w"].int_ior, m["w"].ext_ior) == (1.3330, 1.000277)
+    assert m["t"].kind == THINDIELECTRIC and m["t"].int_ior == 1.33
+    assert m["p"].kind == PLASTIC and np.allclose(m["p"].diffuse.rgb, 0.3) and m["p"].int_ior == 1.49
+    assert m["rp"].kind == ROUGHPLASTIC and m["rp"].nonlinear and m["rp"].alpha == 0.1
+    assert m["rp"].distribution == "beckmann"
+    assert m["two"].twosided and np.allclose(m["two"].diffuse.rgb, [0.1, 0.2, 0.3])
+
+
+def test_emitters_sensor_and_integrator(tmp_path):
+    p = scene_file(tmp_path, """
+        <integrator type="path"><integer name="max_depth" value="5"/></integrator>
+        <sensor type="perspective">
+            <float name="fov" value="45"/><string name="fov_axis" value="y"/><float name="near_clip" value="0.5"/>
+            <transform name="to_world"><lookat origin="0,0,5" target="0,0,0" up="0,1,0"/></transform>
+            <film type="hdrfilm"><integer name="width" value="320"/><integer name="height" value="200"/></film>
+        </sensor>
+        <emitter type="point"><point name="position" value="1 2 3"/><rgb name="intensity" value="4"/></emitter>
+        <emitter type="spot">
+            <transform name="to_world"><lookat origin="0,5,0" target="0,0,0" up="0,0,1"/></transform>
+            <float name="cutoff_angle" value="40"/></emitter>
+        <emitter type="directional"><vector name="direction" x="0" y="-2" z="0"/></emitter>
+        <emitter type="constant"><rgb name="radiance" value="0.1 0.2 0.3"/></emitter>
+        <shape type="rectangle"><emitter type="area"><rgb name="radiance" value="5, 6, 7"/></emitter></shape>
+    """)
+    s = load_mitsuba(p)
+    assert s.max_depth == 5
+    c = s.camera
+    assert (c.width, c.height, c.fov, c.fov_axis, c.near_clip) == (320, 200, 45, "y", 0.5)
+    point, spot, directional, const, area = s.emitters
+    assert point.kind == POINT and np.allclose(point.position, [1, 2, 3]) and np.allclose(point.intensity, 4)
+    assert spot.kind == SPOT and np.allclose(spot.position, [0, 5, 0]) and np.allclose(spot.direction, [0, -1, 0])
+    assert spot.cutoff_angle == 40 and spot.beam_width == 30  # Mitsuba: 3/4 of the cutoff
+    assert directional.kind == DIRECTIONAL and np.allclose(directional.direction, [0, -1, 0])
+    assert const.kind == CONSTANT and np.allclose(const.radiance, [0.1, 0.2, 0.3])
+    assert area.kind == AREA and area.mesh == 0 and s.meshes[0].emitter == 4
+
+
+def test_focal_length_and_default_camera(tmp_path):
+    p = scene_file(tmp_path, '<sensor type="perspective"><string name="focal_length" value="35mm"/></sensor>')
+    c = load_mitsuba(p).camera
+    assert c.fov_x == pytest.approx(52.62254, abs=1e-3)  # Mitsuba 3.9.1's x_fov for 35mm at 768x576
+    p = scene_file(tmp_path, '<shape type="cube"/>')
+    s = load_mitsuba(p)
+    assert any("no <sensor>" in w for w in s.warnings)
+    assert (s.camera.width, s.camera.height, s.camera.fov) == (768, 576, 45)
+    assert s.camera.to_world[2, 3] < -1  # in front of the cube, looking along +z
+
+
+def test_defaults_substitution_refs_aliases_and_includes(tmp_path):
+    p = scene_file(tmp_path, """
+        <default name="spp" value="16"/>
+        <default name="refl" value="0.25"/>
+        <default name="w" value="64"/>
+        <include filename="inc.xml"/>
+        <alias id="base" as="other"/>
+        <sensor type="perspective"><film type="hdrfilm"><integer name="width" value="$w"/></film></sensor>
+        <shape type="cube"><ref id="other"/></shape>
+    """, {"inc.xml": '<scene version="3.0.0"><bsdf type="diffuse" id="base">'
+                     '<float name="reflectance" value="$refl"/></bsdf></scene>'})
+    s = load_mitsuba(p)
+    assert s.camera.width == 64
+    np.testing.assert_allclose(s.materials[0].diffuse.rgb, 0.25)
+    s = load_mitsuba(p, defaults={"refl": "0.75", "w": "128"})
+    assert s.camera.width == 128
+    np.testing.assert_allclose(s.materials[0].diffuse.rgb, 0.75)
+
+
+def test_mitsuba_0_6_camel_case_names_are_upgraded(tmp_path):
+    p = scene_file(tmp_path, """
+        <shape type="obj"><string name="filename" value="tri.obj"/><boolean name="faceNormals" value="true"/>
+            <transform name="toWorld"><translate x="1"/></transform>
+            <bsdf type="dielectric"><float name="intIOR" value="1.7"/></bsdf></shape>
+    """, {"tri.obj": TRI}, version="0.6.0")
+    s = load_mitsuba(p)
+    assert s.meshes[0].normals is None and s.meshes[0].vertices[0, 0] == 1
+    assert s.materials[0].int_ior == 1.7
+
+
+# ------------------------------------------------------------------------------ warnings
+
+
+def test_unsupported_elements_warn_with_name_line_and_fallback(tmp_path):
+    p = scene_file(tmp_path, """
+        <shape type="cube">
+            <bsdf type="measured"><string name="filename" value="x.bsdf"/></bsdf>
+        </shape>
+        <shape type="cylinder"/>
+        <emitter type="sunsky"/>
+        <medium type="homogeneous" id="fog"/>
+        <shape type="cube"><bsdf type="roughplastic"><float name="alpha_q" value="0.3"/></bsdf></shape>
+    """)
+    s = load_mitsuba(p)
+    w = "\n".join(s.warnings)
+    assert f"unsupported bsdf 'measured' at {p}:{line_of(p, 'measured')}, using diffuse 0.5" in w
+    assert f"unsupported shape 'cylinder' at {p}:{line_of(p, 'cylinder')}, skipped" in w
+    assert f"unsupported emitter 'sunsky' at {p}:{line_of(p, 'sunsky')}" in w
+    assert "homogeneous" in w and f"{p}:{line_of(p, 'medium')}" in w
+    assert "unsupported parameter 'alpha_q'" in w
+    assert len(s.meshes) == 2 and s.materials[0].kind == DIFFUSE
+
+
+def test_degenerate_triangles_are_removed_with_a_count(tmp_path):
+    p = scene_file(tmp_path, '<shape type="obj" id="m"><string name="filename" value="d.obj"/></shape>',
+                   {"d.obj": "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 2 0 0\nf 1 2 3\nf 1 2 4\nf 1 1 3\n"})
+    s = load_mitsuba(p)
+    assert s.triangle_count == 1
+    assert any("m: removed 2 degenerate" in w for w in s.warnings)
+
+
+# ------------------------------------------------------------------------------ errors
+
+
+def assert_error(p, line, text):
+    with pytest.raises(SceneError) as e:
+        load_scene(p)
+    msg = str(e.value)
+    assert f"scene.xml:{line}:" in msg, msg
+    assert text in msg, msg
+    return msg
+
+
+def test_truncated_tag_names_file_and_line(tmp_path):
+    p = tmp_path / "scene.xml"
+    p.write_text('<scene version="3.0.0">\n  <shape type="cube">\n  </shap>\n</scene>\n')
+    assert_error(p, 3, "mismatched tag")
+    p.write_text('<scene version="3.0.0">\n  <shape type="cube"\n')
+    with pytest.raises(SceneError, match=r"scene\.xml:\d+: "):
+        load_scene(p)
+
+
+def test_bad_number_names_element_value_and_line(tmp_path):
+    p = scene_file(tmp_path, '<sensor type="perspective">\n<float name="fov" value="abc"/>\n</sensor>')
+    assert_error(p, line_of(p, "abc"), "<float name='fov'> value 'abc' is not a number")
+    p = scene_file(tmp_path, '<shape type="cube">\n<rgb name="x" value="1, two, 3"/></shape>')
+    assert_error(p, line_of(p, "two"), "not a list of numbers")
+    p = scene_file(tmp_path, '<shape type="cube"><transform name="to_world">\n<matrix value="1 2"/></transform></shape>')
+    assert_error(p, line_of(p, "matrix"), "16 values")
+
+
+def test_unknown_ref_names_id_and_line(tmp_path):
+    p = scene_file(tmp_path, '<shape type="cube">\n<ref id="nothing"/>\n</shape>')
+    assert_error(p, line_of(p, "nothing"), "<ref id='nothing'>: no object with this id")
+
+
+def test_missing_mesh_file_names_file_and_reference(tmp_path):
+    p = scene_file(tmp_path, '<shape type="obj">\n<string name="filename" value="meshes/foo.obj"/>\n</shape>')
+    with pytest.raises(SceneError) as e:
+        load_scene(p)
+    assert str(e.value) == f"meshes/foo.obj: file not found (referenced at {p}:{line_of(p, '<shape')})"
+
+
+def test_malformed_mesh_in_scene_names_mesh_file_and_line(tmp_path):
+    p = scene_file(tmp_path, '<shape type="obj"><string name="filename" value="meshes/bar.obj"/></shape>',
+                   {"meshes/bar.obj": "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99\n"})
+    with pytest.raises(SceneError, match=r"^meshes/bar\.obj:4: face index 99 out of range"):
+        load_scene(p)
+
+
+def test_billion_laughs_is_refused(tmp_path):
+    p = tmp_path / "scene.xml"
+    ents = "\n".join(f'  <!ENTITY lol{i} "{("&lol%d;" % (i - 1)) * 10}">' for i in range(1, 10))
+    p.write_text(f'<?xml version="1.0"?>\n<!DOCTYPE scene [\n  <!ENTITY lol0 "lol">\n{ents}\n]>\n'
+                 '<scene version="3.0.0"><string name="x" value="&lol9;"/></scene>\n')
+    msg = assert_error(p, 3, "entity")
+    assert "lol0" in msg
+
+
+def test_external_entity_is_refused(tmp_path):
+    secret = tmp_path / "secret.txt"
+    secret.write_text("top secret")
+    p = tmp_path / "scene.xml"
+    p.write_text(f'<?xml version="1.0"?>\n<!DOCTYPE scene [\n<!ENTITY xxe SYSTEM "file://{secret}">\n]>\n'
+                 '<scene version="3.0.0"><shape type="cube" id="&xxe;"/></scene>\n')
+    msg = assert_error(p, 3, "entity")
+    assert "top secret" not in msg
+
+
+@pytest.mark.parametrize("body, text", [
+    ('<shape type="cube"><boolean name="flip_normals" value="maybe"/></shape>', "is not 'true' or 'false'"),
+    ('<sensor type="perspective"><film type="hdrfilm"><integer name="width" value="6.5"/></film></sensor>',
+     "is not an integer"),
+    ('<bsdf type="dielectric" id="x"><string name="int_ior" value="unobtainium"/></bsdf><shape type="cube"><ref id="x"/></shape>',
+     "unknown index of refraction"),
+    ('<shape type="cube"><bsdf type="conductor"><string name="material" value="Xx"/></bsdf></shape>',
+     "unknown conductor material"),
+    ('<shape type="cube" id="a"/><shape type="cube" id="a"/>', "duplicate id 'a'"),
+    ('<sensor type="perspective"><integer name="width" value="$nope"/></sensor>', "undefined parameter '$nope'"),
+    ('<shape type="cube"><float value="1"/></shape>', "needs a 'name' attribute"),
+])
+def test_bad_values_raise_scene_error_with_line(tmp_path, body, text):
+    p = scene_file(tmp_path, body)
+    with pytest.raises(SceneError, match=r"scene\.xml:\d+: ") as e:
+        load_scene(p)
+    assert text in str(e.value)
+
+
+def test_wrong_root_and_missing_file(tmp_path):
+    p = tmp_path / "scene.xml"
+    p.write_text("<notascene/>\n")
+    assert_error(p, 1, "root element must be <scene>")
+    with pytest.raises(SceneError, match="not found"):
+        load_scene(tmp_path / "missing.xml")

@@ -1,0 +1,140 @@
+"""The render plan: each rule fires on a scene that needs it and not on one that doesn't."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from common.camera import look_at
+from common.frame import FrameSpec, Tile
+from common.geometry import Geometry
+from common.lights import LightSampler
+from common.loader import load_scene
+from common.params import make_params, params_to_dict
+from common.render_plan import analyze, frame_plan
+from common.scene import AREA, DIFFUSE, Camera, Emitter, Material, Mesh, Scene, Texture
+from tests.support.paths import SHARED
+from tests.support.scenes_synthetic import box_faces, quad
+from worker.renderer import Renderer
+
+_CACHE: dict = {}
+
+
+def plan_of(name: str):
+    if name not in _CACHE:
+        scene = load_scene(SHARED / "scenes" / name / "scene.xml")
+        geom = Geometry(scene)
+        _CACHE[name] = analyze(scene, geom, LightSampler(scene, geom))
+    return _CACHE[name]
+
+
+def tiny_light_room() -> Scene:
+    mats = [Material("white", DIFFUSE, diffuse=Texture.constant(0.7)), Material("lamp", DIFFUSE)]
+    meshes = [Mesh(f"wall{i}", v, f, 0) for i, (v, f) in enumerate(box_faces(4.0))]
+    v, f = quad([1.99, 3.9, 1.99], [0.02, 0, 0], [0, 0, 0.02])
+    if np.cross(v[1] - v[0], v[2] - v[0])[1] > 0:
+        f = f[:, ::-1].copy()  # face down
+    meshes.append(Mesh("bulb", v, f, 1, emitter=0))
+    cam = Camera(look_at([2, 2, 3.9], [2, 2, 0], [0, 1, 0]), fov=60, width=16, height=16)
+    return Scene(meshes, mats, [Emitter(AREA, radiance=np.full(3, 1000.0), mesh=6)], cam)
+
+
+def test_caustics_only_where_emitters_reach_mirror_or_glass():
+    assert plan_of("cornell-box-sphere").caustics
+    assert not plan_of("cornell-box").caustics  # no specular surface at all
+    # Glass and mirrors, but lit only by the sky (a distant light): no local caustic source.
+    gw = plan_of("grey-white-room")
+    assert gw.specular_chains and not gw.caustics
+
+
+def test_specular_chains_only_with_mirror_or_glass():
+    assert plan_of("cornell-box-sphere").specular_chains
+    assert not plan_of("cornell-box").specular_chains
+
+
+def test_glossy_vpl_evaluation_only_with_glossy_surfaces():
+    assert plan_of("cornell-box-glossy").glossy_vpl_eval
+    assert not plan_of("cornell-box").glossy_vpl_eval
+
+
+def test_textures_only_with_bitmaps():
+    assert plan_of("veach-ajar").textures
+    assert not plan_of("cornell-box").textures
+
+
+def test_single_small_emitter_is_treated_as_a_point():
+    scene = tiny_light_room()
+    geom = Geometry(scene)
+    assert analyze(scene, geom, LightSampler(scene, geom)).point_light
+    assert not plan_of("cornell-box").point_light
+
+
+def test_many_emitters_are_subsampled():
+    assert plan_of("modern-hall").light_subsampling
+    assert not plan_of("cornell-box").light_subsampling
+
+
+def test_plan_is_printed_with_reasons():
+    lines = plan_of("cornell-box").lines()
+    assert len(lines) == 6 and all(len(line.split()) >= 3 for line in lines)
+
+
+def test_frame_plan_rules():
+    assert not frame_plan(False, False, True).rebuild_sets  # camera only: reuse sets
+    assert not frame_plan(False, False, True).accumulate
+    assert frame_plan(True, False, False).rebuild_sets  # scene edit
+    assert frame_plan(False, True, False).rebuild_sets  # parameters
+    static = frame_plan(False, False, False)
+    assert static.accumulate and static.rebuild_sets  # nothing moved: next seed, accumulate
+    assert not frame_plan(False, False, False, accumulate_enabled=False).accumulate
+    follow = frame_plan(False, False, True, view_dependent_sets=True)
+    assert follow.rebuild_sets and not follow.accumulate and "importance" in follow.reason
+
+
+def test_camera_only_motion_costs_no_preprocessing():
+    scene = load_scene(SHARED / "scenes" / "cornell-box-sphere" / "scene.xml")
+    r = Renderer(scene)
+    p = params_to_dict(make_params(accumulate=False, vpl_importance=0))
+    cam = scene.camera
+
+    def frame(to_world):
+        spec = FrameSpec(0, 0, tuple(np.asarray(to_world).ravel()), cam.fov_x, 48, 36, p)
+        for k in range(9):
+            r.render_tile(spec, Tile(k, 0, 0, 16, 12))
+
+    frame(cam.to_world)
+    built = r.stats["sets_built"]
+    moved = cam.to_world.copy()
+    moved[:3, 3] += [0.1, 0.05, 0.0]
+    frame(moved)
+    assert r.stats["sets_built"] == built  # the same VPL sets, from the cache
+    assert r.stats["set_hits"] >= 9
+
+
+def test_camera_move_rebuilds_importance_sampled_sets_only():
+    scene = load_scene(SHARED / "scenes" / "cornell-box-sphere" / "scene.xml")
+    r = Renderer(scene)
+    p = params_to_dict(make_params(accumulate=False, vpl_importance=1))
+    cam = scene.camera
+
+    def frame(to_world):
+        spec = FrameSpec(0, 0, tuple(np.asarray(to_world).ravel()), cam.fov_x, 48, 36, p)
+        for k in range(9):
+            r.render_tile(spec, Tile(k, 0, 0, 16, 12))
+        return r.stats["sets_built"]
+
+    built = frame(cam.to_world)
+    assert frame(cam.to_world) == built  # same view: cached
+    moved = cam.to_world.copy()
+    moved[:3, 3] += [0.1, 0.05, 0.0]
+    assert frame(moved) == built + 9  # the VPLs follow the view
+
+
+def test_plan_off_renders_the_same_image():
+    # Forcing every pass on (no plan) must not change the result on a Lambertian scene:
+    # the skipped passes contribute nothing there.
+    scene = load_scene(SHARED / "scenes" / "cornell-box" / "scene.xml")
+    from master.inprocess import render_local
+
+    a = render_local(scene, {}, 1, width=32, height=32, renderer=Renderer(scene))
+    b = render_local(scene, {}, 1, width=32, height=32, renderer=Renderer(scene, use_plan=False))
+    np.testing.assert_allclose(a, b, rtol=2e-3, atol=1e-5)

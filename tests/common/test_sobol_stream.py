@@ -1,0 +1,139 @@
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from common.sobol_stream import SobolStream, rng
+
+from tests.support.paths import ROOT as REPO
+
+
+_CHILD = """
+import sys
+from common.sobol_stream import SobolStream, rng
+s = SobolStream(int(sys.argv[1]), dims=12)
+sys.stdout.buffer.write(s.block(3, 100, 128).tobytes())
+sys.stdout.buffer.write(s.padded(2, 64, 64, 11).tobytes())
+sys.stdout.buffer.write(rng(int(sys.argv[1]), "photons", 5).random(8).tobytes())
+"""
+
+
+def _child_bytes(seed: int) -> bytes:
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+               PYTHONHASHSEED=str(seed + 17))  # a different hash seed must not matter
+    out = subprocess.run([sys.executable, "-c", _CHILD, str(seed)], cwd=REPO, env=env,
+                         capture_output=True, check=True)
+    return out.stdout
+
+
+def test_same_seed_is_bitwise_identical_in_separate_processes():
+    a, b = _child_bytes(1234), _child_bytes(1234)
+    assert len(a) == (100 * 12 + 64 * 11 + 8) * 8
+    assert a == b
+    s = SobolStream(1234, dims=12)
+    here = (s.block(3, 100, 128).tobytes() + s.padded(2, 64, 64, 11).tobytes()
+            + rng(1234, "photons", 5).random(8).tobytes())
+    assert here == a
+
+
+def test_block_k_equals_rows_of_one_long_draw():
+    s = SobolStream(7, dims=5)
+    long = SobolStream(7, dims=5).points(0, 10 * 64)
+    for k in (0, 1, 4, 9):
+        for count in (1, 17, 64):
+            np.testing.assert_array_equal(s.block(k, count, 64), long[k * 64:k * 64 + count])
+
+
+def test_blocks_in_any_call_order_are_the_same():
+    s = SobolStream(3)
+    first = [s.block(k, 32, 32) for k in range(4)]
+    again = [s.block(k, 32, 32) for k in (3, 1, 0, 2)]
+    for k, a in zip((3, 1, 0, 2), again):
+        np.testing.assert_array_equal(a, first[k])
+
+
+def test_different_seeds_give_different_points():
+    a = SobolStream(1).block(0, 64, 64)
+    b = SobolStream(2).block(0, 64, 64)
+    assert not np.any(a == b)
+    pa = SobolStream(1).padded(0, 64, 64, 12)
+    pb = SobolStream(2).padded(0, 64, 64, 12)
+    assert not np.array_equal(pa, pb)
+
+
+def test_points_lie_in_half_open_unit_cube():
+    s = SobolStream(99, dims=32)
+    p = s.block(5, 4096, 4096)
+    assert p.shape == (4096, 32) and p.dtype == np.float64
+    assert p.min() >= 0.0 and p.max() < 1.0
+    q = s.padded(5, 1000, 4096, 37)
+    assert q.shape == (1000, 37)
+    assert q.min() >= 0.0 and q.max() < 1.0
+
+
+@pytest.mark.parametrize("m", [4, 7])
+def test_block_one_dimensional_projections_are_stratified(m):
+    B = 2 ** m
+    s = SobolStream(11, dims=8)
+    for k in (0, 3):
+        cells = np.floor(s.block(k, B, B) * B).astype(int)
+        for j in range(8):
+            assert np.array_equal(np.sort(cells[:, j]), np.arange(B))
+
+
+@pytest.mark.parametrize("m", [3, 6])
+def test_padded_blocks_have_every_group_projection_stratified(m):
+    B = 2 ** m
+    total = 4 * 5 + 2  # a short last group too
+    s = SobolStream(21)
+    for k in (0, 1, 5):
+        p = s.padded(k, B, B, total)
+        cells = np.floor(p * B).astype(int)
+        for j in range(total):
+            assert np.array_equal(np.sort(cells[:, j]), np.arange(B)), (k, j)
+        # 2-D projections inside a group are (0, m, 2)-nets of Sobol': every 2^a x 2^(m-a)
+        # elementary box holds exactly one point (checked for the square-ish split).
+        a = m // 2
+        for g0 in range(0, total - 1, 4):
+            bx = np.floor(p[:, g0] * 2 ** a).astype(int)
+            by = np.floor(p[:, g0 + 1] * 2 ** (m - a)).astype(int)
+            assert len(set(zip(bx.tolist(), by.tolist()))) == B
+
+
+def test_padded_groups_are_independent_instances_paired_at_random():
+    s = SobolStream(5)
+    p = s.padded(0, 256, 256, 8)
+    # Same Sobol' generator matrices in every group: without scrambling + shuffling the
+    # groups would be copies of each other. Their correlation must look like chance.
+    for j in range(4):
+        r = np.corrcoef(p[:, j], p[:, 4 + j])[0, 1]
+        assert abs(r) < 0.25
+        assert not np.allclose(np.sort(p[:, j]), np.sort(p[:, 4 + j]))
+
+
+def test_padded_first_group_is_a_plain_prefix_and_blocks_differ():
+    s = SobolStream(8)
+    p0 = s.padded(0, 64, 64, 8)
+    p1 = s.padded(1, 64, 64, 8)
+    assert not np.any(p0[:, 0] == p1[:, 0])
+    # The first group keeps sequence order: a prefix of a block is a prefix of the group.
+    np.testing.assert_array_equal(s.padded(1, 16, 64, 4), p1[:16, :4])
+
+
+def test_rng_is_deterministic_and_keys_are_independent():
+    a = rng(5, "vpl", 3).random(16)
+    np.testing.assert_array_equal(a, rng(5, "vpl", 3).random(16))
+    for other in (rng(5, "vpl", 4), rng(5, "photons", 3), rng(6, "vpl", 3), rng(5, 3, "vpl")):
+        assert not np.array_equal(a, other.random(16))
+
+
+def test_invalid_block_arguments_raise():
+    s = SobolStream(0)
+    with pytest.raises(ValueError):
+        s.block(0, 65, 64)
+    with pytest.raises(ValueError):
+        s.block(-1, 4, 64)
+    with pytest.raises(ValueError):
+        rng(1, -3)

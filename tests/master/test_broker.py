@@ -1,0 +1,207 @@
+"""The broker against hand-driven fake workers (real ZeroMQ sockets on loopback, no renderer):
+credit limits, stale/duplicate results, re-queue to the front, expiry, scene caching, edits,
+version refusal and garbage."""
+from __future__ import annotations
+
+import os
+import socket
+import time
+
+import msgpack
+import numpy as np
+import pytest
+import zmq
+
+from bench.stress_scenes import mini_cornell
+from tests.support.cluster_helpers import FakeWorker, wait_until
+from common import protocol as P
+from master.broker import Broker, FrameCancelled
+
+W, H = 24, 18  # 9 tasks of one sub-image tile each
+
+
+@pytest.fixture
+def broker():
+    b = Broker(mini_cornell(W, H), bind="tcp://127.0.0.1:*", heartbeat=1.0).start()
+    yield b
+    b.stop()
+
+
+def hello_ok(fw: FakeWorker, expect_blob=True):
+    assert fw.recv_kind(P.WELCOME) is not None
+    scene = fw.recv_kind(P.SCENE)
+    assert scene is not None
+    assert (scene.body["blob"] is not None) == expect_blob
+    return scene
+
+
+def test_credit_stale_and_duplicate_results(broker):
+    a = FakeWorker(broker.endpoint, "a", credit=2)
+    hello_ok(a)
+    fut = broker.submit_frame(broker.frame_spec(0, {}))
+    got = a.tasks(2)
+    assert len(got) == 2
+    assert a.tasks(1, timeout=0.5) == [], "no more than the credit in flight"
+    a.result(got[0], epoch=got[0]["epoch"] + 1000)  # wrong epoch: stale
+    assert wait_until(lambda: broker.stats()["results_stale"] == 1, 5)
+    assert a.tasks(1, timeout=0.3) == [], "a stale result returns no credit"
+    a.result(got[0])
+    more = a.tasks(1)
+    assert len(more) == 1, "an accepted result returns one slot"
+    a.result(got[0])  # duplicate
+    assert wait_until(lambda: broker.stats()["results_stale"] == 2, 5)
+    pending = [got[1]] + more
+    while pending:
+        t = pending.pop()
+        a.result(t)
+        pending += a.tasks(1, timeout=0.5)
+    res = fut.result(10)
+    assert res.tasks == 9
+    assert np.allclose(res.buffers["irradiance"], 1.0)
+    assert np.allclose(res.image(), 1.0)
+    a.close()
+
+
+def test_bye_puts_tasks_back_at_the_front(broker):
+    a = FakeWorker(broker.endpoint, "a", credit=2)
+    hello_ok(a)
+    fut = broker.submit_frame(broker.frame_spec(0, {}))
+    ta = a.tasks(2)
+    b = FakeWorker(broker.endpoint, "b", credit=1)
+    hello_ok(b)
+    tb = b.tasks(1)
+    assert [t["task"] for t in ta] == [0, 1] and [t["task"] for t in tb] == [2]
+    a.send(P.BYE, {"reason": "test"})
+    assert wait_until(lambda: broker.stats()["tasks_requeued"] == 2, 5)
+    order = []
+    t = tb[0]
+    while True:
+        b.result(t)
+        nxt = b.tasks(1, timeout=1.0)
+        if not nxt:
+            break
+        t = nxt[0]
+        order.append(t["task"])
+    assert order[:2] == [0, 1], f"re-queued tasks first, got {order}"
+    assert fut.result(10).tasks == 9
+    a.close()
+    b.close()
+
+
+def test_silent_worker_expires_and_its_tasks_move():
+    with Broker(mini_cornell(W, H), bind="tcp://127.0.0.1:*", heartbeat=0.2, liveness=3) as broker:
+        a = FakeWorker(broker.endpoint, "silent", credit=3)
+        hello_ok(a)
+        fut = broker.submit_frame(broker.frame_spec(0, {}))
+        lost = a.tasks(3)
+        assert len(lost) == 3
+        b = FakeWorker(broker.endpoint, "b", credit=2)
+        hello_ok(b)
+        done = 0
+        deadline = time.monotonic() + 15
+        while not fut.done() and time.monotonic() < deadline:
+            for t in b.tasks(1, timeout=0.15):
+                b.result(t)
+                done += 1
+            b.send(P.HEARTBEAT, {})
+        res = fut.result(1)
+        assert done == 9 and res.tasks == 9
+        s = broker.stats()
+        assert s["workers"] == 1 and s["tasks_requeued"] >= 3
+        a.result(lost[0])  # the expired worker comes back with an old result
+        assert a.recv_kind(P.ERROR, timeout=3).body["code"] == "unregistered"
+        a.close()
+        b.close()
+
+
+def test_scene_blob_sent_once_and_edits_broadcast(broker):
+    a = FakeWorker(broker.endpoint, "a")
+    first = hello_ok(a, expect_blob=True)
+    h = first.body["hash"]
+    assert h == broker.scene_hash and first.body["edits"] == []
+    b = FakeWorker(broker.endpoint, "b", scenes=[h])
+    hello_ok(b, expect_blob=False)  # cached: the master does not resend the blob
+    v = broker.apply_edit({"op": "set_emitter", "emitter": 0, "param": "radiance", "value": [1, 2, 3]})
+    assert v == 1 == broker.scene_version
+    for fw in (a, b):
+        e = fw.recv_kind(P.EDIT)
+        assert e.body["version"] == 1 and e.body["hash"] == h
+    assert np.allclose(broker.scene.emitters[0].radiance, [1, 2, 3])
+    c = FakeWorker(broker.endpoint, "late", scenes=[h])
+    late = hello_ok(c, expect_blob=False)
+    assert len(late.body["edits"]) == 1 and late.body["base_version"] == 0, "a late joiner gets the edits"
+    with pytest.raises(ValueError):
+        broker.apply_edit({"op": "set_emitter", "emitter": 5, "param": "radiance", "value": [1, 2, 3]})
+    spec = broker.frame_spec(0, {})
+    assert spec.scene_version == 1
+    for fw in (a, b, c):
+        fw.close()
+
+
+def test_edit_cancels_frames_of_the_old_version(broker):
+    fut = broker.submit_frame(broker.frame_spec(0, {}))  # no worker: stays open
+    broker.apply_edit({"op": "set_material", "material": 0, "param": "diffuse", "value": 0.5})
+    with pytest.raises(FrameCancelled):
+        fut.result(5)
+
+
+def test_other_protocol_version_is_refused_and_master_stays_up(broker):
+    ctx = zmq.Context.instance()
+    peer = ctx.socket(zmq.DEALER)
+    peer.setsockopt(zmq.LINGER, 0)
+    peer.connect(broker.endpoint)
+    hello = {"name": "future", "host": "h", "pid": 1, "threads": 1, "credit": 3, "scenes": []}
+    peer.send(P.encode(P.HELLO, hello, version=P.PROTOCOL_VERSION + 1))
+    assert peer.poll(5000)
+    raw = msgpack.unpackb(peer.recv(), raw=False)
+    assert raw[0] == P.PROTOCOL_VERSION and raw[1] == P.REFUSE
+    body = raw[2]
+    assert body["code"] == "version" and body["theirs"] == P.PROTOCOL_VERSION + 1 and body["ours"] == P.PROTOCOL_VERSION
+    assert f"{P.PROTOCOL_VERSION + 1}" in body["message"] and f"{P.PROTOCOL_VERSION}" in body["message"]
+    peer.close(0)
+    assert broker.stats()["refused"] == 1 and broker.stats()["workers"] == 0
+    _serves_a_frame(broker)
+
+
+def test_garbage_is_dropped_and_master_keeps_serving(broker):
+    ctx = zmq.Context.instance()
+    peer = ctx.socket(zmq.DEALER)
+    peer.setsockopt(zmq.LINGER, 0)
+    peer.connect(broker.endpoint)
+    rng = np.random.default_rng(7)
+    sent = 0
+    for i in range(50):
+        peer.send(rng.integers(0, 256, int(rng.integers(0, 200)), dtype=np.uint8).tobytes())
+        sent += 1
+    peer.send_multipart([b"two", b"frames"])
+    peer.send(msgpack.packb([P.PROTOCOL_VERSION, P.TASK, {"frame": -1}]))  # valid msgpack, bad schema
+    peer.send(msgpack.packb([P.PROTOCOL_VERSION, P.WELCOME, {"worker": "x", "heartbeat": 1.0, "liveness": 3}]))
+    sent += 3
+    # raw TCP garbage: not even ZMTP
+    host, port = broker.endpoint.rsplit("/", 1)[-1].rsplit(":", 1)
+    with socket.create_connection((host, int(port)), timeout=5) as s:
+        s.sendall(os.urandom(4096))
+    assert wait_until(lambda: broker.stats()["messages_dropped"] >= sent, 10)
+    peer.close(0)
+    _serves_a_frame(broker)
+
+
+def _serves_a_frame(broker):
+    fw = FakeWorker(broker.endpoint, "ok", credit=9)
+    hello_ok(fw)
+    fut = broker.submit_frame(broker.frame_spec(0, {}))
+    for t in fw.tasks(9):
+        fw.result(t)
+    assert fut.result(10).tasks == 9
+    fw.close()
+
+
+def test_stop_cancels_open_frames_and_later_submissions():
+    b = Broker(mini_cornell(W, H), bind="tcp://127.0.0.1:*").start()
+    fut = b.submit_frame(b.frame_spec(0, {}))  # no worker: stays open
+    b.stop()
+    with pytest.raises(FrameCancelled):
+        fut.result(5)
+    with pytest.raises(FrameCancelled):
+        b.submit_frame(b.frame_spec(1, {})).result(5)
+    b.stop()  # idempotent

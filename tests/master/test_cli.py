@@ -1,0 +1,138 @@
+"""The igi command line: render to EXR/PNG through master + local workers, clear errors."""
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.support.paths import ROOT, SHARED
+
+CORNELL = SHARED / "scenes" / "cornell-box" / "scene.xml"
+
+
+def igi(*args, cwd=None, timeout=300):
+    """Run the ``igi`` console script (or ``python -m master.cli`` when not installed)."""
+    exe = shutil.which("igi")
+    cmd = [exe] if exe else [sys.executable, "-m", "master.cli"]
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
+    return subprocess.run(cmd + [str(a) for a in args], cwd=cwd or ROOT, env=env, capture_output=True,
+                          text=True, timeout=timeout, stdin=subprocess.DEVNULL)
+
+
+def test_render_exr_and_png(tmp_path):
+    from common.image_io import read_image
+
+    exr, png = tmp_path / "cb.exr", tmp_path / "cb.png"
+    r = igi("render", CORNELL, "-o", exr, "--width", 64, "--height", 64, "--frames", 2, "--workers", 2)
+    assert r.returncode == 0, r.stderr
+    assert "2/2 frames" in r.stderr, "progress on stderr"
+    img = read_image(exr)
+    assert img.shape == (64, 64, 3) and img.dtype == np.float32
+    assert np.isfinite(img).all() and img.mean() > 0
+    r = igi("render", CORNELL, "-o", png, "--width", 64, "--height", 64, "--workers", 1, "--direct-only",
+            "--seed", 3, "--indirect-vpls", 0)
+    assert r.returncode == 0, r.stderr
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    p = read_image(png)
+    assert p.shape == (64, 64, 3) and p.max() > 0
+
+
+def test_in_process_render_matches_the_workers(tmp_path):
+    from common.image_io import read_image
+
+    a, b = tmp_path / "a.exr", tmp_path / "b.exr"
+    common = ["--width", 32, "--height", 24, "--photons", 0, "-q"]
+    assert igi("render", CORNELL, "-o", a, "--workers", 0, *common).returncode == 0
+    assert igi("render", CORNELL, "-o", b, "--workers", 1, *common).returncode == 0
+    assert np.array_equal(read_image(a), read_image(b))
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["render", "no/such/scene.xml", "-o", "out.exr"], "no/such/scene.xml"),
+    (["render", CORNELL, "-o", "out.jpg"], "out.jpg"),
+    (["render", CORNELL, "-o", "out.exr", "--interleave", "99"], "interleave"),
+    (["render", CORNELL, "-o", "out.exr", "--direct-only", "--max-depth", "5"], "direct-only"),
+    (["serve", "missing.xml"], "missing.xml"),
+])
+def test_bad_input_is_one_line_and_exit_2(tmp_path, args, needle):
+    r = igi(*args, cwd=tmp_path)
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr
+    assert str(needle) in r.stderr
+
+
+def test_broken_scene_file_is_exit_2(tmp_path):
+    bad = tmp_path / "bad.xml"
+    bad.write_text("<scene version='3.0.0'><shape type='obj'>")
+    r = igi("render", bad, "-o", tmp_path / "x.exr", cwd=tmp_path)
+    assert r.returncode == 2 and "Traceback" not in r.stderr and "bad.xml" in r.stderr
+
+
+def test_bench_group_lists_scaling():
+    r = igi("bench", "--help")
+    assert r.returncode == 0 and "scaling" in r.stdout
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
+
+
+def test_serve_starts_workers_and_stops_them_all_on_sigterm(tmp_path):
+    import signal
+    import socket
+    import time
+
+    with socket.socket() as s:  # a free loopback port for the master
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    exe = shutil.which("igi")
+    cmd = ([exe] if exe else [sys.executable, "-m", "master.cli"]) + [
+        "serve", str(CORNELL), "--workers", "2", "--bind", f"tcp://127.0.0.1:{port}", "--http", "",
+        "--width", "32", "--height", "24", "--stats-interval", "0.5"]
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
+    p = subprocess.Popen(cmd, cwd=tmp_path, env=env, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True)
+    lines = []
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:  # wait for a stats line showing frames from 2 workers
+            line = p.stderr.readline()
+            if not line:
+                break
+            lines.append(line)
+            if "2 workers" in line and " 0 accumulated" not in line and "accumulated" in line:
+                break
+        kids = _children(p.pid)
+        assert len(kids) == 2, "".join(lines)
+        p.send_signal(signal.SIGTERM)
+        assert p.wait(30) == 0
+        lines.append(p.stderr.read())
+        deadline = time.monotonic() + 10  # serve waits for its workers; this is only a safety margin
+        while time.monotonic() < deadline and any(_alive(k) for k in kids):
+            time.sleep(0.1)
+        assert not any(_alive(k) for k in kids), "the workers stopped with the master"
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
