@@ -401,7 +401,7 @@ class Broker:
     def frame_spec(self, index: int = 0, params=None, camera=None, width: int | None = None,
                    height: int | None = None, frame: int | None = None) -> FrameSpec:
         """FrameSpec of the current scene version: accumulation index ``index``; camera and
-        resolution from the scene unless given (see ``master.local.resolve_camera``)."""
+        resolution from the scene unless given (see ``common.camera.resolve_camera``)."""
         from common.camera import resolve_camera
 
         scene = self.scene
@@ -435,7 +435,7 @@ class Broker:
                         height: int | None = None,
                         on_frame: Callable[[int, np.ndarray], object] | None = None,
                         timeout: float | None = None) -> np.ndarray:
-        """Same contract as ``master.local.render_local`` (same specs, tiles, filter and
+        """Same contract as ``master.inprocess.render_local`` (same specs, tiles, filter and
         accumulation), rendered by the workers with ``pipeline`` frames in flight."""
         pdict = _params_dict(params)
         frames = max(1, int(frames))

@@ -144,7 +144,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     params = params_from(args)
     scene = load_scene_file(args.scene)
     if args.plan:
-        from master.local import resolve_camera
+        from common.camera import resolve_camera
         from worker.renderer import Renderer
         from worker.vpl_importance import View
 

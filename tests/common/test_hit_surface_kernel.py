@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from oracle_hit_surface import surface_numpy
-from stress_scenes import load_shared
+from tests.support.oracle_hit_surface import surface_numpy
+from bench.stress_scenes import load_shared
 from common.geometry import Geometry
 
 

@@ -9,7 +9,7 @@ import pytest
 from common.camera import camera_rays
 from common.params import make_params
 from common.sobol_stream import rng
-from scenes_synthetic import furnace_box, two_rooms
+from tests.support.scenes_synthetic import furnace_box, two_rooms
 from worker.renderer import Renderer, clamp_distance2
 from worker.shading import gather_vpls, trace_eye
 from worker.vpl import build_vpl_set

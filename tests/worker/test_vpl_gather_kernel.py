@@ -9,8 +9,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from oracle_vpl_gather import gather_vpls_numpy
-from stress_scenes import eye_end_points, grazing_camera, load_shared, merge_vpl_sets, vpls_at, with_extra_lights
+from tests.support.oracle_vpl_gather import gather_vpls_numpy
+from bench.stress_scenes import eye_end_points, grazing_camera, load_shared, merge_vpl_sets, vpls_at, with_extra_lights
 from worker.renderer import Renderer
 from worker.shading import gather_vpls
 from worker.vpl import build_vpl_set
