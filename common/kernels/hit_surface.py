@@ -9,7 +9,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def reconstruct(valid, prim, u, v, t, center, v0c, e1c, e2c, fn32, smooth, tri_normals, faces,
                 vertex_uvs, need_uv, material_of, emitter_of, mesh_of,
                 pos, ng, ns, uv, tt, mat, em, mesh):

@@ -14,7 +14,7 @@ from numba import njit
 _CELL_LIMIT = float(2 ** 60)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _cell(v: float, inv: float) -> tuple:
     c = math.floor(v * inv)
     if not math.isfinite(c) or abs(c) >= _CELL_LIMIT:
@@ -22,7 +22,7 @@ def _cell(v: float, inv: float) -> tuple:
     return True, np.int64(c)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _find(keys, key) -> int:
     lo, hi = 0, keys.shape[0]
     while lo < hi:
@@ -36,7 +36,7 @@ def _find(keys, key) -> int:
     return -1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _visit(q, r, inv, origin, ext, keys, starts, counts, order, points, out_p, out_q, fill):
     r2 = r * r
     ey, ez = ext[1], ext[2]
@@ -81,7 +81,7 @@ def _visit(q, r, inv, origin, ext, keys, starts, counts, order, points, out_p, o
     return total
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def query(q, r, inv, origin, ext, keys, starts, counts, order, points):
     """(photon index, query index) of every photon within r of each query, grouped by
     ascending query index; queries outside the grid's key space find nothing."""

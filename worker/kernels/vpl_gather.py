@@ -26,7 +26,7 @@ ROW_LAMBERT = 1  # Lambertian: weight carries cos/π, colour is per unit albedo
 ROW_GLOSSY = 2  # any other BSDF: weight is the emitter factor only, BSDF applied per pair
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def spot_falloff(cos_theta: float, cutoff_deg: float, beam_deg: float) -> float:
     """Mitsuba 3's spot falloff (as common.lights.spot_falloff): 1 in the beam, linear in
     angle to 0 at the cutoff."""
@@ -42,7 +42,7 @@ def spot_falloff(cos_theta: float, cutoff_deg: float, beam_deg: float) -> float:
     return min(max((cutoff - ang) / width, 0.0), 1.0)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def pair_weights(x, ns, ng, off, side, row, seg,
                  vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam,
                  vdepth, mis, light_pdf, area, direct_count, max_depth, eps2,
@@ -125,7 +125,7 @@ def pair_weights(x, ns, ng, off, side, row, seg,
     return k
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def accumulate(n, pi, pj, w, blocked, color, factor, out):
     """out[i] += w · colour_j (· factor, when factor has rows) over the unoccluded pairs."""
     use_factor = factor.shape[0] > 0
