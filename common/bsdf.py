@@ -36,6 +36,7 @@ from common.scene import (
     PLASTIC,
     ROUGHCONDUCTOR,
     ROUGHPLASTIC,
+    ROUGHPLASTIC_DIFFUSE,
     THINDIELECTRIC,
     Material,
 )
@@ -332,6 +333,20 @@ def _pdf_plastic(sp, wi, wo):
     return np.where(ok, _cos_hemisphere_pdf(wo) * pd, 0.0)
 
 
+def _roughplastic_diffuse(sp, wi, wo):
+    """The diffuse-layer term of a rough plastic alone (ROUGHPLASTIC_DIFFUSE), with its cos θ_o."""
+    ci, co = wi[:, 2], wo[:, 2]
+    ok = (ci > 0) & (co > 0)
+    tabs, rows, fdr_int = _rough_tables(sp)
+    dt = ci.dtype
+    tabs = tabs.astype(dt, copy=False)
+    t_i = mf.lerp_gather(tabs, rows, np.clip(ci, 0, 1))
+    t_o = mf.lerp_gather(tabs, rows, np.clip(co, 0, 1))
+    diff = _plastic_diffuse_coef(sp, fdr_int.astype(dt, copy=False))
+    s = INV_PI / (sp.eta * sp.eta) * co * t_i * t_o
+    return np.where(ok[:, None], _finite(diff * s[:, None]), 0.0)
+
+
 def _roughplastic_parts(sp, wi, wo, want_eval=True, want_pdf=True):
     ci, co = wi[:, 2], wo[:, 2]
     ok = (ci > 0) & (co > 0)
@@ -379,11 +394,13 @@ def _eval_kind(k, sp, wi, wo):
         return _eval_plastic(sp, wi, wo)
     if k == ROUGHPLASTIC:
         return _roughplastic_parts(sp, wi, wo, want_pdf=False)[0]
+    if k == ROUGHPLASTIC_DIFFUSE:
+        return _roughplastic_diffuse(sp, wi, wo)
     return None  # delta kinds and NULL: 0
 
 
 def _pdf_kind(k, sp, wi, wo):
-    if k == DIFFUSE:
+    if k in (DIFFUSE, ROUGHPLASTIC_DIFFUSE):
         ok = (wi[:, 2] > 0) & (wo[:, 2] > 0)
         return np.where(ok, _cos_hemisphere_pdf(wo), 0.0)
     if k == ROUGHCONDUCTOR:
@@ -450,6 +467,12 @@ def _sample_kind(k, sp, wi, u1, u2, mode):
         ok = (ci > 0) & (wo[:, 2] > 0)
         p = np.where(ok, _cos_hemisphere_pdf(wo), 0.0)
         weight = np.where(ok[:, None], sp.diffuse, 0.0)
+    elif k == ROUGHPLASTIC_DIFFUSE:
+        wo = mf.square_to_cosine_hemisphere(u2).astype(dt, copy=False)
+        ok = (ci > 0) & (wo[:, 2] > 0)
+        p = np.where(ok, _cos_hemisphere_pdf(wo), 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            weight = np.where((ok & (p > 0))[:, None], _roughplastic_diffuse(sp, wi, wo) / p[:, None], 0.0)
     elif k == CONDUCTOR:
         ok = ci > 0
         wo = reflect(wi)
@@ -556,6 +579,39 @@ def sample(sp: SurfacePoints, wi: np.ndarray, u1: np.ndarray, u2: np.ndarray, mo
     return wo, weight, p, delta
 
 
+def sample_lobe(sp: SurfacePoints, wi: np.ndarray, u2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sample only the glossy lobe of rough conductors and rough plastics (the paper's split of
+    an eye path per BSDF component): ``(wo (N, 3), weight (N, 3))`` with weight = lobe value ×
+    cos / lobe pdf; the diffuse layer of a plastic is left to ROUGHPLASTIC_DIFFUSE. Other kinds
+    give weight 0."""
+    dt = _dtype(wi)
+    wi = np.asarray(wi, dt)
+    u2 = np.asarray(u2, dt).reshape(-1, 2)
+    n = len(wi)
+    wo = np.zeros((n, 3), dt)
+    wo[:, 2] = 1.0
+    weight = np.zeros((n, 3), dt)
+    flip = _flip_mask(sp, wi)
+    wif = _flipz(wi, flip)
+    for k, sel in _groups(sp.kind):
+        sub = sp if isinstance(sel, slice) else sp.subset(sel)
+        w = wif[sel]
+        if k == ROUGHCONDUCTOR:
+            o, wt, _p, _d = _sample_kind(k, sub, w, np.zeros(len(w), dt), u2[sel], "radiance")
+            wo[sel], weight[sel] = o, wt
+        elif k == ROUGHPLASTIC:
+            ok = w[:, 2] > 0
+            m, _ = mf.sample_visible(w, u2[sel], sub.alpha, sub.beckmann)
+            o = reflect_m(w, m)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                F = fresnel_dielectric(np.sum(w * m, axis=-1), sub.eta)[0]
+                g1o = mf.smith_g1(o, m, sub.alpha, sub.beckmann)
+            ok &= o[:, 2] > 0
+            wo[sel] = o
+            weight[sel] = np.where(ok[:, None], _finite(sub.specular * (F * g1o)[:, None]), 0.0)
+    return _flipz(wo, flip), _finite(weight)
+
+
 def _thin_r(cos_i, eta):
     r = fresnel_dielectric(np.abs(cos_i), eta)[0]
     return r * 2.0 / (1.0 + r)  # R + TRT + TR^3T + ...
@@ -644,7 +700,7 @@ def albedo(sp: SurfacePoints, wi: np.ndarray) -> np.ndarray:
             diff = _plastic_diffuse_coef(s, fdr_int)
             dscale = (1.0 - f_i) * (1.0 - fdr_ext) / (s.eta * s.eta)
             out[sel] = diff * dscale[:, None] + f_i[:, None] * s.specular
-        elif k == ROUGHPLASTIC:
+        elif k in (ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE):
             tabs, rows, fdr_int, refl = _rough_tables(s, with_reflectance=True)
             t_i = mf.lerp_gather(tabs.astype(dt), rows, c)
             r_i = mf.lerp_gather(refl.astype(dt), rows, c)
@@ -653,5 +709,7 @@ def albedo(sp: SurfacePoints, wi: np.ndarray) -> np.ndarray:
             t_avg = t_avg[0] if rows is None else t_avg[rows]
             diff = _plastic_diffuse_coef(s, fdr_int.astype(dt))
             dscale = t_i * t_avg / (s.eta * s.eta)
-            out[sel] = diff * dscale[:, None] + r_i[:, None] * s.specular
+            out[sel] = diff * dscale[:, None]
+            if k == ROUGHPLASTIC:
+                out[sel] += r_i[:, None] * s.specular
     return _finite(out)

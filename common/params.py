@@ -54,7 +54,8 @@ PARAMS: tuple[Param, ...] = (
     Param("depth_threshold", float, 0.05, "relative depth difference that breaks the filter", "filter", 0.0, 1.0),
     Param("normal_threshold", float, 0.9, "minimum normal dot product inside the filter", "filter", -1.0, 1.0),
     Param("filter_glossy_alpha", float, 0.3,
-          "glossy surfaces at least this rough are filtered like irradiance; smoother ones stay sharp",
+          "glossy surfaces at least this rough are filtered like irradiance; smoother ones are split at "
+          "the first hit: diffuse layer filtered, glossy lobe traced by one sampled ray",
           "filter", 0.0, 10.0),
     # Eye paths
     Param("max_depth", int, -1, "path segments as in Mitsuba (-1 unlimited, 2 = direct only)", "path", -1, 64),

@@ -83,6 +83,9 @@ THINDIELECTRIC = 4
 PLASTIC = 5
 ROUGHPLASTIC = 6
 NULL = 7  # black / absorbing (e.g. an emitter's own black BSDF)
+# Internal, never from a file: the diffuse layer of a rough plastic alone. The renderer splits a
+# smooth rough plastic at the first hit into this end point and a traced glossy lobe.
+ROUGHPLASTIC_DIFFUSE = 8
 
 KIND_NAMES = {
     "diffuse": DIFFUSE,

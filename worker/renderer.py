@@ -17,7 +17,7 @@ from common.geometry import Geometry
 from common.lights import LightSampler
 from common.params import Params, make_params
 from common.render_plan import RenderPlan, analyze
-from common.scene import DIFFUSE, GLOSSY_KINDS, PLASTIC, Scene
+from common.scene import DIFFUSE, GLOSSY_KINDS, PLASTIC, ROUGHPLASTIC_DIFFUSE, Scene
 from common.sobol_stream import rng as make_rng
 
 from .caustics import PhotonSet, build_photon_set, default_radius, gather_photons
@@ -90,7 +90,8 @@ class Renderer:
         return build_importance_vpl_set(
             self.scene, self.geom, self.lights, seed, k, direct, indirect, length, view,
             params.vpl_oversample, clamp_distance2(params, self.geom.diagonal), params.max_depth,
-            params.specular_depth, roulette=roulette and params.max_depth < 0)
+            params.specular_depth, roulette=roulette and params.max_depth < 0,
+            glossy_split_alpha=params.filter_glossy_alpha)
 
     def _set_sizes(self, params: Params) -> tuple[int, int, int]:
         direct = params.direct_vpls
@@ -109,7 +110,8 @@ class Renderer:
         importance = self.importance_on(params, view)
         key = (self.scene_version, seed, k, params.direct_vpls, params.indirect_vpls,
                params.light_path_length, params.max_depth, roulette,
-               (view.key, params.vpl_oversample, params.clamp, params.specular_depth) if importance else None)
+               (view.key, params.vpl_oversample, params.clamp, params.specular_depth, params.filter_glossy_alpha)
+               if importance else None)
         with self._lock:
             hit = self._sets.get(key)
             if hit is not None:
@@ -163,7 +165,7 @@ class Renderer:
                            spec.height, xs, ys, spec.jitter)
         rng = make_rng(spec.seed, tile.k, tile.sx0, tile.sy0)
         eye = trace_eye(self.scene, self.geom, self.lights, o, d, params.max_depth,
-                        params.specular_depth, rng)
+                        params.specular_depth, rng, params.filter_glossy_alpha)
         index = accumulation_index(spec)
         view = View(tuple(np.asarray(spec.camera_to_world, np.float64).ravel()), spec.fov_x, spec.width,
                     spec.height)
@@ -187,7 +189,7 @@ class Renderer:
         # Lambertian and rough end points go through the discontinuity buffer; the highlights
         # of smooth glossy ones would be smeared by it, so their radiance stays unfiltered.
         kind = end.sp.kind
-        filterable = (kind == DIFFUSE) | (kind == PLASTIC) | (
+        filterable = (kind == DIFFUSE) | (kind == PLASTIC) | (kind == ROUGHPLASTIC_DIFFUSE) | (
             np.isin(kind, GLOSSY_KINDS) & (end.sp.alpha >= params.filter_glossy_alpha))
         main = end.main & filterable
         refl[end.pixel[main]] = albedo[main] * end.throughput[main]

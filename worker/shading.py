@@ -21,7 +21,7 @@ from common import bsdf
 from common.geometry import Geometry
 from common.lights import (VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE, LightSampler, luminance,
                            to_local, to_world)
-from common.scene import DIFFUSE, NULL, SPECULAR_KINDS, Scene
+from common.scene import DIFFUSE, NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE, SPECULAR_KINDS, Scene
 
 from .kernels import vpl_gather as vg
 from .vpl import VPLSet, concat_surface
@@ -61,7 +61,11 @@ def _allowed(segments: int, max_depth: int) -> bool:
 
 def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.ndarray,
               dirs: np.ndarray, max_depth: int, specular_depth: int,
-              rng: np.random.Generator) -> EyeResult:
+              rng: np.random.Generator, glossy_split_alpha: float = 0.0) -> EyeResult:
+    """``glossy_split_alpha``: rough conductors and plastics smoother than this are split at
+    the first hit per BSDF component (paper §4): the plastic's diffuse layer is an end point
+    (filtered irradiance), the glossy lobe is followed by one sampled ray like a mirror chain,
+    so VPLs never light a near-specular lobe (no spikes, no interleaving pattern)."""
     p = len(origins)
     unf = np.zeros((p, 3))
     env = lights.environment()
@@ -84,6 +88,15 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
     wi = to_local(-d, ns)
     delta = np.isin(sp.kind, SPECULAR_KINDS)
     nd_mask = ~delta & (sp.kind != NULL)
+    lobe = np.zeros(0, np.int64)
+    if glossy_split_alpha > 0 and specular_depth > 0 and _allowed(2, max_depth):
+        smooth = np.isin(sp.kind, (ROUGHCONDUCTOR, ROUGHPLASTIC)) & (sp.alpha < glossy_split_alpha)
+        if smooth.any():
+            lobe = np.nonzero(smooth)[0]
+            sp = sp.subset(slice(None))  # a copy: the split changes kinds
+            sp.kind = sp.kind.copy()
+            sp.kind[lobe[sp.kind[lobe] == ROUGHPLASTIC]] = ROUGHPLASTIC_DIFFUSE
+            nd_mask = nd_mask & ~(smooth & (sp.kind == ROUGHCONDUCTOR))
     if nd_mask.all():  # the common case: no copies of the per-hit arrays
         n_all = len(idx)
         ends = [EndPoints(idx, pos, ns, ng, wi, sp, np.ones((n_all, 3)), np.ones(n_all, np.int32),
@@ -94,12 +107,27 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
                           np.ones((len(nd), 3)), np.ones(len(nd), np.int32), np.ones(len(nd), bool),
                           hits.t[v][nd])]
     di = np.nonzero(delta)[0]
+    c_pix, c_pos, c_ng, c_dir, c_thr, c_main, c_dist = [], [], [], [], [], [], []
+    if len(lobe):
+        # The glossy lobe: one sampled ray, its radiance unfiltered (the pixel's main end
+        # point, if any, is the plastic's diffuse layer).
+        glossy = sp.subset(lobe)
+        glossy.kind = np.where(glossy.kind == ROUGHPLASTIC_DIFFUSE, ROUGHPLASTIC, glossy.kind).astype(sp.kind.dtype)
+        wo, weight = bsdf.sample_lobe(glossy, wi[lobe], rng.random((len(lobe), 2)))
+        sel = np.nonzero(np.any(weight > 0, axis=1))[0]
+        g = lobe[sel]
+        c_pix.append(idx[g])
+        c_pos.append(pos[g])
+        c_ng.append(ng[g])
+        c_dir.append(to_world(wo[sel], ns[g]))
+        c_thr.append(weight[sel])
+        c_main.append(np.zeros(len(sel), bool))
+        c_dist.append(hits.t[v][g])
     if len(di) and specular_depth > 0 and _allowed(2, max_depth):
         sp_d = sp.subset(di)
         comps = bsdf.specular_components(sp_d, wi[di], mode="radiance")
         lum = np.stack([np.where(c[2], luminance(c[1]), -1.0) for c in comps], axis=1)
         best = np.argmax(lum, axis=1)
-        c_pix, c_pos, c_ng, c_dir, c_thr, c_main, c_dist = [], [], [], [], [], [], []
         for ci, (wo, weight, ok) in enumerate(comps):
             sel = np.nonzero(ok & np.any(weight > 0, axis=1))[0]
             if len(sel) == 0:
@@ -112,11 +140,11 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
             c_thr.append(weight[sel])
             c_main.append(best[sel] == ci)
             c_dist.append(hits.t[v][g])
-        if c_pix:
-            ends.extend(_follow_chains(scene, geom, lights, np.concatenate(c_pix), np.concatenate(c_pos),
-                                       np.concatenate(c_ng), np.concatenate(c_dir), np.concatenate(c_thr),
-                                       np.concatenate(c_main), np.concatenate(c_dist), unf, env,
-                                       max_depth, specular_depth, rng))
+    if c_pix:
+        ends.extend(_follow_chains(scene, geom, lights, np.concatenate(c_pix), np.concatenate(c_pos),
+                                   np.concatenate(c_ng), np.concatenate(c_dir), np.concatenate(c_thr),
+                                   np.concatenate(c_main), np.concatenate(c_dist), unf, env,
+                                   max_depth, specular_depth, rng))
     end = _concat_ends(ends)
     m = end.main
     depth[end.pixel[m]] = end.distance[m]

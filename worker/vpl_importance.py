@@ -63,7 +63,8 @@ class ImportanceStats:
 
 
 def camera_end_points(scene: Scene, geom: Geometry, lights: LightSampler, view: View, seed: int,
-                      k: int, count: int, max_depth: int, specular_depth: int):
+                      k: int, count: int, max_depth: int, specular_depth: int,
+                      glossy_split_alpha: float = 0.0):
     """End points of ``count`` eye paths through random pixels of the view (deterministic in
     (seed, k), so all workers score candidates alike)."""
     g = make_rng(seed, k, "camera points")
@@ -71,7 +72,7 @@ def camera_end_points(scene: Scene, geom: Geometry, lights: LightSampler, view: 
     py = np.floor(g.random(count) * view.height)
     o, d = camera_rays(np.asarray(view.to_world, np.float64).reshape(4, 4), view.fov_x, view.width,
                        view.height, px, py, g.random((count, 2)))
-    return trace_eye(scene, geom, lights, o, d, max_depth, specular_depth, g).end
+    return trace_eye(scene, geom, lights, o, d, max_depth, specular_depth, g, glossy_split_alpha).end
 
 
 def effective_share(phi: np.ndarray) -> float:
@@ -112,14 +113,15 @@ def build_importance_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler,
                              direct_vpls: int, indirect_vpls: int, max_length: int, view: View,
                              oversample: int, clamp_d2: float, max_depth: int, specular_depth: int,
                              roulette: bool = False, camera_points: int = CAMERA_POINTS,
-                             ) -> tuple[VPLSet, ImportanceStats]:
+                             glossy_split_alpha: float = 0.0) -> tuple[VPLSet, ImportanceStats]:
     """P_k with its indirect VPLs importance-sampled for ``view`` (see the module docstring)."""
     cand = build_vpl_set(scene, geom, lights, seed, k, direct_vpls, indirect_vpls * oversample,
                          max_length, roulette=roulette)
     surf = np.nonzero(cand.kind == VPL_SURFACE)[0]
     if len(surf) == 0:
         return cand, ImportanceStats(0, 0, 0.0)
-    end = camera_end_points(scene, geom, lights, view, seed, k, camera_points, max_depth, specular_depth)
+    end = camera_end_points(scene, geom, lights, view, seed, k, camera_points, max_depth, specular_depth,
+                            glossy_split_alpha)
     phi = contribution_per_vpl(geom, end, subset_vpls(cand, surf), clamp_d2, max_depth)
     target = len(surf) / oversample
     p = acceptance(phi, target, MIX)

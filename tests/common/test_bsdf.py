@@ -511,3 +511,38 @@ def test_null_kind_black():
     wo, w, p, d = bsdf.sample(sp, wi, rng.random(n), rng.random((n, 2)))
     assert np.all(w == 0) and np.all(p == 0) and not d.any()
     assert np.all(bsdf.eval(sp, wi, wi) == 0)
+
+
+# ----------------------------------------------------------- the split of smooth glossy surfaces
+
+SPLIT = [m for m in NON_DELTA if m.kind in (ROUGHPLASTIC, ROUGHCONDUCTOR)]
+
+
+@pytest.mark.parametrize("mat", SPLIT, ids=_ids(SPLIT))
+@pytest.mark.parametrize("theta", (0.2, 1.0))
+def test_diffuse_layer_plus_sampled_lobe_equal_the_whole_bsdf(mat, theta):
+    """Splitting a rough plastic/conductor into its diffuse layer (ROUGHPLASTIC_DIFFUSE) and its
+    glossy lobe (bsdf.sample_lobe) loses and adds nothing: for a smooth test function g,
+    E[lobe weight · g] + ∫ f_diffuse g = ∫ f g (both estimated by sampling the whole BSDF)."""
+    from common.scene import ROUGHPLASTIC_DIFFUSE
+
+    rng = _rng(4)
+    n = N
+    sp = _sp(mat, n)
+    wi = _wi(theta, n)
+    g = lambda w: 1.0 + 0.5 * w[:, 0] + w[:, 2] ** 2  # noqa: E731
+    wo, w, p, d = bsdf.sample(sp, wi, rng.random(n), rng.random((n, 2)))
+    whole = w * g(wo)[:, None]
+    wo_l, w_l = bsdf.sample_lobe(sp, wi, rng.random((n, 2)))
+    parts = w_l * g(wo_l)[:, None]
+    if mat.kind == ROUGHPLASTIC:
+        dsp = _sp(mat, n)
+        dsp.kind = np.full(n, ROUGHPLASTIC_DIFFUSE, dsp.kind.dtype)
+        wo_d, w_d, p_d, _ = bsdf.sample(dsp, wi, rng.random(n), rng.random((n, 2)))
+        parts = parts + w_d * g(wo_d)[:, None]
+        # the diffuse layer's eval/pdf are the whole BSDF's diffuse term and cosine sampling
+        np.testing.assert_allclose(w_d[p_d > 0], (bsdf.eval(dsp, wi, wo_d) / p_d[:, None])[p_d > 0], rtol=1e-9)
+        assert np.all(bsdf.albedo(dsp.subset(slice(0, 1)), wi[:1]) <= bsdf.albedo(_sp(mat, 1), wi[:1]) + 1e-12)
+    m1, e1 = _mean_and_err(whole)
+    m2, e2 = _mean_and_err(parts)
+    assert np.all(np.abs(m1 - m2) <= e1 + e2), (m1, m2)

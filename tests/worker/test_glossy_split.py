@@ -1,0 +1,47 @@
+"""The eye path is split at the first hit per BSDF component (Wald et al. 2002 §4): smooth
+rough plastics become a diffuse-layer end point (filtered) plus one traced glossy-lobe branch,
+smooth rough conductors a traced branch only; rougher surfaces stay single end points."""
+from __future__ import annotations
+
+import numpy as np
+
+from bench.stress_scenes import load_shared
+from common.camera import camera_rays
+from common.scene import ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE
+from common.sobol_stream import rng
+from worker.renderer import Renderer
+from worker.shading import trace_eye
+
+
+def _eye(r, alpha, w=32, h=24):
+    cam = r.scene.camera
+    ys, xs = np.mgrid[0:h, 0:w]
+    o, d = camera_rays(cam.to_world, cam.fov_x, w, h, xs.ravel() * cam.width / w, ys.ravel() * cam.height / h)
+    return trace_eye(r.scene, r.geom, r.lights, o, d, -1, 8, rng(0, 3), alpha)
+
+
+def test_smooth_rough_plastic_splits_into_diffuse_layer_and_lobe_branch():
+    r = Renderer(load_shared("cornell-box-glossy"))  # floor alpha 0.156, sphere 0.2425
+    whole = _eye(r, 0.0).end
+    split = _eye(r, 0.3).end
+    assert np.any(whole.sp.kind == ROUGHPLASTIC) and not np.any(whole.sp.kind == ROUGHPLASTIC_DIFFUSE)
+    layer = split.sp.kind == ROUGHPLASTIC_DIFFUSE
+    assert layer.any() and np.all(split.main[layer])  # the diffuse layer is the filtered main end point
+    lobe_pixels = set(split.pixel[~split.main])
+    assert set(split.pixel[layer]) <= lobe_pixels | set()  # every split pixel also traced its lobe
+    assert np.all(split.segments[~split.main] >= 2)
+    # a threshold below every alpha splits nothing
+    none = _eye(r, 0.1).end
+    assert not np.any(none.sp.kind == ROUGHPLASTIC_DIFFUSE)
+
+
+def test_smooth_rough_conductor_floor_has_no_vpl_lit_end_point():
+    r = Renderer(load_shared("veach-ajar"))  # floor: roughconductor alpha 0.1
+    from common.scene import ROUGHCONDUCTOR
+
+    whole = _eye(r, 0.0).end
+    split = _eye(r, 0.3).end
+    first = lambda e: e.main & (e.segments == 1)  # noqa: E731
+    assert np.any(whole.sp.kind[first(whole)] == ROUGHCONDUCTOR)
+    smooth_first = first(split) & (split.sp.kind == ROUGHCONDUCTOR) & (split.sp.alpha < 0.3)
+    assert not smooth_first.any()
