@@ -4,7 +4,8 @@
                [--direct-only] [every render parameter flag of common.params, e.g. --max-depth, --seed]
     igi master [--bind tcp://127.0.0.1:5555] [SCENE]
     igi worker --connect tcp://HOST:5555 [--threads T]
-    igi serve SCENE [--workers N] [--bind ...] [--http HOST:PORT] [--pub tcp://HOST:PORT]
+    igi serve [SCENE] [--workers N] [--bind ...] [--http HOST:PORT] [--pub tcp://HOST:PORT]
+    igi scenes [--paths]            the bundled scenes (common/scenes/), usable by name as SCENE
     igi record tcp://127.0.0.1:5556 -o DIR [--count N] [--format png|exr]   (master/record.py)
     igi bench scaling [...]        (and every other master/bench_<name>.py module)
 
@@ -53,10 +54,16 @@ class RenderError(Exception):
 
 # ---------------------------------------------------------------------------- helpers
 
-def load_scene_file(path: str):
+def load_scene_file(path: str | None):
+    """Load a scene file, or a bundled scene by name (``igi scenes``); an existing path wins."""
+    from common import bundled
     from common.scene import SceneError
 
-    p = Path(path)
+    p = bundled.resolve(path)
+    if p is None:
+        known = ", ".join(bundled.names()) or "none"
+        raise UsageError(f"scene file not found: {path} (and no bundled scene of that name; bundled: {known})")
+    path = str(p)
     if not p.exists():
         raise UsageError(f"scene file not found: {path}")
     if not p.is_file():
@@ -408,6 +415,16 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return _serve(args, scene, args.workers)
 
 
+def cmd_scenes(args: argparse.Namespace) -> int:
+    from common import bundled
+
+    rows = bundled.scenes()
+    width = max((len(n) for n, _, _ in rows), default=0)
+    for name, desc, path in rows:
+        print(f"{name:<{width}}  {desc}" + (f"  ({path})" if args.paths else ""))
+    return 0
+
+
 def cmd_master(args: argparse.Namespace) -> int:
     scene = load_scene_file(args.scene) if args.scene else None
     return _serve(args, scene, 0)
@@ -454,7 +471,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
 
     r = sub.add_parser("render", help="render a scene to an EXR (linear) or PNG (sRGB) file")
-    r.add_argument("scene", help="Mitsuba XML or OBJ scene file")
+    r.add_argument("scene", help="Mitsuba XML or OBJ scene file, or a bundled scene's name (igi scenes)")
     r.add_argument("-o", "--output", default=None, help="output image, .exr or .png")
     r.add_argument("--plan", action="store_true", help="print the render plan (passes and why)")
     r.add_argument("--until-error", type=float, default=None, metavar="E",
@@ -494,7 +511,8 @@ def build_parser() -> argparse.ArgumentParser:
     k.set_defaults(func=cmd_keys)
 
     s = sub.add_parser("serve", help="master + N local workers (+ the viewer) until Ctrl-C")
-    s.add_argument("scene", help="Mitsuba XML or OBJ scene file")
+    s.add_argument("scene", nargs="?", default=None,
+                   help="Mitsuba XML or OBJ scene file, or a bundled scene's name (default: cornell-box)")
     s.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="local worker processes (default: one per core)")
     s.add_argument("--curve-keys", default=os.environ.get("IGI_KEYS_DIR") or None, metavar="DIR",
@@ -508,6 +526,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--pub", default=None, help="ZeroMQ frame feed (default tcp://127.0.0.1:5556; none: off)")
     _add_render_params(s)
     s.set_defaults(func=cmd_serve)
+
+    sc = sub.add_parser("scenes", help="list the scenes bundled with igi (usable by name)")
+    sc.add_argument("--paths", action="store_true", help="also print each scene file's path")
+    sc.set_defaults(func=cmd_scenes)
 
     from master import record
 
