@@ -94,6 +94,36 @@ def params_from(args: argparse.Namespace):
     return params
 
 
+def check_sizes(width, height, frames=None, scene=None, params=None) -> None:
+    """The shared limits (common/limits.py) on what a render asks for; UsageError naming the limit.
+    Without a scene only the sides given are checked; with one, the effective resolution."""
+    from common import limits
+
+    try:
+        if frames is not None:
+            limits.check_frames(frames)
+        if scene is None:
+            limits.check_resolution(width or 1, height or 1, what="--width/--height")
+            return
+        from master.local import resolve_camera
+
+        _cam, _fov, w, h = resolve_camera(scene, None, width, height)
+        limits.check_resolution(w, h)
+        if params is not None:
+            limits.check_params(params, emitters=len(scene.emitters))
+    except limits.LimitError as e:
+        raise UsageError(str(e)) from None
+
+
+def apply_memory_budget(args: argparse.Namespace) -> None:
+    from common import limits
+
+    try:
+        limits.set_memory_budget(getattr(args, "memory_budget", None))
+    except limits.LimitError as e:
+        raise UsageError(str(e)) from None
+
+
 def check_bind(address: str) -> None:
     """Warn when the master is reachable from other hosts (an explicit choice)."""
     host = address.split("://", 1)[-1].rsplit(":", 1)[0]
@@ -213,7 +243,9 @@ def cmd_render(args: argparse.Namespace) -> int:
     if args.workers < 0:
         raise UsageError("--workers must be >= 0")
     params = params_from(args)
+    check_sizes(args.width, args.height, args.frames)  # before loading: fail fast
     scene = load_scene_file(args.scene)
+    check_sizes(args.width, args.height, args.frames, scene, params)
     if args.plan:
         from common.geometry import Geometry
         from common.lights import LightSampler
@@ -411,7 +443,9 @@ def cmd_keys(args: argparse.Namespace) -> int:
 def cmd_serve(args: argparse.Namespace) -> int:
     if args.workers < 0:
         raise UsageError("--workers must be >= 0")
+    check_sizes(args.width, args.height)
     scene = load_scene_file(args.scene)
+    check_sizes(args.width, args.height, None, scene, params_from(args))
     return _serve(args, scene, args.workers)
 
 
@@ -459,6 +493,9 @@ def _add_render_params(p: argparse.ArgumentParser) -> None:
     from common.params import add_arguments
 
     add_arguments(p)
+    p.add_argument("--memory-budget", default=None, metavar="SIZE",
+                   help="memory the render may plan for (e.g. 4G; default $IGI_MEMORY_BUDGET or 8G): "
+                        "bounds resolution, VPL and photon counts")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -554,16 +591,34 @@ def main(argv: list[str] | None = None) -> int:
     level = logging.DEBUG if args.verbose else (logging.WARNING if quiet else logging.INFO)
     logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     try:
+        apply_memory_budget(args)
         return int(args.func(args) or 0)
     except UsageError as e:
-        print(f"igi: error: {e}", file=sys.stderr)
+        print(f"igi: error: {_one_line(e)}", file=sys.stderr)
         return 2
     except RenderError as e:
-        print(f"igi: error: {e}", file=sys.stderr)
+        print(f"igi: error: {_one_line(e)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("igi: interrupted", file=sys.stderr)
         return 130
+    except MemoryError:  # no traceback for any input: one line (the traceback with -v)
+        if args.verbose:
+            log.exception("out of memory")
+        print("igi: error: out of memory (lower the resolution, VPL/photon counts or --memory-budget)",
+              file=sys.stderr)
+        return 1
+    except Exception as e:
+        if args.verbose:
+            log.exception("igi %s failed", args.command)
+        print(f"igi: error: {type(e).__name__}: {_one_line(e)}" + ("" if args.verbose else " (-v for details)"),
+              file=sys.stderr)
+        return 1
+
+
+def _one_line(e: BaseException) -> str:
+    text = " ".join(str(e).split()) or type(e).__name__
+    return text if len(text) <= 400 else text[:397] + "..."
 
 
 if __name__ == "__main__":
