@@ -446,6 +446,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
     check_sizes(args.width, args.height)
     scene = load_scene_file(args.scene)
     check_sizes(args.width, args.height, None, scene, params_from(args))
+    from common.bundled import resolve
+
+    args.scene_path = str(resolve(args.scene))  # the viewer looks for a reference image beside it
     return _serve(args, scene, args.workers)
 
 
