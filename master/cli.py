@@ -179,6 +179,17 @@ class LocalWorkers:
                 p.wait()
 
 
+def supervise_workers(endpoint: str, count: int, threads: int = 1, quiet: bool = True,
+                      curve_keys: str | None = None):
+    """``igi serve``'s local workers, restarted when they die (master/supervisor.py)."""
+    from master.supervisor import Supervisor
+
+    def spawn(i: int) -> subprocess.Popen:
+        return subprocess.Popen(worker_command(endpoint, threads, quiet, f"local{i}", curve_keys),
+                                env=worker_env(), stdin=subprocess.DEVNULL)
+    return Supervisor(spawn, count)
+
+
 def wait_workers(broker, workers: LocalWorkers, count: int, timeout: float = 120.0) -> None:
     deadline = time.monotonic() + timeout
     while not broker.wait_for_workers(count, 0.2):
@@ -392,17 +403,17 @@ def _serve(args, scene, local_workers: int) -> int:
     try:
         print(f"igi master listening on {broker.endpoint}", file=sys.stderr, flush=True)
         if local_workers:
-            workers = LocalWorkers(broker.endpoint, local_workers, quiet=not args.verbose, curve_keys=keys)
+            workers = supervise_workers(broker.endpoint, local_workers, quiet=not args.verbose, curve_keys=keys)
         if scene is not None:
             broker.start_stream(params, width=getattr(args, "width", None), height=getattr(args, "height", None))
             viewer = _start_viewer(broker, args)
         last = time.monotonic()
         while not stop.wait(0.5):
             if workers is not None:
-                for p in workers.procs:
-                    if p.poll() is not None:
-                        log.warning("local worker pid %d exited with status %s", p.pid, p.returncode)
-                        workers.procs.remove(p)
+                for ev in workers.poll():  # logged and restarted by the supervisor
+                    if viewer is not None and hasattr(viewer, "note_worker_left"):
+                        viewer.note_worker_left(ev.name, f"{ev.reason}; restarting in {ev.restart_in:.1f} s"
+                                                if ev.restart_in is not None else ev.reason)
             if time.monotonic() - last >= args.stats_interval > 0:
                 last = time.monotonic()
                 s = broker.stats()

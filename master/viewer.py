@@ -854,10 +854,13 @@ class Viewer:
 
     def _track_workers(self, per: list[dict]) -> None:
         now = {f'{w["name"]}@{w["host"]}': w for w in per}
+        t = time.time()
         for key, w in self._known_workers.items():
-            if key not in now and not any(d.get("key") == key for d in self._departed[-5:]):
-                self._departed.append({"name": key, "key": key, "reason": "disconnected (no heartbeat)",
-                                       "time": time.time()})
+            if key in now:
+                continue
+            if any(d["name"] in (key, w["name"]) and t - d["time"] < 60 for d in self._departed[-10:]):
+                continue  # already told (e.g. by igi serve's supervisor, with the reason)
+            self._departed.append({"name": key, "reason": "disconnected", "time": t})
         del self._departed[:-20]
         self._known_workers = now
 

@@ -233,3 +233,54 @@ def test_memory_budget_from_the_environment(tmp_path):
 def test_serve_refuses_absurd_sizes(tmp_path):
     r = igi("serve", "--width", 100000, "--height", 10, "--workers", 0, "--http", "", cwd=tmp_path, timeout=120)
     _one_error_line(r, "16384")
+
+
+def test_serve_restarts_a_killed_local_worker(tmp_path):
+    """SIGKILL one of ``igi serve``'s local workers: the supervisor logs it, starts a new one
+    after the back-off, and the new worker joins the master."""
+    import re
+    import signal
+    import socket
+    import threading
+    import time
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    cmd = [sys.executable, "-m", "master.cli", "serve", "cornell-box", "--workers", "1",
+           "--bind", f"tcp://127.0.0.1:{port}", "--http", "", "--width", "32", "--height", "24",
+           "--stats-interval", "0.5"]
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
+    p = subprocess.Popen(cmd, cwd=tmp_path, env=env, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True)
+    lines: list[str] = []
+    threading.Thread(target=lambda: lines.extend(iter(p.stderr.readline, "")), daemon=True).start()
+
+    def wait_for(pattern, since=0, timeout=120):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            for line in lines[since:]:
+                m = re.search(pattern, line)
+                if m:
+                    return m
+            assert p.poll() is None, "".join(lines)
+            time.sleep(0.1)
+        raise AssertionError(f"no line matching {pattern!r}:\n" + "".join(lines))
+    try:
+        first = wait_for(r"worker local0 joined \(.*pid (\d+)")
+        pid = int(first.group(1))
+        assert pid in _children(p.pid)
+        n = len(lines)
+        os.kill(pid, signal.SIGKILL)
+        wait_for(r"local worker local0 \(pid %d\) killed by SIGKILL.*restarting in" % pid, since=n)
+        again = wait_for(r"worker local0 joined \(.*pid (\d+)", since=n)
+        new_pid = int(again.group(1))
+        assert new_pid != pid and new_pid in _children(p.pid)
+        wait_for(r" [1-9]\d* accumulated", since=len(lines) - 1)  # frames still come
+        assert "Traceback" not in "".join(lines)
+        p.send_signal(signal.SIGTERM)
+        assert p.wait(30) == 0
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()

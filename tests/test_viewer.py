@@ -747,3 +747,26 @@ def test_feed_address_in_use(quiet_broker):
             v.stop()
     finally:
         busy.close(0)
+
+
+def test_overlay_says_which_worker_left_and_why(quiet_broker):
+    from master import viewer
+
+    v = viewer.start(quiet_broker, "127.0.0.1", 0, None, pub=None, quiet=True)
+    v.note_worker_left("local0", "killed by SIGKILL; restarting in 0.5 s")
+
+    async def go():
+        import aiohttp
+
+        async with aiohttp.ClientSession() as s:
+            async with s.ws_connect(f"ws://127.0.0.1:{v.port}/ws") as ws:
+                while True:
+                    d = json.loads((await ws.receive(30)).data)
+                    if d["type"] == "stats":
+                        return d
+    try:
+        stats = asyncio.run(go())
+    finally:
+        v.stop()
+    assert stats["workers_left"][-1]["name"] == "local0"
+    assert "SIGKILL" in stats["workers_left"][-1]["reason"]
