@@ -217,7 +217,7 @@ class Progress:
         line = (f"{self.label} [{'#' * fill}{'-' * (width - fill)}] {done}/{self.total} frames "
                 f"{rate:.2f} fps ETA {eta:.0f} s")
         if error is not None:
-            line += f" est. relMSE {error:.2e}"
+            line += f" noise estimate {error:.2e}"
         if self.tty:
             self.stream.write("\r" + line + ("\n" if done >= self.total else ""))
             self.stream.flush()
@@ -286,7 +286,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     write_image(args.output, image)
     if not args.quiet:
         est = tracker.error
-        extra = f", estimated relMSE {est:.2e}" if est is not None else ""
+        extra = f", noise estimate (relMSE, even/odd halves) {est:.2e}" if est is not None else ""
         print(f"wrote {args.output} ({image.shape[1]}x{image.shape[0]}, {args.frames} frame(s){extra})",
               file=sys.stderr)
     return 0
@@ -296,7 +296,7 @@ class Converged(Exception):
     """--until-error reached: carries the accumulated image."""
 
     def __init__(self, image, frames: int, error: float):
-        super().__init__(f"converged after {frames} frames (estimated relMSE {error:.2e})")
+        super().__init__(f"converged after {frames} frames (noise estimate {error:.2e})")
         self.image, self.frames, self.error = image, frames, error
 
 
@@ -526,7 +526,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("-o", "--output", default=None, help="output image, .exr or .png")
     r.add_argument("--plan", action="store_true", help="print the render plan (passes and why)")
     r.add_argument("--until-error", type=float, default=None, metavar="E",
-                   help="stop once the estimated relMSE (even/odd frame halves) is <= E; "
+                   help="stop once the noise estimate (relMSE of the mean from its even/odd frame halves; "
+                        "it cannot see bias) is <= E; "
                         "--frames is then the maximum")
     r.add_argument("--frames", type=int, default=1, help="frames to accumulate (default 1)")
     r.add_argument("--width", type=int, default=None, help="image width (default: the scene's)")
