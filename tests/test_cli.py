@@ -236,8 +236,8 @@ def test_serve_refuses_absurd_sizes(tmp_path):
 
 
 def test_serve_restarts_a_killed_local_worker(tmp_path):
-    """SIGKILL one of ``igi serve``'s local workers: the supervisor logs it, starts a new one
-    after the back-off, and the new worker joins the master."""
+    """SIGKILL one of ``igi serve``'s local workers (serving the default, bundled scene): the
+    supervisor logs it, starts a new one after the back-off, and the new worker joins the master."""
     import re
     import signal
     import socket
@@ -247,7 +247,7 @@ def test_serve_restarts_a_killed_local_worker(tmp_path):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    cmd = [sys.executable, "-m", "master.cli", "serve", "cornell-box", "--workers", "1",
+    cmd = [sys.executable, "-m", "master.cli", "serve", "--workers", "1",  # no scene: the bundled Cornell box
            "--bind", f"tcp://127.0.0.1:{port}", "--http", "", "--width", "32", "--height", "24",
            "--stats-interval", "0.5"]
     env = dict(os.environ)
