@@ -475,6 +475,10 @@ def cmd_scenes(args: argparse.Namespace) -> int:
 
 def cmd_master(args: argparse.Namespace) -> int:
     scene = load_scene_file(args.scene) if args.scene else None
+    if args.scene:
+        from common.bundled import resolve
+
+        args.scene_path = str(resolve(args.scene))
     return _serve(args, scene, 0)
 
 

@@ -481,6 +481,7 @@ class Reference:
         self._img = None
         self._sized: dict = {}
         self._lock = threading.Lock()
+        self._last = None  # (frame, relMSE): stats ask twice a second, frames come slower
 
     def image(self, w: int, h: int):
         if self.path is None:
@@ -510,6 +511,13 @@ class Reference:
     def rel_mse(self, sf, scene) -> float | None:
         if self.path is None or sf is None or sf.spec.scene_version != 0:
             return None
+        if self._last is not None and self._last[0] is sf:
+            return self._last[1]
+        err = self._rel_mse(sf, scene)
+        self._last = (sf, err)
+        return err
+
+    def _rel_mse(self, sf, scene) -> float | None:
         cam = scene.camera
         if not (np.allclose(np.asarray(sf.spec.camera_to_world, np.float64).reshape(16),
                             np.asarray(cam.to_world, np.float64).reshape(16), atol=1e-9)

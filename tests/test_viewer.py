@@ -770,3 +770,36 @@ def test_overlay_says_which_worker_left_and_why(quiet_broker):
         v.stop()
     assert stats["workers_left"][-1]["name"] == "local0"
     assert "SIGKILL" in stats["workers_left"][-1]["reason"]
+
+
+def test_reference_beside_the_scene_gives_the_true_rel_mse(tmp_path):
+    from common.bundled import reference_of
+    from common.camera import look_at
+    from common.image_io import write_exr
+    from common.scene import Camera
+    from master.viewer import Reference
+
+    scene_dir = tmp_path / "scenes" / "box"
+    scene_dir.mkdir(parents=True)
+    (scene_dir / "scene.xml").write_text("<scene version='3.0.0'/>")
+    assert reference_of(scene_dir / "scene.xml") is None
+    (tmp_path / "references").mkdir()
+    write_exr(tmp_path / "references" / "box.exr", np.full((8, 8, 3), 0.5, np.float32))  # ../shared layout
+    assert reference_of(scene_dir / "scene.xml") == (tmp_path / "references" / "box.exr").resolve()
+    write_exr(scene_dir / "reference.exr", np.full((8, 8, 3), 0.25, np.float32))  # beside it wins
+    ref = Reference(reference_of(scene_dir / "scene.xml"))
+    assert ref.path.name == "reference.exr"
+
+    cam = Camera(look_at([0, 0, 5], [0, 0, 0], [0, 1, 0]), fov=40, width=8, height=8)
+    scene = SimpleNamespace(camera=cam)
+
+    def frame(img, version=0, to_world=cam.to_world):
+        spec = SimpleNamespace(scene_version=version, camera_to_world=tuple(np.ravel(to_world)), fov_x=cam.fov_x)
+        return SimpleNamespace(spec=spec, image=img)
+    assert ref.rel_mse(frame(np.full((4, 4, 3), 0.25, np.float32)), scene) == pytest.approx(0.0)  # resampled
+    err = ref.rel_mse(frame(np.full((8, 8, 3), 0.5, np.float32)), scene)
+    assert err == pytest.approx(0.25 ** 2 / (0.25 ** 2 + 0.01))
+    assert ref.rel_mse(frame(np.full((8, 8, 3), 0.5, np.float32), version=1), scene) is None, "edited scene"
+    moved = np.array(cam.to_world, float)
+    moved[0, 3] += 1
+    assert ref.rel_mse(frame(np.full((8, 8, 3), 0.5, np.float32), to_world=moved), scene) is None, "other view"
