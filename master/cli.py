@@ -233,13 +233,13 @@ def write_image(path: str, image) -> None:
     from common.image_io import write_exr, write_png
 
     ext = Path(path).suffix.lower()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    if ext == ".exr":
-        write_exr(path, image)
-    elif ext == ".png":
-        write_png(path, image)
-    else:  # checked before rendering
+    if ext not in (".exr", ".png"):  # checked before rendering
         raise UsageError(f"output must end in .exr or .png: {path}")
+    try:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        (write_exr if ext == ".exr" else write_png)(path, image)
+    except OSError as e:
+        raise RenderError(f"cannot write {path}: {e.strerror or e}") from None
 
 
 # ---------------------------------------------------------------------------- subcommands

@@ -284,3 +284,26 @@ def test_serve_restarts_a_killed_local_worker(tmp_path):
         if p.poll() is None:
             p.kill()
             p.wait()
+
+
+def test_unwritable_output_is_one_line(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    r = igi("render", "cornell-box", "-o", blocker / "out.png", "--width", 8, "--height", 8, "--workers", 0, "-q",
+            cwd=tmp_path)
+    _one_error_line(r, "cannot write")
+
+
+def test_unexpected_failure_is_one_line_and_traceback_only_with_v(capsys, caplog, monkeypatch):
+    from master import cli
+
+    def boom(args):
+        raise RuntimeError("something\nunexpected")
+    monkeypatch.setattr(cli, "cmd_scenes", boom)
+    assert cli.main(["scenes"]) == 1
+    err = capsys.readouterr().err
+    assert err.strip() == "igi: error: RuntimeError: something unexpected (-v for details)"
+    assert cli.main(["-v", "scenes"]) == 1
+    err = capsys.readouterr().err
+    assert "igi: error: RuntimeError: something unexpected" in err
+    assert "Traceback" in err + caplog.text  # (pytest's log capture takes the logging output in-process)
