@@ -12,10 +12,18 @@ def load_scene(path: str | Path, defaults: dict[str, str] | None = None) -> Scen
     """Load a scene: ``.xml`` -> :func:`common.mitsuba_xml.load_mitsuba` (``defaults`` override its
     ``<default>`` parameters), ``.obj`` -> :func:`common.obj_mtl.load_obj_scene`.
 
-    Raises :class:`SceneError` for a missing file or an unknown extension.
+    Raises :class:`SceneError` for a missing file or an unknown extension, and for a scene that
+    :func:`common.limits.check_scene` refuses (no triangles, a degenerate camera, a film beyond
+    the memory budget).
     """
+    from .limits import LimitError, check_scene
+
     try:
-        return _load(Path(path), defaults)
+        scene = _load(Path(path), defaults)
+        check_scene(scene, str(path))
+        return scene
+    except LimitError as e:
+        raise SceneError(str(e)) from None
     except OSError as e:
         # e.g. ENAMETOOLONG from a file name inside the scene: name it, don't crash.
         raise SceneError(f"{path}: cannot read a file of this scene: {e.strerror or e} "

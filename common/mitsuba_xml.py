@@ -988,7 +988,7 @@ class _Loader:
             else:
                 self.warn(c, f"unsupported element <{tag}>", "ignored")
         if not self.meshes and not any(e.kind != AREA for e in self.emitters):
-            self.warn(root, "the scene has no shapes", "rendering an empty scene")
+            self.warn(root, "the scene has no shapes", "nothing to render")
         if self.camera is None:
             self.camera = self.default_camera()
             self.warn(root, "no <sensor>", "using Mitsuba's default camera (45 deg, looking along +z at the scene)")

@@ -6,7 +6,7 @@ are all generated from :data:`PARAMS`; nothing else declares a default.
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass, field, fields, make_dataclass
+from dataclasses import dataclass, field, fields, make_dataclass, replace
 from typing import Any
 
 
@@ -21,6 +21,8 @@ class Param:
     max: float | None = None
     choices: tuple | None = None
     viewer: bool = True  # shown as a control in the browser panel
+    special: str | None = None  # what the value -1 means ("auto", "unlimited", ...), if it is a sentinel
+    scale: str = "linear"  # the viewer slider's scale: "linear" or "log" (ranges spanning decades)
 
     @property
     def flag(self) -> str:
@@ -72,6 +74,17 @@ PARAMS: tuple[Param, ...] = (
           "accumulate", -1, 100000),
     Param("seed", int, 0, "seed of the first frame's Sobol scrambling", "accumulate", 0, 2**31 - 1, viewer=False),
 )
+
+# How the viewer presents a parameter: the meaning of its -1 sentinel, and a log slider where
+# the range spans decades.
+_PRESENTATION = {
+    "direct_vpls": (None, "log"), "indirect_vpls": (None, "log"), "light_path_length": (None, "log"),
+    "clamp": ("auto", "log"), "light_samples": (None, "log"), "photons": (None, "log"),
+    "photon_radius": ("auto", "log"), "filter_window": ("auto", "linear"), "max_depth": ("unlimited", "log"),
+    "specular_depth": (None, "log"), "filter_frames": ("always", "log"),
+}
+PARAMS = tuple(replace(p, special=_PRESENTATION[p.name][0], scale=_PRESENTATION[p.name][1])
+               if p.name in _PRESENTATION else p for p in PARAMS)
 
 PARAM_BY_NAME = {p.name: p for p in PARAMS}
 
@@ -144,10 +157,35 @@ def parameters_doc() -> str:
             "`igi serve`.\n\n" + markdown_table() + "\n")
 
 
+# What an "auto" (-1) value resolves to where the renderer resolves it (worker/renderer.py
+# DEFAULT_CLAMP, worker/caustics.py default_radius, master/discontinuity_buffer.py resolve_window).
+AUTO_CLAMP = 1e-3
+AUTO_PHOTON_RADIUS = 0.005
+
+
+def values_in_use(values: dict) -> dict:
+    """For each parameter at its -1 sentinel: the value the renderer uses instead (a number, or
+    a word such as "unlimited"); the viewer shows it as "auto (= …)"."""
+    out = {}
+    for name, v in (values or {}).items():
+        p = PARAM_BY_NAME.get(name)
+        if p is None or p.special is None or v is None or v != -1:
+            continue
+        if name == "clamp":
+            out[name] = AUTO_CLAMP
+        elif name == "photon_radius":
+            out[name] = AUTO_PHOTON_RADIUS
+        elif name == "filter_window":
+            out[name] = int(values.get("interleave", PARAM_BY_NAME["interleave"].default))
+        else:
+            out[name] = p.special
+    return out
+
+
 def viewer_schema() -> list[dict]:
     """Declarations the browser panel builds its controls from."""
     return [
         {"name": p.name, "type": p.type.__name__, "default": p.default, "help": p.help,
-         "group": p.group, "min": p.min, "max": p.max}
+         "group": p.group, "min": p.min, "max": p.max, "special": p.special, "scale": p.scale}
         for p in PARAMS if p.viewer
     ]

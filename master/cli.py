@@ -4,7 +4,8 @@
                [--direct-only] [every render parameter flag of common.params, e.g. --max-depth, --seed]
     igi master [--bind tcp://127.0.0.1:5555] [SCENE]
     igi worker --connect tcp://HOST:5555 [--threads T]
-    igi serve SCENE [--workers N] [--bind ...] [--http HOST:PORT] [--pub tcp://HOST:PORT]
+    igi serve [SCENE] [--workers N] [--bind ...] [--http HOST:PORT] [--pub tcp://HOST:PORT]
+    igi scenes [--paths]            the bundled scenes (common/scenes/), usable by name as SCENE
     igi record tcp://127.0.0.1:5556 -o DIR [--count N] [--format png|exr]   (master/record.py)
     igi bench NAME [...]           (NAME: scaling, quality, ...; the registry in bench/__init__.py)
 
@@ -38,17 +39,23 @@ from pathlib import Path
 import numpy as np
 
 from master.errors import RenderError, UsageError
-from master.local_workers import LocalWorkers, wait_workers
+from master.local_workers import LocalWorkers, supervise_workers, wait_workers
 
 log = logging.getLogger("igi")
 
 
 # ---------------------------------------------------------------------------- helpers
 
-def load_scene_file(path: str):
+def load_scene_file(path: str | None):
+    """Load a scene file, or a bundled scene by name (``igi scenes``); an existing path wins."""
+    from common import bundled
     from common.scene import SceneError
 
-    p = Path(path)
+    p = bundled.resolve(path)
+    if p is None:
+        known = ", ".join(bundled.names()) or "none"
+        raise UsageError(f"scene file not found: {path} (and no bundled scene of that name; bundled: {known})")
+    path = str(p)
     if not p.exists():
         raise UsageError(f"scene file not found: {path}")
     if not p.is_file():
@@ -79,6 +86,36 @@ def params_from(args: argparse.Namespace):
     return params
 
 
+def check_sizes(width, height, frames=None, scene=None, params=None) -> None:
+    """The shared limits (common/limits.py) on what a render asks for; UsageError naming the limit.
+    Without a scene only the sides given are checked; with one, the effective resolution."""
+    from common import limits
+
+    try:
+        if frames is not None:
+            limits.check_frames(frames)
+        if scene is None:
+            limits.check_resolution(width or 1, height or 1, what="--width/--height")
+            return
+        from common.camera import resolve_camera
+
+        _cam, _fov, w, h = resolve_camera(scene, None, width, height)
+        limits.check_resolution(w, h)
+        if params is not None:
+            limits.check_params(params, emitters=len(scene.emitters))
+    except limits.LimitError as e:
+        raise UsageError(str(e)) from None
+
+
+def apply_memory_budget(args: argparse.Namespace) -> None:
+    from common import limits
+
+    try:
+        limits.set_memory_budget(getattr(args, "memory_budget", None))
+    except limits.LimitError as e:
+        raise UsageError(str(e)) from None
+
+
 def check_bind(address: str) -> None:
     """Warn when the master is reachable from other hosts (an explicit choice)."""
     host = address.split("://", 1)[-1].rsplit(":", 1)[0]
@@ -105,7 +142,7 @@ class Progress:
         line = (f"{self.label} [{'#' * fill}{'-' * (width - fill)}] {done}/{self.total} frames "
                 f"{rate:.2f} fps ETA {eta:.0f} s")
         if error is not None:
-            line += f" est. relMSE {error:.2e}"
+            line += f" noise estimate {error:.2e}"
         if self.tty:
             self.stream.write("\r" + line + ("\n" if done >= self.total else ""))
             self.stream.flush()
@@ -121,13 +158,13 @@ def write_image(path: str, image) -> None:
     from common.image_io import write_exr, write_png
 
     ext = Path(path).suffix.lower()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    if ext == ".exr":
-        write_exr(path, image)
-    elif ext == ".png":
-        write_png(path, image)
-    else:  # checked before rendering
+    if ext not in (".exr", ".png"):  # checked before rendering
         raise UsageError(f"output must end in .exr or .png: {path}")
+    try:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        (write_exr if ext == ".exr" else write_png)(path, image)
+    except OSError as e:
+        raise RenderError(f"cannot write {path}: {e.strerror or e}") from None
 
 
 # ---------------------------------------------------------------------------- subcommands
@@ -142,7 +179,9 @@ def cmd_render(args: argparse.Namespace) -> int:
     if args.workers < 0:
         raise UsageError("--workers must be >= 0")
     params = params_from(args)
+    check_sizes(args.width, args.height, args.frames)  # before loading: fail fast
     scene = load_scene_file(args.scene)
+    check_sizes(args.width, args.height, args.frames, scene, params)
     if args.plan:
         from common.camera import resolve_camera
         from worker.renderer import Renderer
@@ -175,7 +214,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     write_image(args.output, image)
     if not args.quiet:
         est = tracker.error
-        extra = f", estimated relMSE {est:.2e}" if est is not None else ""
+        extra = f", noise estimate (relMSE, even/odd halves) {est:.2e}" if est is not None else ""
         print(f"wrote {args.output} ({image.shape[1]}x{image.shape[0]}, {args.frames} frame(s){extra})",
               file=sys.stderr)
     return 0
@@ -185,7 +224,7 @@ class Converged(Exception):
     """--until-error reached: carries the accumulated image."""
 
     def __init__(self, image, frames: int, error: float):
-        super().__init__(f"converged after {frames} frames (estimated relMSE {error:.2e})")
+        super().__init__(f"converged after {frames} frames (noise estimate {error:.2e})")
         self.image, self.frames, self.error = image, frames, error
 
 
@@ -292,17 +331,17 @@ def _serve(args, scene, local_workers: int) -> int:
     try:
         print(f"igi master listening on {broker.endpoint}", file=sys.stderr, flush=True)
         if local_workers:
-            workers = LocalWorkers(broker.endpoint, local_workers, quiet=not args.verbose, curve_keys=keys)
+            workers = supervise_workers(broker.endpoint, local_workers, quiet=not args.verbose, curve_keys=keys)
         if scene is not None:
             broker.start_stream(params, width=getattr(args, "width", None), height=getattr(args, "height", None))
             viewer = _start_viewer(broker, args)
         last = time.monotonic()
         while not stop.wait(0.5):
             if workers is not None:
-                for p in workers.procs:
-                    if p.poll() is not None:
-                        log.warning("local worker pid %d exited with status %s", p.pid, p.returncode)
-                        workers.procs.remove(p)
+                for ev in workers.poll():  # logged and restarted by the supervisor
+                    if viewer is not None and hasattr(viewer, "note_worker_left"):
+                        viewer.note_worker_left(ev.name, f"{ev.reason}; restarting in {ev.restart_in:.1f} s"
+                                                if ev.restart_in is not None else ev.reason)
             if time.monotonic() - last >= args.stats_interval > 0:
                 last = time.monotonic()
                 s = broker.stats()
@@ -343,12 +382,31 @@ def cmd_keys(args: argparse.Namespace) -> int:
 def cmd_serve(args: argparse.Namespace) -> int:
     if args.workers < 0:
         raise UsageError("--workers must be >= 0")
+    check_sizes(args.width, args.height)
     scene = load_scene_file(args.scene)
+    check_sizes(args.width, args.height, None, scene, params_from(args))
+    from common.bundled import resolve
+
+    args.scene_path = str(resolve(args.scene))  # the viewer looks for a reference image beside it
     return _serve(args, scene, args.workers)
+
+
+def cmd_scenes(args: argparse.Namespace) -> int:
+    from common import bundled
+
+    rows = bundled.scenes()
+    width = max((len(n) for n, _, _ in rows), default=0)
+    for name, desc, path in rows:
+        print(f"{name:<{width}}  {desc}" + (f"  ({path})" if args.paths else ""))
+    return 0
 
 
 def cmd_master(args: argparse.Namespace) -> int:
     scene = load_scene_file(args.scene) if args.scene else None
+    if args.scene:
+        from common.bundled import resolve
+
+        args.scene_path = str(resolve(args.scene))
     return _serve(args, scene, 0)
 
 
@@ -392,6 +450,9 @@ def _add_render_params(p: argparse.ArgumentParser) -> None:
     from common.params import add_arguments
 
     add_arguments(p)
+    p.add_argument("--memory-budget", default=None, metavar="SIZE",
+                   help="memory the render may plan for (e.g. 4G; default $IGI_MEMORY_BUDGET or 8G): "
+                        "bounds resolution, VPL and photon counts")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -404,11 +465,12 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
 
     r = sub.add_parser("render", help="render a scene to an EXR (linear) or PNG (sRGB) file")
-    r.add_argument("scene", help="Mitsuba XML or OBJ scene file")
+    r.add_argument("scene", help="Mitsuba XML or OBJ scene file, or a bundled scene's name (igi scenes)")
     r.add_argument("-o", "--output", default=None, help="output image, .exr or .png")
     r.add_argument("--plan", action="store_true", help="print the render plan (passes and why)")
     r.add_argument("--until-error", type=float, default=None, metavar="E",
-                   help="stop once the estimated relMSE (even/odd frame halves) is <= E; "
+                   help="stop once the noise estimate (relMSE of the mean from its even/odd frame halves; "
+                        "it cannot see bias) is <= E; "
                         "--frames is then the maximum")
     r.add_argument("--frames", type=int, default=1, help="frames to accumulate (default 1)")
     r.add_argument("--width", type=int, default=None, help="image width (default: the scene's)")
@@ -444,7 +506,8 @@ def build_parser() -> argparse.ArgumentParser:
     k.set_defaults(func=cmd_keys)
 
     s = sub.add_parser("serve", help="master + N local workers (+ the viewer) until Ctrl-C")
-    s.add_argument("scene", help="Mitsuba XML or OBJ scene file")
+    s.add_argument("scene", nargs="?", default=None,
+                   help="Mitsuba XML or OBJ scene file, or a bundled scene's name (default: cornell-box)")
     s.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="local worker processes (default: one per core)")
     s.add_argument("--curve-keys", default=os.environ.get("IGI_KEYS_DIR") or None, metavar="DIR",
@@ -458,6 +521,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--pub", default=None, help="ZeroMQ frame feed (default tcp://127.0.0.1:5556; none: off)")
     _add_render_params(s)
     s.set_defaults(func=cmd_serve)
+
+    sc = sub.add_parser("scenes", help="list the scenes bundled with igi (usable by name)")
+    sc.add_argument("--paths", action="store_true", help="also print each scene file's path")
+    sc.set_defaults(func=cmd_scenes)
 
     from master import record
 
@@ -482,16 +549,34 @@ def main(argv: list[str] | None = None) -> int:
     level = logging.DEBUG if args.verbose else (logging.WARNING if quiet else logging.INFO)
     logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     try:
+        apply_memory_budget(args)
         return int(args.func(args) or 0)
     except UsageError as e:
-        print(f"igi: error: {e}", file=sys.stderr)
+        print(f"igi: error: {_one_line(e)}", file=sys.stderr)
         return 2
     except RenderError as e:
-        print(f"igi: error: {e}", file=sys.stderr)
+        print(f"igi: error: {_one_line(e)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("igi: interrupted", file=sys.stderr)
         return 130
+    except MemoryError:  # no traceback for any input: one line (the traceback with -v)
+        if args.verbose:
+            log.exception("out of memory")
+        print("igi: error: out of memory (lower the resolution, VPL/photon counts or --memory-budget)",
+              file=sys.stderr)
+        return 1
+    except Exception as e:
+        if args.verbose:
+            log.exception("igi %s failed", args.command)
+        print(f"igi: error: {type(e).__name__}: {_one_line(e)}" + ("" if args.verbose else " (-v for details)"),
+              file=sys.stderr)
+        return 1
+
+
+def _one_line(e: BaseException) -> str:
+    text = " ".join(str(e).split()) or type(e).__name__
+    return text if len(text) <= 400 else text[:397] + "..."
 
 
 if __name__ == "__main__":

@@ -70,3 +70,14 @@ def wait_workers(broker, workers: LocalWorkers, count: int, timeout: float = 120
         workers.check()
         if time.monotonic() > deadline:
             raise UsageError(f"only {len(broker.workers())} of {count} local workers connected in {timeout:.0f} s")
+
+
+def supervise_workers(endpoint: str, count: int, threads: int = 1, quiet: bool = True,
+                      curve_keys: str | None = None):
+    """``igi serve``'s local workers, restarted when they die (master/supervisor.py)."""
+    from .supervisor import Supervisor
+
+    def spawn(i: int) -> subprocess.Popen:
+        return subprocess.Popen(worker_command(endpoint, threads, quiet, f"local{i}", curve_keys),
+                                env=worker_env(), stdin=subprocess.DEVNULL)
+    return Supervisor(spawn, count)

@@ -19,14 +19,26 @@ every request needs the token printed at start: ``?token=…`` in the URL (the p
 to its WebSocket and downloads; a successful request also sets a ``igi_token`` cookie), or the
 ``X-IGI-Token`` header. Wrong or missing token: 403. WebSocket upgrades whose ``Origin`` is not
 this server are refused (403) in both cases, so another web site open in the same browser
-cannot drive a loopback viewer.
+cannot drive a loopback viewer. On loopback the ``Host`` header must also name this server
+(``127.0.0.1``, ``localhost`` or ``[::1]`` with the port): anything else is 403 unless the token
+is given, so a web page cannot reach a local viewer through a DNS-rebinding name.
+
+Every size, camera and parameter set a client sends goes through :mod:`common.limits` (the
+same checks as the CLI and the scene loader: memory budget, finite non-degenerate cameras);
+a refused one gets ``{"type": "error", ...}`` and the stream goes on. Each client may apply at
+most ``EDIT_RATE`` scene edits per second (burst ``EDIT_BURST``). A message that is not JSON,
+or is nested too deeply, is answered with an error message.
 
 WebSocket protocol
 ------------------
 Server → client, text (JSON): ``{"type": "init", ...}`` (parameter schema from
 ``common.params.viewer_schema``, current params and view, scene objects, render plan),
 ``{"type": "stats", ...}`` twice a second (fps, accumulated, rays/s, workers, per-worker load,
-relative error, input-to-frame latency, render plan), ``{"type": "selected"|"moved"|"params"|
+``noise_estimate`` (= ``relative_error``: the relMSE of the mean estimated from its even/odd
+frame halves; it cannot see bias), ``true_rel_mse`` against a reference image when one lies
+beside the scene (``reference.exr`` in its folder, or ``../references/<name>.exr``) and the
+view is the scene's own, ``workers_left`` (recent departures and why), input-to-frame latency,
+render plan), ``{"type": "selected"|"moved"|"params"|
 "view"|"error", ...}`` answers.
 
 Server → client, binary: one frame = 4-byte big-endian header length, JSON header (seq,
@@ -61,6 +73,7 @@ import ipaddress
 import json
 import logging
 import math
+import re
 import secrets
 import socket
 import struct
@@ -84,6 +97,9 @@ TOKEN_COOKIE = "igi_token"
 TOKEN_HEADER = "X-IGI-Token"
 PUB_TOPICS = (b"frame.f16", b"frame.png")
 LIGHT_PICK_RADIUS = 0.03  # point/spot lights are picked within this fraction of the scene diagonal
+EDIT_RATE = 30.0  # scene edits (moves) per second and client ...
+EDIT_BURST = 60  # ... with bursts up to this many
+MAX_JSON_DEPTH = 32  # WebSocket messages nested deeper are refused before parsing
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -413,6 +429,107 @@ class _Client:
     quality: int = 90
     exposure: float = 0.0
     selection: dict | None = None
+    edit_tokens: float = float(EDIT_BURST)
+    edit_time: float = 0.0
+
+    def take_edit(self) -> bool:
+        """Token bucket: may this client apply one more scene edit now?"""
+        now = time.monotonic()
+        self.edit_tokens = min(float(EDIT_BURST), self.edit_tokens + (now - self.edit_time) * EDIT_RATE)
+        self.edit_time = now
+        if self.edit_tokens < 1.0:
+            return False
+        self.edit_tokens -= 1.0
+        return True
+
+
+_JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"?')
+
+
+def json_depth_ok(text: str, limit: int = MAX_JSON_DEPTH) -> bool:
+    """Whether brackets nest at most ``limit`` deep (strings skipped) — checked before json.loads,
+    so a 100k-deep message costs a vectorised scan, not a RecursionError."""
+    if text.count("[") + text.count("{") <= limit:
+        return True
+    b = np.frombuffer(_JSON_STRING.sub("", text).encode("utf-8", "replace"), np.uint8)
+    step = ((b == 0x5B) | (b == 0x7B)).astype(np.int32) - ((b == 0x5D) | (b == 0x7D))
+    return not len(step) or int(np.cumsum(step).max()) <= limit
+
+
+def parse_message(text) -> dict:
+    """A client's WebSocket text as a JSON object, or ValueError with one line."""
+    if not isinstance(text, str):
+        raise ValueError("message must be JSON text")
+    if not json_depth_ok(text):
+        raise ValueError(f"message nested deeper than {MAX_JSON_DEPTH} levels")
+    try:
+        m = json.loads(text)
+    except (ValueError, RecursionError) as e:
+        raise ValueError(f"message is not valid JSON ({str(e)[:80]})") from None
+    if not isinstance(m, dict):
+        raise ValueError("message must be a JSON object")
+    return m
+
+
+class Reference:
+    """A converged reference image for the scene (``common.bundled.reference_of``), resampled to
+    the stream's size on demand; ``rel_mse(sf, view, scene_camera)`` is None when the view is not
+    the scene's own camera, the scene was edited, or there is no reference."""
+
+    def __init__(self, path):
+        self.path = Path(path) if path else None
+        self._img = None
+        self._sized: dict = {}
+        self._lock = threading.Lock()
+        self._last = None  # (frame, relMSE): stats ask twice a second, frames come slower
+
+    def image(self, w: int, h: int):
+        if self.path is None:
+            return None
+        with self._lock:
+            if (w, h) in self._sized:
+                return self._sized[(w, h)]
+            try:
+                if self._img is None:
+                    from common.image_io import read_image
+
+                    self._img = np.asarray(read_image(self.path), np.float32)
+                img = self._img
+                if img.shape[:2] != (h, w):
+                    from PIL import Image
+
+                    img = np.stack([np.asarray(Image.fromarray(np.ascontiguousarray(img[..., c]), "F")
+                                               .resize((w, h), Image.BOX)) for c in range(3)], axis=-1)
+            except Exception as e:  # an unreadable reference only disables the figure
+                log.warning("reference %s unusable: %s", self.path, e)
+                self.path, img = None, None
+            if len(self._sized) > 4:
+                self._sized.clear()
+            self._sized[(w, h)] = img
+            return img
+
+    def rel_mse(self, sf, scene) -> float | None:
+        if self.path is None or sf is None or sf.spec.scene_version != 0:
+            return None
+        if self._last is not None and self._last[0] is sf:
+            return self._last[1]
+        err = self._rel_mse(sf, scene)
+        self._last = (sf, err)
+        return err
+
+    def _rel_mse(self, sf, scene) -> float | None:
+        cam = scene.camera
+        if not (np.allclose(np.asarray(sf.spec.camera_to_world, np.float64).reshape(16),
+                            np.asarray(cam.to_world, np.float64).reshape(16), atol=1e-9)
+                and abs(float(sf.spec.fov_x) - float(cam.fov_x)) < 1e-6):
+            return None
+        h, w = sf.image.shape[:2]
+        ref = self.image(w, h)
+        if ref is None:
+            return None
+        from common.metrics import relmse
+
+        return relmse(sf.image, ref)
 
 
 class Viewer:
@@ -420,7 +537,7 @@ class Viewer:
 
     def __init__(self, broker, host: str = "127.0.0.1", port: int = 8000, *, token: str | None = None,
                  require_token: bool | None = None, pub: str | None = DEFAULT_PUB, pub_required: bool = False,
-                 quiet: bool = False):
+                 quiet: bool = False, reference=None):
         self.broker = broker
         self.host = host.strip("[]") or "127.0.0.1"
         self.port = int(port)
@@ -447,6 +564,9 @@ class Viewer:
         self._view_latency: float | None = None
         self._last_gen = None
         self._stopped = False
+        self.reference = Reference(reference)
+        self._departed: list[dict] = []  # recent workers that left (name, reason, time)
+        self._known_workers: dict[str, dict] = {}
 
     # -------------------------------------------------------------- lifecycle
     def start(self) -> "Viewer":
@@ -551,6 +671,24 @@ class Viewer:
                  or request.cookies.get(TOKEN_COOKIE) or "")
         return hmac.compare_digest(given.encode(), self.token.encode())
 
+    def _host_ok(self, request) -> bool:
+        """On loopback: the Host header names this server (DNS-rebinding defence)."""
+        if self.require_token:
+            return True  # off loopback the token is the defence
+        host = (request.headers.get("Host") or "").strip().lower()
+        names = ("127.0.0.1", "localhost", "[::1]")
+        allowed = {f"{n}:{self.port}" for n in names}
+        if self.port == 80:
+            allowed.update(names)
+        return host in allowed
+
+    def _token_given(self, request) -> bool:
+        if not self.token:
+            return False
+        given = (request.query.get("token") or request.headers.get(TOKEN_HEADER)
+                 or request.cookies.get(TOKEN_COOKIE) or "")
+        return hmac.compare_digest(given.encode(), self.token.encode())
+
     @staticmethod
     def _same_origin(request) -> bool:
         origin = request.headers.get("Origin")
@@ -568,6 +706,11 @@ class Viewer:
             if not self._token_ok(request):
                 return web.Response(status=403, text="igi viewer: a token is required (?token=… from the "
                                     "URL printed at start, or the X-IGI-Token header)\n")
+            if not self._host_ok(request) and not self._token_given(request):
+                log.info("viewer: refused a request for Host %r from %s", request.headers.get("Host"),
+                         request.remote)
+                return web.Response(status=403, text="igi viewer: unknown Host (use 127.0.0.1, localhost "
+                                    "or [::1] with the port)\n")
             if request.path == "/ws" and not self._same_origin(request):
                 return web.Response(status=403, text="igi viewer: cross-origin WebSocket refused\n")
             resp = await handler(request)
@@ -685,14 +828,40 @@ class Viewer:
         per = [{"name": w["name"], "host": w["host"], "threads": w["threads"], "load": w["load"],
                 "busy": w["busy"], "inflight": w["inflight"], "tasks_done": w["tasks_done"]}
                for w in s.get("per_worker", [])]
+        self._track_workers(per)
+        try:
+            true_err = self.reference.rel_mse(sf, self.broker.scene)
+        except Exception:  # informational: never break the stats
+            log.exception("reference relMSE")
+            true_err = None
         return {"type": "stats", "fps": s["fps"], "accumulated": s["accumulated"], "rays_per_s": s["rays_per_s"],
                 "workers": s["workers"], "threads": s["threads"], "per_worker": per,
-                "relative_error": s["relative_error"], "scene_version": s["scene_version"],
+                "relative_error": s["relative_error"], "noise_estimate": s["relative_error"],
+                "true_rel_mse": true_err,
+                "reference": self.reference.path.name if self.reference.path else None,
+                "workers_left": list(self._departed[-5:]), "scene_version": s["scene_version"],
                 "task_latency_ms": s["task_latency_ms"], "bytes_per_frame": s["bytes_per_frame"],
                 "view_latency_ms": None if self._view_latency is None else self._view_latency * 1e3,
                 "frame_seq": sf.seq if sf else 0, "width": v.get("width"), "height": v.get("height"),
                 "clients": len(self._clients), "plan": plan,
                 "pub": self.pub_endpoint}
+
+    def note_worker_left(self, name: str, reason: str) -> None:
+        """Record a departure the overlay shows (also called by ``igi serve``'s supervisor)."""
+        self._departed.append({"name": name, "reason": reason, "time": time.time()})
+        del self._departed[:-20]
+
+    def _track_workers(self, per: list[dict]) -> None:
+        now = {f'{w["name"]}@{w["host"]}': w for w in per}
+        t = time.time()
+        for key, w in self._known_workers.items():
+            if key in now:
+                continue
+            if any(d["name"] in (key, w["name"]) and t - d["time"] < 60 for d in self._departed[-10:]):
+                continue  # already told (e.g. by igi serve's supervisor, with the reason)
+            self._departed.append({"name": key, "reason": "disconnected", "time": t})
+        del self._departed[:-20]
+        self._known_workers = now
 
     async def _stats_loop(self) -> None:
         loop = asyncio.get_running_loop()
@@ -720,7 +889,11 @@ class Viewer:
 
         v = self.broker.view()
         scene = self.broker.scene
+        from common.params import values_in_use
+
         return {"type": "init", "schema": viewer_schema(), "params": v.get("params"),
+                "in_use": values_in_use(v.get("params") or {}),
+                "reference": self.reference.path.name if self.reference.path else None,
                 "view": {"camera": list(v["camera"]), "fov_x": v["fov_x"], "width": v["width"], "height": v["height"]},
                 "scene": scene_objects(scene), "scene_version": self.broker.scene_version,
                 "plan": self.info.peek_plan(), "pub": self.pub_endpoint, "max_inflight": MAX_INFLIGHT}
@@ -740,15 +913,17 @@ class Viewer:
             async for msg in ws:
                 if msg.type != WSMsgType.TEXT:
                     continue
+                m = None
                 try:
-                    m = json.loads(msg.data)
-                    if not isinstance(m, dict):
-                        raise ValueError("message must be a JSON object")
+                    m = parse_message(msg.data)
                     reply = await self._handle(c, m)
                 except Exception as e:  # a bad message gets an error answer, never a crash
-                    if not isinstance(e, (ValueError, KeyError, TypeError)):
+                    if not isinstance(e, (ValueError, KeyError, TypeError, OverflowError)):
                         log.exception("viewer message failed")
-                    reply = {"type": "error", "message": str(e) or type(e).__name__,
+                    text = " ".join(str(e).split()) or type(e).__name__
+                    if isinstance(e, KeyError):
+                        text = f"missing field {text}"
+                    reply = {"type": "error", "message": text[:300],
                              "request": m.get("type") if isinstance(m, dict) else None}
                 if reply is not None and not ws.closed:
                     await ws.send_str(_dumps(reply))
@@ -767,18 +942,29 @@ class Viewer:
             c.wake.set()
             return None
         if kind == "camera":
+            from common.limits import check_camera
+
             cam = _finite_vec(m.get("to_world"), 16, "camera.to_world")
             fov = m.get("fov_x")
+            check_camera(cam, fov, what="camera")
             await run(lambda: b.set_camera(cam, None if fov is None else float(fov)))
             return None
         if kind == "params":
             values = m.get("values")
             if not isinstance(values, dict):
                 raise ValueError("params.values: expected a map")
+            from common.limits import check_params
+            from common.params import make_params, params_to_dict, values_in_use
+
+            merged = dict(b.view().get("params") or {})
+            merged.update(values)
+            check_params(params_to_dict(make_params(**merged)), emitters=len(b.scene.emitters))
             params = await run(lambda: b.set_params(**values))
-            return {"type": "params", "params": params}
+            return {"type": "params", "params": params, "in_use": values_in_use(params)}
         if kind == "resolution":
-            w, h = int(m["width"]), int(m["height"])
+            from common.limits import check_resolution
+
+            w, h = check_resolution(m.get("width"), m.get("height"))
             await run(b.set_resolution, w, h)
             return {"type": "view", "view": await run(self._view_dict)}
         if kind == "reset":
@@ -809,6 +995,8 @@ class Viewer:
         if kind == "move":
             if c.selection is None:
                 raise ValueError("move: nothing selected")
+            if not c.take_edit():
+                raise ValueError(f"move: too many edits (at most {EDIT_RATE:g} per second); try again")
             sel = c.selection
             edit = await run(move_edit, b, sel, m.get("delta"))
             version = await run(b.apply_edit, edit)
@@ -860,8 +1048,14 @@ def start(broker, host: str = "127.0.0.1", port: int = 8000, args=None, *, requi
             pub = DEFAULT_PUB
     elif pub:
         pub_required = True
+    reference = None
+    scene_path = getattr(args, "scene_path", None) if args is not None else None
+    if scene_path:
+        from common.bundled import reference_of
+
+        reference = reference_of(scene_path)
     v = Viewer(broker, host, port, token=token, require_token=require_token, pub=pub or None,
-               pub_required=pub_required, quiet=quiet)
+               pub_required=pub_required, quiet=quiet, reference=reference)
     try:
         v.start()
     except OSError as e:

@@ -158,22 +158,96 @@
     return u ? `${(x / u[1]).toFixed(2)} ${u[0]}` : x.toFixed(0);
   }
   function esc(s) { return String(s).replace(/[&<>"']/g, (c) => `&#${c.charCodeAt(0)};`); }
+  const fmtErr = (x) => (x === null || x === undefined ? "–" : Number(x).toExponential(2));
+  // DOM built with nodes and CSSOM (element.style), never style="" markup: the page's CSP
+  // (style-src 'self') refuses inline style attributes.
+  function el(tag, cls, text) {
+    const e = document.createElement(tag);
+    if (cls) e.className = cls;
+    if (text !== undefined) e.textContent = text;
+    return e;
+  }
+  function lines(box, texts, cls) {
+    box.textContent = "";
+    for (const t of texts) box.appendChild(el("div", cls, t));
+  }
+  // time-vs-error history since the accumulation last restarted
+  const history = { gen: null, t0: 0, points: [] };
+  function record(s) {
+    const now = performance.now() / 1000;
+    const last = history.points[history.points.length - 1];
+    if (history.gen !== dbg.generation || (last && s.accumulated < last.acc)) {
+      history.gen = dbg.generation; history.t0 = now; history.points = [];
+    }
+    if (s.noise_estimate !== null || s.true_rel_mse !== null) {
+      history.points.push({ t: now - history.t0, acc: s.accumulated, noise: s.noise_estimate, truth: s.true_rel_mse });
+      if (history.points.length > 600) history.points.splice(0, history.points.length - 600);
+    }
+  }
+  function drawPlot() {
+    const cv = $("error-plot");
+    const g = cv.getContext("2d");
+    const W = cv.width, H = cv.height, L = 34, B = 14;
+    g.clearRect(0, 0, W, H);
+    g.font = "9px monospace"; g.fillStyle = "#9aa2ab"; g.strokeStyle = "#555";
+    g.strokeRect(L, 2, W - L - 2, H - B - 2);
+    const pts = history.points;
+    const vals = [];
+    for (const p of pts) for (const v of [p.noise, p.truth]) if (v > 0) vals.push(Math.log10(v));
+    if (!pts.length || !vals.length) { g.fillText("error: waiting for frames", L + 4, H / 2); return; }
+    let lo = Math.floor(Math.min(...vals)), hi = Math.ceil(Math.max(...vals));
+    if (hi <= lo) hi = lo + 1;
+    const tmax = Math.max(1, pts[pts.length - 1].t);
+    const x = (t) => L + (t / tmax) * (W - L - 4);
+    const y = (v) => 2 + (1 - (Math.log10(v) - lo) / (hi - lo)) * (H - B - 4);
+    g.fillText(`1e${hi}`, 2, 10); g.fillText(`1e${lo}`, 2, H - B);
+    g.fillText("0", L, H - 3); g.fillText(`${tmax.toFixed(0)} s`, W - 30, H - 3);
+    for (const [key, color] of [["noise", "#f0b429"], ["truth", "#6cb6ff"]]) {
+      g.strokeStyle = color; g.lineWidth = 1.5; g.beginPath();
+      let on = false;
+      for (const p of pts) {
+        const v = p[key];
+        if (!(v > 0)) { on = false; continue; }
+        if (on) g.lineTo(x(p.t), y(v)); else { g.moveTo(x(p.t), y(v)); on = true; }
+      }
+      g.stroke();
+    }
+  }
   function onStats(s) {
     dbg.stats = s;
-    const lines = [
+    const noise = s.noise_estimate !== undefined ? s.noise_estimate : s.relative_error;
+    s.noise_estimate = noise;
+    const text = [
       `${fmtNum(s.fps, 2)} fps · ${s.accumulated} accumulated`,
       `${fmtRate(s.rays_per_s)}rays/s`,
-      `rel. error ${s.relative_error === null ? "–" : (100 * s.relative_error).toFixed(2) + " %"}`,
-      `input→frame ${fmtNum(s.view_latency_ms, 0)} ms · ${s.width}×${s.height}`,
-      `workers ${s.workers} (${s.threads} threads) · scene v${s.scene_version}`,
+      `noise estimate ${fmtErr(noise)} (relMSE from even/odd frames; blind to bias)`,
     ];
-    let html = lines.map(esc).join("<br>");
-    for (const w of s.per_worker || []) {
-      const pct = Math.round(100 * Math.min(1, w.busy || 0));
-      html += `<br><span class="track"><span class="bar" style="width:${pct}%"></span></span>` +
-        `${esc(w.name)}@${esc(w.host)} busy ${pct}% load ${Math.round(100 * w.load)}%`;
+    if (s.reference) {
+      text.push(s.true_rel_mse === null || s.true_rel_mse === undefined
+        ? `true relMSE – (view or scene differs from ${s.reference})`
+        : `true relMSE ${fmtErr(s.true_rel_mse)} vs ${s.reference}`);
     }
-    $("stats").innerHTML = html;
+    text.push(`input→frame ${fmtNum(s.view_latency_ms, 0)} ms · ${s.width}×${s.height}`,
+              `workers ${s.workers} (${s.threads} threads) · scene v${s.scene_version}`);
+    lines($("stats-text"), text);
+    const box = $("stats-workers");
+    box.textContent = "";
+    for (const w of s.per_worker || []) {
+      const pct = Math.round(100 * Math.min(1, Math.max(0, w.busy || 0)));
+      const row = el("div", "worker");
+      const track = el("span", "track");
+      const bar = el("span", "bar");
+      bar.style.width = `${Math.max(pct, 1)}%`;  // CSSOM: allowed by the CSP
+      track.appendChild(bar);
+      row.appendChild(track);
+      row.appendChild(document.createTextNode(
+        `${w.name}@${w.host} busy ${pct}% load ${Math.round(100 * (w.load || 0))}%`));
+      box.appendChild(row);
+    }
+    const left = (s.workers_left || []).slice(-3).map((d) => `${d.name} left: ${d.reason}`);
+    lines($("stats-left"), left);
+    record(s);
+    drawPlot();
     if (s.plan) showPlan(s.plan);
   }
   function showPlan(plan) {
@@ -182,7 +256,48 @@
 
   // ------------------------------------------------------------------ parameter panel (from the schema)
   const controls = {};
-  function decimals(step) { return Math.max(0, -Math.floor(Math.log10(step))); }
+  let inUse = {};
+  const SLIDER_STEPS = 1000;
+  // Slider position <-> value. Position 0 is the -1 sentinel ("auto", "unlimited", ...) where
+  // the parameter has one; a "log" scale spreads ranges that span decades (log1p for integers
+  // from 0, log over [max·1e-5, max] for fractions), so e.g. 4 of 0…256 VPLs sits near 30 %.
+  function sliderScale(p) {
+    const isInt = p.type === "int";
+    const special = p.special !== null && p.special !== undefined && p.min === -1;
+    const lo = special ? (isInt ? 1 : 0) : p.min, hi = p.max;
+    const start = special ? 1 : 0, span = SLIDER_STEPS - start;
+    let fwd, inv;
+    if (p.scale === "log" && isInt) {
+      const L = Math.log1p(hi - lo);
+      fwd = (v) => Math.log1p(Math.max(0, v - lo)) / L;
+      inv = (t) => lo + Math.round(Math.expm1(t * L));
+    } else if (p.scale === "log") {
+      const eps = hi * 1e-5, L = Math.log(hi / eps);
+      fwd = (v) => (v <= eps ? 0 : Math.log(v / eps) / L);
+      inv = (t) => (t <= 0 ? 0 : Number((eps * Math.exp(t * L)).toPrecision(3)));
+    } else {
+      fwd = (v) => (v - lo) / (hi - lo);
+      inv = (t) => (isInt ? Math.round(lo + t * (hi - lo)) : Number((lo + t * (hi - lo)).toPrecision(3)));
+    }
+    const clamp01 = (t) => Math.min(1, Math.max(0, t));
+    return {
+      toPos: (v) => (special && v === -1 ? 0 : start + Math.round(clamp01(fwd(v)) * span)),
+      fromPos: (pos) => (special && pos === 0 ? -1 : inv((pos - start) / span)),
+    };
+  }
+  function showValue(p, v) {
+    if (p.special && v === -1) {
+      const u = inUse[p.name];
+      return u === undefined || u === p.special ? p.special : `${p.special} (= ${u})`;
+    }
+    return p.type === "int" ? String(v) : String(Number(Number(v).toPrecision(4)));
+  }
+  function parseValue(p, text) {
+    const t = String(text).trim().toLowerCase();
+    if (p.special && (t === "-1" || t.startsWith(p.special) || t.startsWith("auto"))) return -1;
+    const v = Number(t);
+    return Number.isFinite(v) ? v : null;
+  }
   function buildPanel(params) {
     const form = $("params");
     form.textContent = "";
@@ -211,39 +326,39 @@
         row.appendChild(cb);
         controls[p.name] = { set: (v) => { cb.checked = !!v; } };
       } else {
-        const isInt = p.type === "int";
-        const range = p.min !== null && p.max !== null ? p.max - p.min : null;
-        const step = isInt ? 1 : (range ? Math.pow(10, Math.floor(Math.log10(range / 1000))) : 0.001);
         const num = document.createElement("input");
-        num.type = "number"; num.step = String(step); num.dataset.param = p.name;
-        if (p.min !== null) num.min = String(p.min);
-        if (p.max !== null) num.max = String(p.max);
+        num.type = "text"; num.className = "val"; num.dataset.param = p.name;
+        num.setAttribute("inputmode", "decimal");
         let slider = null;
-        if (range !== null) {
+        const scale = p.min !== null && p.max !== null ? sliderScale(p) : null;
+        if (scale) {
           slider = document.createElement("input");
           slider.type = "range"; slider.id = `p-${p.name}`; slider.dataset.param = p.name;
-          slider.min = String(p.min); slider.max = String(p.max); slider.step = String(step);
+          slider.min = "0"; slider.max = String(SLIDER_STEPS); slider.step = "1";
+          slider.dataset.scale = p.scale || "linear";
           let deb = null;
           slider.addEventListener("input", () => {
-            num.value = slider.value;
+            const v = scale.fromPos(Number(slider.value));
+            num.value = showValue(p, v);
             clearTimeout(deb);
-            deb = setTimeout(() => sendParam(p, Number(slider.value)), 200);
+            deb = setTimeout(() => sendParam(p, v), 200);
           });
-          slider.addEventListener("change", () => { clearTimeout(deb); sendParam(p, Number(slider.value)); });
+          slider.addEventListener("change", () => { clearTimeout(deb); sendParam(p, scale.fromPos(Number(slider.value))); });
           row.appendChild(slider);
         } else {
           num.id = `p-${p.name}`;
           row.appendChild(document.createElement("span"));
         }
         num.addEventListener("change", () => {
-          const v = Number(num.value);
-          if (Number.isFinite(v)) sendParam(p, v);
+          const v = parseValue(p, num.value);
+          if (v !== null) sendParam(p, v);
+          else say(`${p.name}: not a number`, false);
         });
         row.appendChild(num);
         const set = (v) => {
-          const t = isInt ? String(v) : Number(v).toFixed(decimals(step)).replace(/\.?0+$/, "") || "0";
-          num.value = t;
-          if (slider) slider.value = String(v);
+          num.value = showValue(p, v);
+          num.classList.toggle("auto", p.special !== null && p.special !== undefined && v === -1);
+          if (slider) slider.value = String(scale.toPos(v));
         };
         set(value);
         controls[p.name] = { set };
@@ -415,7 +530,7 @@
   function onJSON(m) {
     switch (m.type) {
       case "init":
-        schema = m.schema; scene = m.scene; dbg.version = m.scene_version;
+        schema = m.schema; scene = m.scene; dbg.version = m.scene_version; inUse = m.in_use || {};
         cam.ready = false;
         setCamera(m.view.camera, m.view.fov_x);
         $("res-w").value = m.view.width; $("res-h").value = m.view.height;
@@ -423,7 +538,7 @@
         if (m.plan) showPlan(m.plan);
         break;
       case "stats": onStats(m); break;
-      case "params": showParams(m.params); say("parameters applied"); break;
+      case "params": inUse = m.in_use || inUse; showParams(m.params); say("parameters applied"); break;
       case "view":
         $("res-w").value = m.view.width; $("res-h").value = m.view.height;
         break;

@@ -136,3 +136,174 @@ def _alive(pid: int) -> bool:
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
     except OSError:
         return False
+
+
+# ----------------------------------------------------------------------------- bundled scenes, bad input
+
+def test_scenes_lists_the_bundled_scenes():
+    r = igi("scenes")
+    assert r.returncode == 0, r.stderr
+    names = [line.split()[0] for line in r.stdout.splitlines() if line.strip()]
+    assert "cornell-box" in names and "window-room" in names
+
+
+@pytest.mark.parametrize("name", ["cornell-box", "window-room"])
+def test_bundled_scene_renders_by_name(tmp_path, name):
+    from common.image_io import read_image
+
+    out = tmp_path / f"{name}.exr"
+    r = igi("render", name, "-o", out, "--width", 32, "--height", 24, "--workers", 0, "-q", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    img = read_image(out)
+    assert img.shape == (24, 32, 3) and np.isfinite(img).all() and img.mean() > 0.01
+
+
+def test_an_existing_path_wins_over_a_bundled_name(tmp_path):
+    (tmp_path / "cornell-box").mkdir()  # a directory of that name: the path wins, and is no file
+    r = igi("render", "cornell-box", "-o", "x.exr", cwd=tmp_path)
+    assert r.returncode == 2 and "not a file" in r.stderr
+
+
+_TRI_SHAPE = '<shape type="cube"/><emitter type="constant"/>'
+BAD_SCENES = {
+    "film-width": ('<scene version="3.0.0"><sensor type="perspective"><film type="hdrfilm">'
+                   '<integer name="width" value="2000000000"/><integer name="height" value="2"/></film></sensor>'
+                   + _TRI_SHAPE + "</scene>", "2000000000"),
+    "empty": ('<scene version="3.0.0"><shape type="obj"><string name="filename" value="empty.obj"/></shape>'
+              '<emitter type="constant"/></scene>', "nothing to render"),
+    "camera-up-parallel": ('<scene version="3.0.0"><sensor type="perspective"><transform name="to_world">'
+                           '<lookat origin="0,0,5" target="0,0,0" up="0,0,1"/></transform></sensor>'
+                           + _TRI_SHAPE + "</scene>", "parallel"),
+    "camera-1e308": ('<scene version="3.0.0"><sensor type="perspective"><transform name="to_world"><matrix value="'
+                     + " ".join(["1e308"] * 12 + ["0", "0", "0", "1"]) + '"/></transform></sensor>'
+                     + _TRI_SHAPE + "</scene>", "1e+308"),
+    "camera-zero": ('<scene version="3.0.0"><sensor type="perspective"><transform name="to_world"><matrix value="'
+                    + " ".join(["0"] * 15 + ["1"]) + '"/></transform></sensor>' + _TRI_SHAPE + "</scene>",
+                    "forward direction is zero"),
+    "malformed-xml": ('<scene version="3.0.0"><shape type="cube"></scene>', "scene.xml:1"),
+    "missing-mesh": ('<scene version="3.0.0"><shape type="obj"><string name="filename" value="nowhere.obj"/>'
+                     '</shape><emitter type="constant"/></scene>', "nowhere.obj"),
+}
+
+
+def _one_error_line(r, needle: str) -> None:
+    assert r.returncode != 0
+    assert "Traceback" not in r.stderr, r.stderr
+    errors = [line for line in r.stderr.splitlines() if line.startswith("igi: error:")]
+    assert len(errors) == 1, r.stderr
+    assert needle.lower() in errors[0].lower(), r.stderr
+
+
+@pytest.mark.parametrize("case", sorted(BAD_SCENES))
+@pytest.mark.parametrize("workers", [0, 1])
+def test_bad_scene_is_one_line(tmp_path, case, workers):
+    text, needle = BAD_SCENES[case]
+    (tmp_path / "scene.xml").write_text(text)
+    (tmp_path / "empty.obj").write_text("# no faces\nv 0 0 0\n")
+    r = igi("render", "scene.xml", "-o", "x.png", "--workers", workers, "-q", cwd=tmp_path, timeout=120)
+    _one_error_line(r, needle)
+    assert not (tmp_path / "x.png").exists()
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--width", 100000, "--height", 100000], "16384"),
+    (["--width", 10000, "--height", 10000], "memory budget"),
+    (["--width", 4000, "--height", 4000, "--memory-budget", "64M"], "memory budget"),
+    (["--memory-budget", "lots"], "memory budget"),
+    (["--frames", 10 ** 9], "--frames"),
+])
+def test_absurd_sizes_are_one_line(tmp_path, args, needle):
+    r = igi("render", "cornell-box", "-o", "x.png", *args, cwd=tmp_path, timeout=120)
+    _one_error_line(r, needle)
+
+
+def test_memory_budget_from_the_environment(tmp_path):
+    env_before = os.environ.get("IGI_MEMORY_BUDGET")
+    os.environ["IGI_MEMORY_BUDGET"] = "16M"
+    try:
+        r = igi("render", "cornell-box", "-o", "x.png", "--width", 400, "--height", 400, cwd=tmp_path)
+    finally:
+        if env_before is None:
+            del os.environ["IGI_MEMORY_BUDGET"]
+        else:
+            os.environ["IGI_MEMORY_BUDGET"] = env_before
+    _one_error_line(r, "IGI_MEMORY_BUDGET")
+
+
+def test_serve_refuses_absurd_sizes(tmp_path):
+    r = igi("serve", "--width", 100000, "--height", 10, "--workers", 0, "--http", "", cwd=tmp_path, timeout=120)
+    _one_error_line(r, "16384")
+
+
+def test_serve_restarts_a_killed_local_worker(tmp_path):
+    """SIGKILL one of ``igi serve``'s local workers (serving the default, bundled scene): the
+    supervisor logs it, starts a new one after the back-off, and the new worker joins the master."""
+    import re
+    import signal
+    import socket
+    import threading
+    import time
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    cmd = [sys.executable, "-m", "master.cli", "serve", "--workers", "1",  # no scene: the bundled Cornell box
+           "--bind", f"tcp://127.0.0.1:{port}", "--http", "", "--width", "32", "--height", "24",
+           "--stats-interval", "0.5"]
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
+    p = subprocess.Popen(cmd, cwd=tmp_path, env=env, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True)
+    lines: list[str] = []
+    threading.Thread(target=lambda: lines.extend(iter(p.stderr.readline, "")), daemon=True).start()
+
+    def wait_for(pattern, since=0, timeout=120):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            for line in lines[since:]:
+                m = re.search(pattern, line)
+                if m:
+                    return m
+            assert p.poll() is None, "".join(lines)
+            time.sleep(0.1)
+        raise AssertionError(f"no line matching {pattern!r}:\n" + "".join(lines))
+    try:
+        first = wait_for(r"worker local0 joined \(.*pid (\d+)")
+        pid = int(first.group(1))
+        assert pid in _children(p.pid)
+        n = len(lines)
+        os.kill(pid, signal.SIGKILL)
+        wait_for(r"local worker local0 \(pid %d\) killed by SIGKILL.*restarting in" % pid, since=n)
+        again = wait_for(r"worker local0 joined \(.*pid (\d+)", since=n)
+        new_pid = int(again.group(1))
+        assert new_pid != pid and new_pid in _children(p.pid)
+        wait_for(r" [1-9]\d* accumulated", since=len(lines) - 1)  # frames still come
+        assert "Traceback" not in "".join(lines)
+        p.send_signal(signal.SIGTERM)
+        assert p.wait(30) == 0
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+
+
+def test_unwritable_output_is_one_line(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    r = igi("render", "cornell-box", "-o", blocker / "out.png", "--width", 8, "--height", 8, "--workers", 0, "-q",
+            cwd=tmp_path)
+    _one_error_line(r, "cannot write")
+
+
+def test_unexpected_failure_is_one_line_and_traceback_only_with_v(capsys, caplog, monkeypatch):
+    from master import cli
+
+    def boom(args):
+        raise RuntimeError("something\nunexpected")
+    monkeypatch.setattr(cli, "cmd_scenes", boom)
+    assert cli.main(["scenes"]) == 1
+    err = capsys.readouterr().err
+    assert err.strip() == "igi: error: RuntimeError: something unexpected (-v for details)"
+    assert cli.main(["-v", "scenes"]) == 1
+    err = capsys.readouterr().err
+    assert "igi: error: RuntimeError: something unexpected" in err
+    assert "Traceback" in err + caplog.text  # (pytest's log capture takes the logging output in-process)

@@ -159,6 +159,15 @@ async def _ws_session(url: str):
         init = await recv_json("init")
         assert [p["name"] for p in init["schema"]] == [p["name"] for p in viewer_schema()]
         assert init["view"]["width"] == SIZE and init["scene"]["meshes"]
+        assert init["in_use"]["clamp"] == 1e-3 and init["reference"] == "cornell-box.exr"
+        # the scene's own view, unedited: the true relMSE against ../shared/references/cornell-box.exr
+        deadline = time.monotonic() + 90
+        while True:
+            st = await recv_json("stats")
+            if st["true_rel_mse"] is not None and st["noise_estimate"] is not None:
+                break
+            assert time.monotonic() < deadline, st
+        assert 0 < st["true_rel_mse"] < 1 and st["reference"] == "cornell-box.exr"
         h0, img0 = await recv_frame()
         assert img0.shape == (SIZE, SIZE, 3) and h0["mime"] == "image/jpeg" and img0.mean() > 1
 
@@ -209,6 +218,67 @@ async def _ws_session(url: str):
 
 def test_websocket_frames_camera_params_select_move(served):
     asyncio.run(_ws_session(served.url))
+
+
+async def _hostile_session(url: str):
+    """Bad JSON, deep JSON, absurd sizes and degenerate cameras: each gets an error reply and
+    frames keep coming."""
+    import aiohttp
+
+    async with aiohttp.ClientSession() as session:
+        async with session.ws_connect(url.replace("http://", "ws://") + "ws", max_msg_size=0) as ws:
+            async def next_text(kind=None, timeout=60):
+                deadline = time.monotonic() + timeout
+                while True:
+                    m = await ws.receive(max(0.01, deadline - time.monotonic()))
+                    if m.type == aiohttp.WSMsgType.BINARY:
+                        n = struct.unpack(">I", m.data[:4])[0]
+                        await ws.send_str(json.dumps({"type": "ack", "seq": json.loads(m.data[4:4 + n])["seq"]}))
+                        continue
+                    assert m.type == aiohttp.WSMsgType.TEXT, m
+                    d = json.loads(m.data)
+                    if kind is None and d["type"] in ("stats", "init"):
+                        continue
+                    if kind is None or d["type"] == kind:
+                        return d
+
+            async def frame_after(seq, timeout=60):
+                deadline = time.monotonic() + timeout
+                while True:
+                    m = await ws.receive(max(0.01, deadline - time.monotonic()))
+                    if m.type == aiohttp.WSMsgType.BINARY:
+                        n = struct.unpack(">I", m.data[:4])[0]
+                        h = json.loads(m.data[4:4 + n])
+                        await ws.send_str(json.dumps({"type": "ack", "seq": h["seq"]}))
+                        if h["seq"] > seq:
+                            return h
+
+            init = await next_text("init")
+            h = await frame_after(0)
+            cam = init["view"]["camera"]
+            bad = [
+                ("{not json", "not valid JSON"),
+                ("[" * 100_000, "nested deeper"),
+                ('"just a string"', "JSON object"),
+                (json.dumps({"type": "resolution", "width": 100_000, "height": 100_000}), "16384"),
+                (json.dumps({"type": "resolution", "width": 8192, "height": 8192}), "memory budget"),
+                (json.dumps({"type": "resolution", "width": "x", "height": 5}), "integer"),
+                (json.dumps({"type": "camera", "to_world": [1e308] * 16}), "beyond the limit"),
+                (json.dumps({"type": "camera", "to_world": [0.0] * 15 + [1.0]}), "forward direction is zero"),
+                (json.dumps({"type": "camera", "to_world": cam, "fov_x": 180}), "fov"),
+                (json.dumps({"type": "params", "values": {"photons": 1e12}}), "photons"),
+            ]
+            for text, needle in bad:
+                await ws.send_str(text)
+                reply = await next_text()
+                assert reply["type"] == "error" and needle in reply["message"], (text[:40], reply)
+            h2 = await frame_after(h["seq"])  # the stream goes on
+            assert h2["width"] == SIZE and h2["height"] == SIZE and h2["camera"] == cam
+
+
+def test_hostile_messages_get_error_replies_and_the_stream_goes_on(served):
+    asyncio.run(_hostile_session(served.url))
+    assert not any("Traceback" in line for line in served.log), "".join(served.log)
 
 
 def test_ws_latency_through_the_viewer(served):
@@ -288,6 +358,40 @@ def _pick_pixel(camera, fov_x):
     return mesh, float(px[i]), float(py[i])
 
 
+def wait_js(page, expr: str, arg=None, timeout: float = 30_000):
+    """Poll a page expression until truthy (page.wait_for_function needs eval, which the page's
+    CSP forbids; evaluate goes through the DevTools protocol)."""
+    deadline = time.monotonic() + timeout / 1000
+    while True:
+        v = page.evaluate(expr, arg) if arg is not None else page.evaluate(expr)
+        if v:
+            return v
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout / 1000:.0f} s waiting for: {expr}")
+        time.sleep(0.1)
+
+
+def expected_slider_position(p: dict, v) -> int:
+    """Where the page must put a slider for value v (the scale of master/viewer_static/app.js)."""
+    import math
+
+    steps = 1000
+    special = p.get("special") is not None and p["min"] == -1
+    if special and v == -1:
+        return 0
+    lo = (1 if p["type"] == "int" else 0) if special else p["min"]
+    hi = p["max"]
+    start = 1 if special else 0
+    if p.get("scale") == "log" and p["type"] == "int":
+        t = math.log1p(max(0, v - lo)) / math.log1p(hi - lo)
+    elif p.get("scale") == "log":
+        eps = hi * 1e-5
+        t = 0 if v <= eps else math.log(v / eps) / math.log(hi / eps)
+    else:
+        t = (v - lo) / (hi - lo)
+    return start + round(min(1, max(0, t)) * (steps - start))
+
+
 def _diff(a, b) -> float:
     return float(np.abs(np.asarray(a, np.float32) - np.asarray(b, np.float32)).mean())
 
@@ -301,20 +405,55 @@ def test_browser_viewer(served):
     with sync_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
         try:
-            # bypass_csp: wait_for_function evaluates strings, which the page's CSP (no eval) forbids
-            page = browser.new_page(viewport={"width": 1280, "height": 1080}, bypass_csp=True)
+            # the page's own CSP is enforced: any violation is a console error and an event
+            page = browser.new_page(viewport={"width": 1280, "height": 1080})
+            page.add_init_script("window.__csp = []; document.addEventListener('securitypolicyviolation', "
+                                 "(e) => window.__csp.push(e.violatedDirective + ' ' + e.blockedURI));")
             page.on("pageerror", lambda e: errors.append(str(e)))
             page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
             page.goto(served.url)
-            page.wait_for_function("window.igi && window.igi.frames >= 2", timeout=90_000)
+            wait_js(page, "window.igi && window.igi.frames >= 2", timeout=90_000)
             # the panel is generated from the declarations
             from common.params import viewer_schema
 
             for prm in viewer_schema():
                 assert page.locator(f'[data-param="{prm["name"]}"]').count() >= 1, prm["name"]
-            page.wait_for_function("window.igi.stats && window.igi.stats.workers >= 1", timeout=30_000)
-            assert "fps" in page.inner_text("#stats")
-            page.wait_for_function("document.getElementById('plan').textContent.includes('caustics')",
+            wait_js(page, "window.igi.stats && window.igi.stats.workers >= 1", timeout=30_000)
+            overlay = page.inner_text("#stats")
+            assert "fps" in overlay and "noise estimate" in overlay and "rel. error" not in overlay
+
+            # load bars are drawn (CSSOM width, allowed by the CSP)
+            wait_js(page, "document.querySelectorAll('#stats .bar').length >= 1", timeout=30_000)
+            widths = page.evaluate("Array.from(document.querySelectorAll('#stats .bar'))"
+                                   ".map((b) => b.getBoundingClientRect().width)")
+            assert widths and all(w > 0 for w in widths), widths
+
+            # sliders sit where their values are; "auto" values say what is in use
+            params = page.evaluate("window.igi.params")
+            schema = {s["name"]: s for s in viewer_schema()}
+            positions = page.evaluate("Object.fromEntries(Array.from(document.querySelectorAll("
+                                      "'input[type=range][data-param]')).map((s) => [s.dataset.param, Number(s.value)]))")
+            assert set(positions) >= {"direct_vpls", "indirect_vpls", "photons", "clamp"}
+            for name, pos in positions.items():
+                assert abs(pos - expected_slider_position(schema[name], params[name])) <= 1, (name, pos, params[name])
+            for name in ("direct_vpls", "indirect_vpls", "photons"):  # not at the left end (issue 18)
+                assert 150 <= positions[name] <= 900, (name, positions[name])
+            assert positions["clamp"] == 0 and params["clamp"] == -1
+            values = page.evaluate("Object.fromEntries(Array.from(document.querySelectorAll("
+                                   "'input.val[data-param]')).map((s) => [s.dataset.param, s.value]))")
+            assert values["clamp"] == "auto (= 0.001)" and values["photon_radius"] == "auto (= 0.005)"
+            assert values["filter_window"] == f"auto (= {params['interleave']})"
+            assert values["max_depth"] == "unlimited" and values["direct_vpls"] == "4"
+
+            # the time-vs-error plot has something drawn
+            wait_js(page, "window.igi.stats && window.igi.stats.noise_estimate !== null", timeout=60_000)
+            time.sleep(1.0)
+            drawn = page.evaluate("(() => { const c = document.getElementById('error-plot'); "
+                                  "const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data; "
+                                  "let n = 0; for (let i = 0; i < d.length; i += 4) if (d[i] > 200 && d[i + 2] < 120) n++; "
+                                  "return n; })()")
+            assert drawn > 5, "the noise-estimate curve is drawn"
+            wait_js(page, "document.getElementById('plan').textContent.includes('caustics')",
                                    timeout=30_000)
             wait_settled = """([gen]) => { const h = window.igi.header, c = window.igi.lastCamera;
                 return h && h.generation > gen && (!c || h.camera.every((v, i) => Math.abs(v - c[i]) < 1e-9)); }"""
@@ -328,7 +467,7 @@ def test_browser_viewer(served):
             page.mouse.down()
             page.mouse.move(cx + box["width"] * 0.06, cy + box["height"] * 0.02, steps=8)
             page.mouse.up()
-            page.wait_for_function(wait_settled, arg=[g], timeout=90_000)
+            wait_js(page, wait_settled, arg=[g], timeout=90_000)
             assert page.evaluate("window.igi.cameraSent") >= 1
             after_drag = page.evaluate("window.igi.snapshot()")
             assert _diff(base, after_drag) > 2.0, "dragging the camera changes the image"
@@ -341,7 +480,7 @@ def test_browser_viewer(served):
             page.keyboard.down("w")
             time.sleep(0.25)
             page.keyboard.up("w")
-            page.wait_for_function(wait_settled, arg=[g], timeout=90_000)
+            wait_js(page, wait_settled, arg=[g], timeout=90_000)
             assert page.evaluate("window.igi.cameraSent") >= sent + 2
             after_fly = page.evaluate("window.igi.snapshot()")
             assert _diff(after_drag, after_fly) > 2.0, "zoom + fly change the image"
@@ -352,38 +491,39 @@ def test_browser_viewer(served):
             slider = page.locator('input[type=range][data-param="direct_vpls"]')
             slider.focus()
             slider.press("Home")
-            page.wait_for_function("window.igi.params && window.igi.params.direct_vpls === 0", timeout=30_000)
-            page.wait_for_function(f"window.igi.generation > {g}", timeout=90_000)
+            wait_js(page, "window.igi.params && window.igi.params.direct_vpls === 0", timeout=30_000)
+            wait_js(page, f"window.igi.generation > {g}", timeout=90_000)
             after_slider = page.evaluate("window.igi.snapshot()")
             assert _diff(after_drag, after_slider) > 1.0, "moving a slider changes the image"
             g = page.evaluate("window.igi.generation")
-            page.fill('input[type=number][data-param="direct_vpls"]', "4")  # back to the default
-            page.press('input[type=number][data-param="direct_vpls"]', "Enter")
-            page.wait_for_function("window.igi.params && window.igi.params.direct_vpls === 4", timeout=30_000)
-            page.wait_for_function(f"window.igi.generation > {g}", timeout=90_000)
+            page.fill('input.val[data-param="direct_vpls"]', "4")  # back to the default
+            page.press('input.val[data-param="direct_vpls"]', "Enter")
+            wait_js(page, "window.igi.params && window.igi.params.direct_vpls === 4", timeout=30_000)
+            wait_js(page, f"window.igi.generation > {g}", timeout=90_000)
 
             # 3. click an object, move it with the arrow keys
             header = page.evaluate("window.igi.header")
             mesh, x, y = _pick_pixel(header["camera"], header["fov_x"])
             page.mouse.click(box["x"] + x / SIZE * box["width"], box["y"] + y / SIZE * box["height"])
-            page.wait_for_function("window.igi.selection !== null", timeout=30_000)
+            wait_js(page, "window.igi.selection !== null", timeout=30_000)
             assert page.evaluate("window.igi.selection.mesh") == mesh
             before_move = page.evaluate("window.igi.snapshot()")
             v0 = page.evaluate("window.igi.version")
             for _ in range(4):
                 page.keyboard.press("ArrowLeft")
-            page.wait_for_function(f"window.igi.version >= {v0 + 1}", timeout=30_000)
-            page.wait_for_function("window.igi.header.scene_version === window.igi.version "
+            wait_js(page, f"window.igi.version >= {v0 + 1}", timeout=30_000)
+            wait_js(page, "window.igi.header.scene_version === window.igi.version "
                                    "&& window.igi.movesSent >= 1", timeout=90_000)
             time.sleep(0.3)
-            page.wait_for_function("window.igi.header.scene_version === window.igi.version", timeout=90_000)
+            wait_js(page, "window.igi.header.scene_version === window.igi.version", timeout=90_000)
             after_move = page.evaluate("window.igi.snapshot()")
             assert _diff(before_move, after_move) > 0.5, "moving an object changes the image"
 
             # a few accumulated frames for the screenshot
-            page.wait_for_function("window.igi.accumulated >= 3", timeout=90_000)
+            wait_js(page, "window.igi.accumulated >= 3", timeout=90_000)
             page.screenshot(path=str(ARTIFACTS / "viewer.png"))
             assert page.evaluate("window.igi.errors") == []
+            assert page.evaluate("window.__csp") == [], "Content-Security-Policy violations"
         finally:
             browser.close()
     assert not errors, errors
@@ -465,6 +605,69 @@ def test_loopback_needs_no_token_and_refuses_foreign_origins(quiet_broker):
         v.stop()
 
 
+def test_dns_rebinding_shaped_requests_are_refused(quiet_broker):
+    """Loopback viewer: a request whose Host is not 127.0.0.1/localhost/[::1] with the port gets 403
+    (a web page reaching it through a rebinding name), even with a matching Origin."""
+    from master import viewer
+
+    v = viewer.start(quiet_broker, "127.0.0.1", 0, None, pub=None, quiet=True)
+    try:
+        base = f"http://127.0.0.1:{v.port}/"
+        evil = f"evil.example:{v.port}"
+        assert http_get(base + "api/state", {"Host": evil})[0] == 403
+        assert http_get(base, {"Host": evil})[0] == 403
+        assert http_get(base + "api/state", {"Host": f"127.0.0.1:{v.port + 1}"})[0] == 403
+        for ok in (f"127.0.0.1:{v.port}", f"localhost:{v.port}", f"[::1]:{v.port}"):
+            assert http_get(base + "api/state", {"Host": ok})[0] == 200, ok
+
+        async def ws_status(host, origin):
+            import aiohttp
+
+            async with aiohttp.ClientSession() as s:
+                try:
+                    async with s.ws_connect(f"ws://127.0.0.1:{v.port}/ws", headers={"Host": host, "Origin": origin}):
+                        return 101
+                except aiohttp.WSServerHandshakeError as e:
+                    return e.status
+        assert asyncio.run(ws_status(evil, f"http://{evil}")) == 403
+        assert asyncio.run(ws_status(f"localhost:{v.port}", f"http://localhost:{v.port}")) == 101
+    finally:
+        v.stop()
+
+
+def test_move_edits_are_rate_limited_per_client(quiet_broker):
+    from master import viewer
+
+    v = viewer.start(quiet_broker, "127.0.0.1", 0, None, pub=None, quiet=True)
+
+    async def go():
+        import aiohttp
+
+        async with aiohttp.ClientSession() as s:
+            async with s.ws_connect(f"ws://127.0.0.1:{v.port}/ws") as ws:
+                async def reply():
+                    while True:
+                        d = json.loads((await ws.receive(30)).data)
+                        if d["type"] not in ("init", "stats"):
+                            return d
+                await ws.send_str(json.dumps({"type": "select", "emitter": 0}))
+                assert (await reply())["type"] == "selected"
+                kinds = []
+                for _ in range(viewer.EDIT_BURST + 20):
+                    await ws.send_str(json.dumps({"type": "move", "delta": [0.0, 1e-4, 0.0]}))
+                for _ in range(viewer.EDIT_BURST + 20):
+                    kinds.append(await reply())
+                return kinds
+    try:
+        replies = asyncio.run(go())
+    finally:
+        v.stop()
+    moved = [r for r in replies if r["type"] == "moved"]
+    limited = [r for r in replies if r["type"] == "error"]
+    assert viewer.EDIT_BURST <= len(moved) < viewer.EDIT_BURST + 20
+    assert limited and all("too many edits" in r["message"] for r in limited)
+
+
 def test_pick_and_move_edits(quiet_broker):
     from master.viewer import SceneInfo, move_edit, pick, select_object
 
@@ -543,3 +746,59 @@ def test_feed_address_in_use(quiet_broker):
             v.stop()
     finally:
         busy.close(0)
+
+
+def test_overlay_says_which_worker_left_and_why(quiet_broker):
+    from master import viewer
+
+    v = viewer.start(quiet_broker, "127.0.0.1", 0, None, pub=None, quiet=True)
+    v.note_worker_left("local0", "killed by SIGKILL; restarting in 0.5 s")
+
+    async def go():
+        import aiohttp
+
+        async with aiohttp.ClientSession() as s:
+            async with s.ws_connect(f"ws://127.0.0.1:{v.port}/ws") as ws:
+                while True:
+                    d = json.loads((await ws.receive(30)).data)
+                    if d["type"] == "stats":
+                        return d
+    try:
+        stats = asyncio.run(go())
+    finally:
+        v.stop()
+    assert stats["workers_left"][-1]["name"] == "local0"
+    assert "SIGKILL" in stats["workers_left"][-1]["reason"]
+
+
+def test_reference_beside_the_scene_gives_the_true_rel_mse(tmp_path):
+    from common.bundled import reference_of
+    from common.camera import look_at
+    from common.image_io import write_exr
+    from common.scene import Camera
+    from master.viewer import Reference
+
+    scene_dir = tmp_path / "scenes" / "box"
+    scene_dir.mkdir(parents=True)
+    (scene_dir / "scene.xml").write_text("<scene version='3.0.0'/>")
+    assert reference_of(scene_dir / "scene.xml") is None
+    (tmp_path / "references").mkdir()
+    write_exr(tmp_path / "references" / "box.exr", np.full((8, 8, 3), 0.5, np.float32))  # ../shared layout
+    assert reference_of(scene_dir / "scene.xml") == (tmp_path / "references" / "box.exr").resolve()
+    write_exr(scene_dir / "reference.exr", np.full((8, 8, 3), 0.25, np.float32))  # beside it wins
+    ref = Reference(reference_of(scene_dir / "scene.xml"))
+    assert ref.path.name == "reference.exr"
+
+    cam = Camera(look_at([0, 0, 5], [0, 0, 0], [0, 1, 0]), fov=40, width=8, height=8)
+    scene = SimpleNamespace(camera=cam)
+
+    def frame(img, version=0, to_world=cam.to_world):
+        spec = SimpleNamespace(scene_version=version, camera_to_world=tuple(np.ravel(to_world)), fov_x=cam.fov_x)
+        return SimpleNamespace(spec=spec, image=img)
+    assert ref.rel_mse(frame(np.full((4, 4, 3), 0.25, np.float32)), scene) == pytest.approx(0.0)  # resampled
+    err = ref.rel_mse(frame(np.full((8, 8, 3), 0.5, np.float32)), scene)
+    assert err == pytest.approx(0.25 ** 2 / (0.25 ** 2 + 0.01))
+    assert ref.rel_mse(frame(np.full((8, 8, 3), 0.5, np.float32), version=1), scene) is None, "edited scene"
+    moved = np.array(cam.to_world, float)
+    moved[0, 3] += 1
+    assert ref.rel_mse(frame(np.full((8, 8, 3), 0.5, np.float32), to_world=moved), scene) is None, "other view"
