@@ -178,6 +178,8 @@ def cmd_render(args: argparse.Namespace) -> int:
             raise UsageError(f"--{name} must be >= 1")
     if args.workers < 0:
         raise UsageError("--workers must be >= 0")
+    if args.threads < 1:
+        raise UsageError("--threads must be >= 1")
     params = params_from(args)
     check_sizes(args.width, args.height, args.frames)  # before loading: fail fast
     scene = load_scene_file(args.scene)
@@ -262,7 +264,7 @@ def _render_frames(args, scene, params, on_frame):
         from master.broker import FrameCancelled
 
         with Broker(scene, bind="tcp://127.0.0.1:*") as broker:
-            workers = LocalWorkers(broker.endpoint, args.workers)
+            workers = LocalWorkers(broker.endpoint, args.workers, threads=max(1, args.threads))
             done, dead = threading.Event(), threading.Event()
 
             def watchdog():  # every worker gone: stop the master, which cancels the frames
@@ -331,7 +333,8 @@ def _serve(args, scene, local_workers: int) -> int:
     try:
         print(f"igi master listening on {broker.endpoint}", file=sys.stderr, flush=True)
         if local_workers:
-            workers = supervise_workers(broker.endpoint, local_workers, quiet=not args.verbose, curve_keys=keys)
+            workers = supervise_workers(broker.endpoint, local_workers, threads=max(1, getattr(args, "threads", 1)),
+                                        quiet=not args.verbose, curve_keys=keys)
         if scene is not None:
             broker.start_stream(params, width=getattr(args, "width", None), height=getattr(args, "height", None))
             viewer = _start_viewer(broker, args)
@@ -477,6 +480,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--height", type=int, default=None, help="image height (default: the scene's)")
     r.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="local worker processes (default: one per core; 0 = render in this process)")
+    r.add_argument("--threads", type=int, default=1,
+                   help="render threads per local worker process (they share one scene and set cache)")
     r.add_argument("--direct-only", action="store_true", help="direct light only (same as --max-depth 2)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     _add_render_params(r)
@@ -510,6 +515,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="Mitsuba XML or OBJ scene file, or a bundled scene's name (default: cornell-box)")
     s.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="local worker processes (default: one per core)")
+    s.add_argument("--threads", type=int, default=1,
+                   help="render threads per local worker process (they share one scene and set cache)")
     s.add_argument("--curve-keys", default=os.environ.get("IGI_KEYS_DIR") or None, metavar="DIR",
                     help="require CURVE-authenticated, encrypted workers (keys from `igi keys DIR`; "
                          "default: $IGI_KEYS_DIR)")
