@@ -28,7 +28,7 @@ Reliability (ZeroMQ guide, Paranoid Pirate over the data socket; ``common/protoc
 API (thread-safe)
 -----------------
     Broker(scene=None, bind="tcp://127.0.0.1:5555", heartbeat=1.0, liveness=3, task_pixels=4096,
-           pipeline=2, task_timeout=60, configure_socket=None)   # configure_socket(sock): before bind
+           pipeline=3, task_timeout=60, configure_socket=None)   # configure_socket(sock): before bind
     .start() -> Broker / .stop() / context manager; .endpoint (the bound address)
     .set_scene(scene) / .apply_edit(edit) -> version / .scene / .scene_version
     .submit_frame(spec) -> Future[FrameResult];  .render_frame(spec) -> FrameResult
@@ -165,7 +165,7 @@ class Broker:
 
     def __init__(self, scene: Scene | None = None, bind: str = DEFAULT_BIND, *,
                  heartbeat: float = P.HEARTBEAT_INTERVAL, liveness: int = P.HEARTBEAT_LIVENESS,
-                 task_pixels: int = DEFAULT_TASK_PIXELS, pipeline: int = 2,
+                 task_pixels: int = DEFAULT_TASK_PIXELS, pipeline: int = 3,
                  task_timeout: float = 60.0, context: zmq.Context | None = None,
                  configure_socket: Callable[[zmq.Socket], None] | None = None):
         self.bind_address = bind
