@@ -58,6 +58,7 @@ import zmq
 from common import protocol as P
 from common.frame import FrameSpec, Tile, accumulation_index
 from common.params import make_params, params_to_dict
+from common.ratelimit_log import RateLimitedLog
 from common.scene import Scene
 
 from . import scheduler
@@ -146,6 +147,17 @@ class _Task:
     worker: bytes | None = None
     sent: float = 0.0
     failures: int = 0
+    avoid: frozenset = frozenset()  # workers this task failed or timed out on (issue 20)
+    pending: Any = None  # its scheduler.PendingTask (rebuilt when ``avoid`` changes)
+
+    def as_pending(self, key) -> scheduler.PendingTask:
+        if self.pending is None:
+            self.pending = scheduler.PendingTask(key, self.set_key, self.avoid)
+        return self.pending
+
+    def avoid_worker(self, ident: bytes) -> None:
+        self.avoid = self.avoid | {ident}
+        self.pending = None
 
 
 @dataclass
@@ -200,6 +212,10 @@ class Broker:
         self._merge_times: collections.deque = collections.deque(maxlen=LATENCY_WINDOW)  # decode + scatter
         self._task_bytes: collections.deque = collections.deque(maxlen=LATENCY_WINDOW)
         self._counters = collections.Counter()
+        self._faults = scheduler.FaultLedger()  # per-worker fault accounting (issue 20)
+        self._rl = RateLimitedLog(log)  # one line per kind of junk per interval, counted
+        self._result_times: collections.deque = collections.deque(maxlen=LATENCY_WINDOW)  # _on_result
+        self._dispatch_times: collections.deque = collections.deque(maxlen=LATENCY_WINDOW)
         self._frame_times: collections.deque = collections.deque(maxlen=64)  # completion times
         self._frame_bytes: collections.deque = collections.deque(maxlen=64)
         self._rays: collections.deque = collections.deque(maxlen=4096)  # (time, rays traced)
@@ -810,7 +826,7 @@ class Broker:
             msg = P.decode(frame)
         except P.VersionMismatch as e:
             self._counters["refused"] += 1
-            log.warning("refused peer %s: %s", _peer(ident), e)
+            self._warn("refused", "refused peer %s: %s", _peer(ident), e)
             self._send_raw(ident, P.refusal(e.theirs))
             w = self._workers.get(ident)
             if w is not None:
@@ -846,7 +862,11 @@ class Broker:
 
     def _drop(self, ident: bytes, why: str) -> None:
         self._counters["dropped"] += 1
-        log.warning("dropped message from %s: %s", _peer(ident), why)
+        self._warn("dropped", "dropped message from %s: %s", _peer(ident), why)
+
+    def _warn(self, kind: str, msg: str, *args) -> None:
+        """A warning about what a peer did: rate-limited per kind, every one counted."""
+        self._rl.warning(kind, msg, *args)
 
     def _on_hello(self, ident: bytes, body: dict) -> None:
         old = self._workers.get(ident)
@@ -865,6 +885,11 @@ class Broker:
         self._dispatch()
 
     def _on_result(self, w: _Worker, body: dict) -> None:
+        t0 = time.perf_counter()
+        self._handle_result(w, body)
+        self._result_times.append(time.perf_counter() - t0)
+
+    def _handle_result(self, w: _Worker, body: dict) -> None:
         key = (body["frame"], body["task"])
         now = time.monotonic()
         if w.inflight.get(key) == body["epoch"]:
@@ -895,9 +920,10 @@ class Broker:
             # once per frame, in parallel stripes, when the frame's image is made
             f.assembler.add_wire(t.tile, body["data"])
         except Exception as e:
-            log.warning("bad result for task %s from %s: %s; re-queued", key, w.name, e)
-            self._task_failed(f, t, f"bad result: {e}")
+            self._warn("bad_result", "bad result for task %s from %s: %s; re-queued", key, w.name, e)
+            self._task_failed(f, t, f"bad result: {e}", w)
             return
+        self._faults.delivered(w.ident)
         if "sets" in body:
             v = f.spec.scene_version
             w.cached = {(v, s, k) for s, k in body["sets"]}
@@ -921,8 +947,8 @@ class Broker:
             f = self._frames.get(body["frame"])
             t = f.tasks.get(body["task"]) if f is not None else None
             if t is not None and t.epoch == body["epoch"] and t.worker == w.ident:
-                log.warning("task %s failed on %s: %s: %s", key, w.name, body["code"], body["message"])
-                self._task_failed(f, t, f"{body['code']}: {body['message']}")
+                self._warn("task_failed", "task %s failed on %s: %s: %s", key, w.name, body["code"], body["message"])
+                self._task_failed(f, t, f"{body['code']}: {body['message']}", w)
             return
         if body["code"] == "scene_unavailable":
             w.scenes.discard(self._scene_hash)
@@ -930,9 +956,12 @@ class Broker:
             return
         log.warning("worker %s reports %s: %s", w.name, body["code"], body["message"])
 
-    def _task_failed(self, f: _Frame, t: _Task, why: str) -> None:
+    def _task_failed(self, f: _Frame, t: _Task, why: str, w: _Worker | None = None) -> None:
         t.failures += 1
         t.worker = None
+        if w is not None:
+            t.avoid_worker(w.ident)  # another worker first
+            self._worker_fault(w, self._faults.failed(w.ident, why))
         if t.failures >= MAX_TASK_FAILURES:
             self._frames.pop(f.spec.frame, None)
             self._queue = collections.deque(k for k in self._queue if k[0] != f.spec.frame)
@@ -961,28 +990,50 @@ class Broker:
     def _dispatch(self) -> None:
         if not self._queue or not self._workers:
             return
-        views = [scheduler.WorkerView(w.ident, w.credit, len(w.inflight), frozenset(w.cached))
-                 for w in self._workers.values() if w.scene_state is not None]
-        free = sum(v.free for v in views)
-        if free == 0:
+        t0 = time.perf_counter()
+        views = self._worker_views()
+        if sum(v.free for v in views) == 0:
             return
+        assigned = scheduler.assign(self._pending_tasks(), views)
+        if assigned:
+            self._apply_assignments(assigned)
+        self._dispatch_times.append(time.perf_counter() - t0)
+
+    def _worker_views(self) -> list:
+        """What the policy sees of every worker that may get tasks: its effective credit
+        (bounded by what it delivered), tasks in flight, and the sets it holds or builds."""
+        views = []
+        for w in self._workers.values():
+            if w.scene_state is None or self._faults.quarantined(w.ident):
+                continue
+            sets = w.cached | {self._set_of(key) for key in w.inflight}
+            views.append(scheduler.WorkerView(w.ident, self._faults.credit(w.ident, w.credit),
+                                              len(w.inflight), frozenset(sets)))
+        return views
+
+    def _set_of(self, key) -> tuple | None:
+        f = self._frames.get(key[0])
+        t = f.tasks.get(key[1]) if f is not None else None
+        return t.set_key if t is not None else None
+
+    def _pending_tasks(self) -> list:
+        """The queue as the policy sees it (the whole queue: set-aware choice looks past the
+        front); tasks of frames gone meanwhile are dropped from the queue."""
         pending = []
         stale = 0
         for key in self._queue:
-            if len(pending) >= free:
-                break
             f = self._frames.get(key[0])
             t = f.tasks.get(key[1]) if f is not None else None
             if t is None:
                 stale += 1
                 continue
-            pending.append(scheduler.PendingTask(key, t.set_key))
+            pending.append(t.as_pending(key))
         if stale:
             self._queue = collections.deque(k for k in self._queue
                                             if k[0] in self._frames and k[1] in self._frames[k[0]].tasks)
-        assigned = scheduler.assign(pending, views)
-        if not assigned:
-            return
+        return pending
+
+    def _apply_assignments(self, assigned: list) -> None:
         done = set()
         for key, wid in assigned:
             w = self._workers.get(wid)
@@ -1034,22 +1085,57 @@ class Broker:
         through) goes back to the front of the queue. Its slot stays taken on that worker until
         something comes back, so a worker that never answers runs out of credit."""
         lost = []
+        timeout = self.current_task_timeout()
         for f in self._frames.values():
             for t in f.tasks.values():
-                if t.worker is not None and now - t.sent > self.task_timeout:
+                if t.worker is not None and now - t.sent > timeout:
                     w = self._workers.get(t.worker)
-                    log.warning("task (%d, %d) unanswered for %.0f s on %s; re-queued", t.frame, t.task,
-                                now - t.sent, w.name if w else "?")
+                    self._warn("task_timeout", "task (%d, %d) unanswered for %.1f s on %s (timeout %.1f s); "
+                               "re-queued", t.frame, t.task, now - t.sent, w.name if w else "?", timeout)
+                    t.avoid_worker(t.worker)
                     t.worker = None
                     t.epoch = 0
                     lost.append((t.frame, t.task))
+                    if w is not None:
+                        self._worker_fault(w, self._faults.timed_out(w.ident, f"task unanswered for {now - t.sent:.1f} s"))
         if lost:
             self._queue = collections.deque(scheduler.requeue_front(list(self._queue), lost))
             self._counters["tasks_requeued"] += len(lost)
 
+    def current_task_timeout(self) -> float:
+        """Seconds a task may stay unanswered: from the measured task times (issue 20), at most
+        the configured ``task_timeout``."""
+        return scheduler.task_timeout(self._latencies, cap=self.task_timeout)
+
+    def _worker_fault(self, w: _Worker, quarantined: str | None) -> None:
+        """After a task fault on ``w``: when that quarantined it, say so once and give its
+        tasks in flight to the others (it keeps its connection but gets no more tasks)."""
+        if quarantined is None:
+            return
+        self._counters["quarantined"] += 1
+        log.warning("worker %s (%s, pid %d) quarantined: %s", w.name, w.host, w.pid, quarantined)
+        lost = self._take_back(w)
+        if lost:
+            self._queue = collections.deque(scheduler.requeue_front(list(self._queue), lost))
+            self._counters["tasks_requeued"] += len(lost)
+
+    def _take_back(self, w: _Worker) -> list:
+        """The tasks in flight on ``w`` (current epoch), unassigned; its slots are freed."""
+        lost = []
+        for key, epoch in w.inflight.items():
+            f = self._frames.get(key[0])
+            t = f.tasks.get(key[1]) if f is not None else None
+            if t is not None and t.epoch == epoch and t.worker == w.ident:
+                t.worker = None
+                t.avoid_worker(w.ident)
+                lost.append(key)
+        w.inflight.clear()
+        return lost
+
     def _drop_worker(self, w: _Worker, reason: str) -> None:
         if self._workers.pop(w.ident, None) is None:
             return
+        self._faults.forget(w.ident)
         lost = []
         for key, epoch in w.inflight.items():
             f = self._frames.get(key[0])

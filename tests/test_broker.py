@@ -92,8 +92,8 @@ def test_silent_worker_expires_and_its_tasks_move():
         a = FakeWorker(broker.endpoint, "silent", credit=3)
         hello_ok(a)
         fut = broker.submit_frame(broker.frame_spec(0, {}))
-        lost = a.tasks(3)
-        assert len(lost) == 3
+        lost = a.tasks(3, timeout=1.0)
+        assert len(lost) == 2, "a new worker's credit starts small, whatever it advertises"
         b = FakeWorker(broker.endpoint, "b", credit=2)
         hello_ok(b)
         done = 0
@@ -106,7 +106,7 @@ def test_silent_worker_expires_and_its_tasks_move():
         res = fut.result(1)
         assert done == 9 and res.tasks == 9
         s = broker.stats()
-        assert s["workers"] == 1 and s["tasks_requeued"] >= 3
+        assert s["workers"] == 1 and s["tasks_requeued"] >= 2
         a.result(lost[0])  # the expired worker comes back with an old result
         assert a.recv_kind(P.ERROR, timeout=3).body["code"] == "unregistered"
         a.close()
@@ -189,8 +189,12 @@ def _serves_a_frame(broker):
     fw = FakeWorker(broker.endpoint, "ok", credit=9)
     hello_ok(fw)
     fut = broker.submit_frame(broker.frame_spec(0, {}))
-    for t in fw.tasks(9):
-        fw.result(t)
+    answered = 0
+    while answered < 9:  # effective credit grows with the results delivered
+        got = fw.tasks(1)
+        assert got
+        fw.result(got[0])
+        answered += 1
     assert fut.result(10).tasks == 9
     fw.close()
 
