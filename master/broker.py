@@ -705,6 +705,13 @@ class Broker:
             "task_encode_ms": float(np.mean(self._encode_times) * 1e3) if self._encode_times else None,
             "task_merge_ms": float(np.mean(self._merge_times) * 1e3) if self._merge_times else None,
             "task_bytes": float(np.mean(self._task_bytes)) if self._task_bytes else None,
+            # the loop thread's cost per RESULT (issue 19): handling it (decode excluded) and
+            # one dispatch round, in µs
+            "result_handle_us": _us_stats(self._result_times),
+            "dispatch_us": _us_stats(self._dispatch_times),
+            "task_timeout_s": self.current_task_timeout(),
+            "quarantined": [w.name for w in self._workers.values() if self._faults.quarantined(w.ident)],
+            "warnings_suppressed": sum(self._rl.counts.values()) - sum(self._rl.written.values()),
             "accumulated": latest.accumulated if latest else 0,
             "relative_error": latest.relative_error if latest else None,
             "scene_version": self._base_version + len(self._edits),
@@ -1159,6 +1166,13 @@ def _params_dict(params) -> dict:
     if dataclasses.is_dataclass(params):
         return params_to_dict(params)
     raise TypeError("params must be a Params, a dict of overrides or None")
+
+
+def _us_stats(times) -> dict | None:
+    if not times:
+        return None
+    a = np.asarray(times) * 1e6
+    return {"mean": float(a.mean()), "p50": float(np.percentile(a, 50)), "p95": float(np.percentile(a, 95))}
 
 
 def _peer(ident: bytes) -> str:
