@@ -69,6 +69,7 @@ log = logging.getLogger("igi.master")
 
 DEFAULT_BIND = "tcp://127.0.0.1:5555"
 MAX_TASK_FAILURES = 3  # a task that fails this often fails its frame
+FOLD_EDITS = 64  # edits on top of the scene blob before they are folded into a new blob (issue 20)
 LATENCY_WINDOW = 2000  # task latencies kept for the stats
 
 
@@ -354,11 +355,39 @@ class Broker:
 
     def apply_edit(self, edit: dict) -> int:
         """Apply a scene edit (``common.scene_codec`` delta) on the master and every worker.
-        Raises ValueError for an invalid edit. Returns the new scene version."""
+        Raises ValueError for an invalid edit. Returns the new scene version.
+
+        Every :data:`FOLD_EDITS` edits the edited scene becomes the new content-hashed blob
+        (encoded here, in the caller's thread): a worker that joins later gets that blob and
+        the few edits since, never an ever-growing log (issue 20). Workers already in step
+        keep their blob and get the edits one by one, as before."""
         from common.scene_codec import apply_edit
 
         P.validate(P.EDIT, {"hash": "0" * 64, "version": 1, "edit": edit})  # wire shape
-        return self._call(lambda: self._apply_edit(edit, apply_edit))
+        version, fold = self._call(lambda: self._apply_edit(edit, apply_edit))
+        if fold is not None:
+            self._fold_edits(*fold)
+        return version
+
+    def _fold_edits(self, scene: Scene, version: int, base_hash: str) -> None:
+        from common.scene_codec import encode_scene, scene_hash
+
+        blob = encode_scene(scene)
+        h = scene_hash(blob)
+        self._call(lambda: self._install_fold(scene, version, base_hash, blob, h))
+
+    def _install_fold(self, scene: Scene, version: int, base_hash: str, blob: bytes, h: str) -> None:
+        """Loop thread: ``blob`` (hash ``h``) is the scene at ``version``; it becomes the base
+        that SCENE messages send, with the edits made since. Skipped when the scene was
+        replaced meanwhile."""
+        if self._scene_hash != base_hash or not self._base_version <= version <= self.scene_version:
+            return
+        with self._lock:
+            self._edits = self._edits[version - self._base_version:]
+            self._base_version = version
+            self._scene_blob, self._scene_hash = blob, h
+        self._counters["scene_folds"] += 1
+        log.info("scene edits folded: version %d is scene %s… (%d bytes)", version, h[:12], len(blob))
 
     def _install_scene(self, scene: Scene, blob: bytes | None = None, h: str | None = None) -> int:
         from common.scene_codec import encode_scene, scene_hash
@@ -380,7 +409,8 @@ class Broker:
                  scene.triangle_count)
         return version
 
-    def _apply_edit(self, edit: dict, apply_fn) -> int:
+    def _apply_edit(self, edit: dict, apply_fn) -> tuple:
+        """Loop thread: (new version, None or (scene, version, hash) to fold into a blob)."""
         if self._scene is None:
             raise ValueError("no scene loaded")
         new_scene = apply_fn(self._scene, edit)  # ValueError on a bad edit
@@ -389,15 +419,21 @@ class Broker:
             self._edits.append(edit)
             version = self._base_version + len(self._edits)
         self._cancel_frames(lambda f: f.spec.scene_version != version, FrameCancelled("scene edited"))
-        msg = P.encode(P.EDIT, {"hash": self._scene_hash, "version": version, "edit": edit})
         for w in list(self._workers.values()):
-            if w.scene_state == (self._scene_hash, version - 1):
-                if self._send(w, msg):
-                    w.scene_state = (self._scene_hash, version)
-            else:
-                self._send_scene(w)
+            self._send_edit(w, edit, version)
         self._stream_changed(reset_index=True)
-        return version
+        fold = (new_scene, version, self._scene_hash) if len(self._edits) >= FOLD_EDITS else None
+        return version, fold
+
+    def _send_edit(self, w: _Worker, edit: dict, version: int) -> None:
+        """EDIT to a worker one version behind (on whatever blob it was brought up from: a
+        fold changes the master's blob, not the workers'), else the whole SCENE."""
+        st = w.scene_state
+        if st is not None and st[1] == version - 1:
+            if self._send(w, P.encode(P.EDIT, {"hash": st[0], "version": version, "edit": edit})):
+                w.scene_state = (st[0], version)
+        else:
+            self._send_scene(w)
 
     def _send_scene(self, w: _Worker) -> None:
         if self._scene_hash is None:
@@ -697,6 +733,7 @@ class Broker:
             "messages_dropped": self._counters["dropped"],
             "refused": self._counters["refused"],
             "scene_blobs_sent": self._counters["scene_blobs_sent"],
+            "scene_folds": self._counters["scene_folds"],
             "bytes_per_frame": float(np.mean(self._frame_bytes)) if self._frame_bytes else 0.0,
             "task_latency_ms": None if lat is None else {
                 "mean": float(lat.mean() * 1e3), "p50": float(np.percentile(lat, 50) * 1e3),
@@ -1068,7 +1105,10 @@ class Broker:
     def _ensure_frame_sent(self, w: _Worker, f: _Frame) -> bool:
         if f.spec.frame in w.frames_sent:
             return True
-        if not self._send(w, P.encode(P.FRAME, P.frame_body(f.spec, self._scene_hash), check=False)):
+        # the hash of the blob this worker's scene came from (same content at this version)
+        st = w.scene_state
+        h = st[0] if st is not None and st[1] == f.spec.scene_version else self._scene_hash
+        if not self._send(w, P.encode(P.FRAME, P.frame_body(f.spec, h), check=False)):
             return False
         w.frames_sent[f.spec.frame] = True
         while len(w.frames_sent) > 64:
