@@ -513,10 +513,10 @@ class CurveServer:
         self._auths: list = []
 
     def __call__(self, sock) -> None:
-        from zmq.auth.thread import ThreadAuthenticator
+        from .curve_log import LoggingAuthenticator
 
         if not any(a.context is sock.context for a in self._auths):
-            auth = ThreadAuthenticator(sock.context, log=logging.getLogger("igi.auth"))
+            auth = LoggingAuthenticator(sock.context, log=logging.getLogger("igi.auth"))  # denials: INFO
             auth.start()
             auth.configure_curve(domain="*", location=str(self.allowed))
             self._auths.append(auth)

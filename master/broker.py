@@ -190,6 +190,7 @@ class Broker:
         self._configure_socket = configure_socket  # e.g. CURVE server keys (issue 8), before bind
         self._ctx = context or zmq.Context.instance()
         self._sock: zmq.Socket | None = None
+        self._monitor = None  # CURVE handshake failures (common/curve_log.py)
         self.endpoint: str | None = None
         self._thread: threading.Thread | None = None
         self._running = False
@@ -266,6 +267,7 @@ class Broker:
             raise OSError(f"cannot bind master to {self.bind_address}: {e}") from None
         self._sock = sock
         self.endpoint = sock.getsockopt(zmq.LAST_ENDPOINT).decode()
+        self._monitor = _handshake_monitor(sock)
         self._running = True
         self._thread = threading.Thread(target=self._loop, name="igi-master-loop", daemon=True)
         self._thread.start()
@@ -780,6 +782,8 @@ class Broker:
         poller = zmq.Poller()
         poller.register(self._sock, zmq.POLLIN)
         poller.register(self._wake_r.fileno(), zmq.POLLIN)
+        if self._monitor is not None:
+            poller.register(self._monitor.socket, zmq.POLLIN)
         self._next_tick = time.monotonic() + self.heartbeat
         while self._running:
             timeout_ms = max(0, int((self._next_tick - time.monotonic()) * 1000))
@@ -794,11 +798,15 @@ class Broker:
                         pass
                 except (BlockingIOError, OSError):
                     pass
+            if self._monitor is not None and self._monitor.socket in events:
+                self._monitor.drain()  # CURVE denials: INFO, rate-limited
             try:
                 self._run_commands()
                 self._service(events)
             except Exception:  # a bug must never take the master down
                 log.exception("master loop error (continuing)")
+        if self._monitor is not None:
+            self._monitor.close()
         self._sock.close(linger=500)  # let the BYEs of _shutdown leave
 
     def _service(self, events: dict) -> None:
@@ -1206,6 +1214,18 @@ def _params_dict(params) -> dict:
     if dataclasses.is_dataclass(params):
         return params_to_dict(params)
     raise TypeError("params must be a Params, a dict of overrides or None")
+
+
+def _handshake_monitor(sock: zmq.Socket):
+    """A CURVE server socket's handshake-failure monitor (common/curve_log.py), else None."""
+    try:
+        if not sock.getsockopt(zmq.CURVE_SERVER):
+            return None
+        from common.curve_log import HandshakeMonitor
+
+        return HandshakeMonitor(sock)
+    except zmq.ZMQError:  # pragma: no cover - monitoring unsupported
+        return None
 
 
 def _us_stats(times) -> dict | None:
