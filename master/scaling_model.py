@@ -104,8 +104,8 @@ class Config:
     credit_per_thread: int = 3
     pipeline: int = 3  # frames in flight (Broker.pipeline; 3 since issue 19: the set-aware policy
     # needs the next frame's sets queued to keep every worker on sets of its own)
-    frames: int = 10  # simulated frames
-    warmup: int = 3  # frames before the measured window
+    frames: int = 24  # simulated frames (with 3 frames in flight completions come in bursts:
+    warmup: int = 8  # frames before the measured window   a long window is needed for steady state)
     network: Network = NETWORKS[1]
     master_cores: int = 16  # the master's host
     master_threads: int = 8  # threads of the parallel finishing stages
@@ -329,30 +329,50 @@ def simulate(costs: Costs, cfg: Config) -> SimResult:
     bytes_total = [0.0]
     next_image = [0]
 
+    # the queue by set, in queue order (a frame's tasks are k-major, so each set's tasks are
+    # contiguous and the sets come in queue order): the policy only ever needs the first
+    # ``free`` tasks of each set, which keeps a dispatch cheap however long the queue
+    by_set: dict = {}
+    queued = [0]
+
     def submit(f: int) -> None:
         remaining[f] = ntasks
         for i in range(ntasks):
-            queue.append((f, i))
+            if cfg.affinity_lookahead > 0:
+                queue.append((f, i))
+            by_set.setdefault(set_key(f, tiles[i][0].k), collections.deque()).append((f, i))
+        queued[0] += ntasks
         dispatch()
 
     def dispatch() -> None:
-        # the master's view of a worker's sets: its last reported list plus the sets of the
-        # tasks it has in flight (it builds them), as the broker keeps it
-        views = [scheduler.WorkerView(w, credit, inflight[w], master_view[w] | frozenset(inflight_keys[w]))
-                 for w in range(cfg.workers)]
-        free = sum(v.free for v in views)
-        if not free or not queue:
+        if not queued[0]:
             return
-        pending = [scheduler.PendingTask(key, set_key(key[0], tiles[key[1]][0].k)) for key in queue]
+        free = sum(max(0, credit - x) for x in inflight)
+        if not free:
+            return
         if cfg.affinity_lookahead > 0:
             assigned = _lookahead_assign(queue, cfg.workers, credit, inflight, master_view, inflight_keys,
                                          lambda key: set_key(key[0], tiles[key[1]][0].k), cfg.affinity_lookahead)
         else:
+            # the master's view of a worker's sets: its last reported list plus the sets of the
+            # tasks it has in flight (it builds them), as the broker keeps it
+            # (only the sets still queued matter to the policy)
+            views = [scheduler.WorkerView(w, credit, inflight[w],
+                                          frozenset(k for k in by_set if k in master_view[w] or k in inflight_keys[w]))
+                     for w in range(cfg.workers)]
+            pending = [scheduler.PendingTask(t, key) for key, dq in by_set.items()
+                       for t in itertools.islice(dq, free)]
             assigned = scheduler.assign(pending, views)
         for (f, i), w in assigned:
             inflight[w] += 1
-            inflight_keys[w].append(set_key(f, tiles[i][0].k))
-            queue.remove((f, i))
+            key = set_key(f, tiles[i][0].k)
+            inflight_keys[w].append(key)
+            if cfg.affinity_lookahead > 0:
+                queue.remove((f, i))
+            by_set[key].remove((f, i))
+            if not by_set[key]:
+                del by_set[key]
+            queued[0] -= 1
             sim.at(sim.now + net.latency_s + costs.task_bytes / bps, arrive, f, i, w)
 
     def arrive(f: int, i: int, w: int) -> None:

@@ -105,7 +105,7 @@ def test_bytes_per_frame_and_shared_host_contention():
 
 def test_networks_order_and_set_reuse():
     c = _costs(set_build_s=0.03)
-    fast, mid, slow = (simulate(c, Config(workers=64, width=1920, height=1080, network=n)).fps
+    fast, mid, slow = (simulate(c, Config(workers=64, width=1920, height=1080, network=n, frames=8, warmup=3)).fps
                        for n in reversed(NETWORKS))
     assert fast >= mid >= slow
     acc = simulate(c, Config(workers=16))
@@ -279,19 +279,19 @@ def test_set_aware_policy_builds_few_sets_and_scales_at_16_workers():
     """Issue 19: the broker's set-aware policy, accumulating at 640x480 on 10 Gbit/s: at most
     20 set builds per frame at 16 workers (105 with strict queue order) and >= 90% of linear."""
     c = _calibrated_like()
-    one = simulate(c, Config(workers=1, frames=12, warmup=3))
-    r16 = simulate(c, Config(workers=16, frames=14, warmup=4))
+    one = simulate(c, Config(workers=1))
+    r16 = simulate(c, Config(workers=16))
     assert one.set_builds_per_frame == 9
     assert r16.set_builds_per_frame <= 20
     assert r16.fps / (16 * one.fps) >= 0.90
     # the old what-if policy still runs (and is what the set-aware policy replaced)
-    old = simulate(c, Config(workers=16, frames=14, warmup=4, affinity_lookahead=108))
+    old = simulate(c, Config(workers=16, affinity_lookahead=108))
     assert old.set_builds_per_frame >= 9
 
 
 def test_a_deeper_pipeline_builds_fewer_sets():
     c = _calibrated_like()
-    two = simulate(c, Config(workers=16, frames=14, warmup=4, pipeline=2))
-    three = simulate(c, Config(workers=16, frames=14, warmup=4, pipeline=3))
+    two = simulate(c, Config(workers=16, pipeline=2))
+    three = simulate(c, Config(workers=16, pipeline=3))
     assert three.set_builds_per_frame <= two.set_builds_per_frame
     assert three.fps >= two.fps * (1 - 1e-9)
