@@ -1044,9 +1044,10 @@ class Broker:
             return
         t0 = time.perf_counter()
         views = self._worker_views()
-        if sum(v.free for v in views) == 0:
+        free = sum(v.free for v in views)
+        if free == 0:
             return
-        assigned = scheduler.assign(self._pending_tasks(), views)
+        assigned = scheduler.assign(self._pending_tasks(free), views)
         if assigned:
             self._apply_assignments(assigned)
         self._dispatch_times.append(time.perf_counter() - t0)
@@ -1068,10 +1069,12 @@ class Broker:
         t = f.tasks.get(key[1]) if f is not None else None
         return t.set_key if t is not None else None
 
-    def _pending_tasks(self) -> list:
-        """The queue as the policy sees it (the whole queue: set-aware choice looks past the
-        front); tasks of frames gone meanwhile are dropped from the queue."""
+    def _pending_tasks(self, free: int) -> list:
+        """The queue as the policy sees it: the whole queue (set-aware choice looks past the
+        front), but at most the first ``free`` tasks of each set — no more can be assigned.
+        Tasks of frames gone meanwhile are dropped from the queue."""
         pending = []
+        per_set: collections.Counter = collections.Counter()
         stale = 0
         for key in self._queue:
             f = self._frames.get(key[0])
@@ -1079,7 +1082,9 @@ class Broker:
             if t is None:
                 stale += 1
                 continue
-            pending.append(t.as_pending(key))
+            if per_set[t.set_key] < free:
+                per_set[t.set_key] += 1
+                pending.append(t.as_pending(key))
         if stale:
             self._queue = collections.deque(k for k in self._queue
                                             if k[0] in self._frames and k[1] in self._frames[k[0]].tasks)
