@@ -208,3 +208,51 @@ def test_stop_cancels_open_frames_and_later_submissions():
     with pytest.raises(FrameCancelled):
         b.submit_frame(b.frame_spec(1, {})).result(5)
     b.stop()  # idempotent
+
+
+def test_worker_lists_its_sets_only_when_they_change():
+    """Issue 19: RESULT.sets goes out only when the renderer's cached-set list changed since the
+    last RESULT of this connection (or the renderer changed)."""
+    from worker.node import WorkerNode
+
+    class R:
+        def __init__(self, sets):
+            self.sets = sets
+
+        def cached_sets(self):
+            return self.sets
+
+    node = WorkerNode("tcp://127.0.0.1:1")
+    r = R({(7, 0), (7, 1)})
+    assert node._sets_to_send(r, 1) == [[7, 0], [7, 1]]
+    assert node._sets_to_send(r, 1) is None  # unchanged: not sent
+    r.sets = {(7, 0), (7, 1), (8, 0)}
+    assert node._sets_to_send(r, 1) == [[7, 0], [7, 1], [8, 0]]
+    assert node._sets_to_send(r, 2) is not None  # a new connection lists again
+    assert node._sets_to_send(R(set(r.sets)), 2) is not None  # so does a new renderer
+    node._pool.shutdown()
+    node._scene_pool.shutdown()
+
+
+def test_master_keeps_the_last_set_list_of_each_worker(broker):
+    a = FakeWorker(broker.endpoint, "a", credit=2)
+    hello_ok(a)
+    fut = broker.submit_frame(broker.frame_spec(0, {}))
+    seed = broker.frame_spec(0, {}).seed
+
+    def cached():
+        return broker._call(lambda: {k for w in broker._workers.values() for k in w.cached})
+    t = a.tasks(1)[0]
+    a.send(P.RESULT, {"frame": t["frame"], "task": t["task"], "epoch": t["epoch"], "count": 0, "data": b"",
+                      "sets": [[seed, 5]]}, check=False)  # a bad result: nothing learnt from it
+    t = a.tasks(1)[0]
+    a.result(t)  # no list: the master keeps what it knew and adds the task's own set
+    assert wait_until(lambda: (0, seed, t["k"]) in cached(), 5)
+    answered = 1
+    while answered < 9:
+        got = a.tasks(1)
+        assert got
+        a.result(got[0])
+        answered += 1
+    fut.result(10)
+    a.close()
