@@ -19,11 +19,22 @@ Reliability (ZeroMQ guide, Paranoid Pirate over the data socket; ``common/protoc
 - Tasks of an expired, disconnected or departing (BYE) worker go back to the FRONT of the
   queue. Every assignment has a fresh epoch; a RESULT counts only for the task's current epoch
   and the worker it was given to, in an open frame — stale and duplicate results are dropped.
-- Garbage, oversize and invalid messages are dropped with one log line each; a peer speaking
-  another protocol version gets a REFUSE naming both versions. Nothing a peer sends can raise
-  out of the loop.
+- Garbage, oversize and invalid messages are dropped and counted, with rate-limited warnings
+  (``common/ratelimit_log.py``: one line per kind per 10 s, the next one carries the count of
+  those not shown); a peer speaking another protocol version gets a REFUSE naming both
+  versions. Nothing a peer sends can raise out of the loop. With CURVE, denied peers are
+  logged at INFO (``common/curve_log.py``).
 - Credit-based flow control and task choice come from the pure policy in
-  ``master/scheduler.py``.
+  ``master/scheduler.py`` (set-aware since issue 19), over the whole queue.
+- Per-worker fault accounting (issue 20, ``scheduler.FaultLedger``): a worker's effective
+  credit starts at 2 and grows with the results it delivers (a worker advertising 4,096 slots
+  that never answers holds 2 tasks); a task that failed or timed out on a worker goes to
+  another worker first; a worker with 3 consecutive task faults is quarantined (logged once,
+  with the reason; it stays connected but gets no tasks). Task timeouts follow the measured
+  task times (``scheduler.task_timeout``: max(8 × median, 2 s), at most ``task_timeout``).
+- Scene edits are folded into a new content-hashed blob every :data:`FOLD_EDITS` edits, so the
+  SCENE a joining worker gets never carries more than that many edits (issue 20); workers
+  already in step keep their blob and get EDITs naming it.
 
 API (thread-safe)
 -----------------
