@@ -955,11 +955,14 @@ class Broker:
     def _handle_result(self, w: _Worker, body: dict) -> None:
         key = (body["frame"], body["task"])
         now = time.monotonic()
-        if w.inflight.get(key) == body["epoch"]:
+        answered = w.inflight.get(key) == body["epoch"]
+        if answered:
             del w.inflight[key]  # the slot is free again whatever happens to the result
         f = self._frames.get(body["frame"])
         t = f.tasks.get(body["task"]) if f is not None else None
         if t is None or t.epoch != body["epoch"] or t.worker != w.ident:
+            if answered and self._faults.answered(w.ident):  # late, not silent
+                log.warning("worker %s answers again (late): quarantine lifted", w.name)
             self._counters["results_stale"] += 1
             log.debug("stale/duplicate result %s epoch %d from %s", key, body["epoch"], w.name)
             return
@@ -1191,7 +1194,8 @@ class Broker:
             self._counters["tasks_requeued"] += len(lost)
 
     def _take_back(self, w: _Worker) -> list:
-        """The tasks in flight on ``w`` (current epoch), unassigned; its slots are freed."""
+        """The tasks in flight on ``w`` (current epoch), unassigned and avoiding ``w``. Its slots
+        stay taken, so a late answer is still recognized as its own (see FaultLedger.answered)."""
         lost = []
         for key, epoch in w.inflight.items():
             f = self._frames.get(key[0])
@@ -1200,7 +1204,6 @@ class Broker:
                 t.worker = None
                 t.avoid_worker(w.ident)
                 lost.append(key)
-        w.inflight.clear()
         return lost
 
     def _drop_worker(self, w: _Worker, reason: str) -> None:

@@ -186,6 +186,8 @@ class WorkerRecord:
     failures: int = 0
     timeouts: int = 0
     quarantined: str | None = None  # why, once quarantined
+    streak_kinds: set = field(default_factory=set)  # kinds of the consecutive faults ("failed", "timeout")
+    soft: bool = False  # quarantined for timeouts alone: a late answer lifts it
 
 
 class FaultLedger:
@@ -200,6 +202,9 @@ class FaultLedger:
       delivered result between them) the worker is quarantined: it keeps its connection but
       gets no task. The call that quarantines returns the reason (log it once); later ones
       return None.
+    - :meth:`answered`: a worker that answers a task after its timeout (a stale but genuine
+      answer) was slow, not silent: its streak ends, and a quarantine caused by timeouts alone
+      is lifted (a stall of the machine must not cost a render its only good worker).
     """
 
     def __init__(self, initial_credit: int = INITIAL_CREDIT, quarantine_after: int = QUARANTINE_AFTER):
@@ -226,24 +231,42 @@ class FaultLedger:
         r = self.record(wid)
         r.delivered += 1
         r.window += 1
+        self._end_streak(r)
+
+    def answered(self, wid) -> bool:
+        """A late (stale) answer to a task given to ``wid``; True when that lifted a quarantine."""
+        r = self.records.get(wid)
+        if r is None:
+            return False
+        lifted = r.quarantined is not None and r.soft
+        if lifted:
+            r.quarantined, r.soft = None, False
+        self._end_streak(r)
+        return lifted
+
+    @staticmethod
+    def _end_streak(r: WorkerRecord) -> None:
         r.consecutive = 0
+        r.streak_kinds = set()
 
     def failed(self, wid, why: str) -> str | None:
         r = self.record(wid)
         r.failures += 1
-        return self._fault(r, why)
+        return self._fault(r, why, "failed")
 
     def timed_out(self, wid, why: str = "task timed out") -> str | None:
         r = self.record(wid)
         r.timeouts += 1
-        return self._fault(r, why)
+        return self._fault(r, why, "timeout")
 
-    def _fault(self, r: WorkerRecord, why: str) -> str | None:
+    def _fault(self, r: WorkerRecord, why: str, kind: str) -> str | None:
         r.consecutive += 1
+        r.streak_kinds.add(kind)
         r.window //= 2
         if r.quarantined is None and r.consecutive >= self.quarantine_after:
             r.quarantined = (f"{r.consecutive} consecutive task faults "
                              f"({r.failures} failed, {r.timeouts} timed out; last: {why})")
+            r.soft = r.streak_kinds == {"timeout"}
             return r.quarantined
         return None
 

@@ -238,3 +238,17 @@ def test_task_timeout_follows_measured_task_times():
     assert task_timeout([0.05] * 10, cap=60.0) == TIMEOUT_FLOOR
     assert task_timeout([1.0, 1.0, 50.0], cap=60.0, factor=8) == 8.0
     assert task_timeout([30.0] * 3, cap=60.0) == 60.0
+
+
+def test_a_late_answer_lifts_a_quarantine_caused_by_timeouts_alone():
+    led = FaultLedger(quarantine_after=3)
+    for _ in range(2):
+        assert led.timed_out("slow") is None
+    assert led.timed_out("slow")
+    assert led.quarantined("slow")
+    assert led.answered("slow") is True and led.quarantined("slow") is None
+    # a worker quarantined for bad results stays quarantined whatever it answers later
+    led.failed("bad", "x")
+    led.timed_out("bad")
+    assert led.failed("bad", "y")
+    assert led.answered("bad") is False and led.quarantined("bad")
