@@ -73,8 +73,10 @@ def main() -> int:
                                  "credit": 4096, "scenes": []}))
     stats = {"endpoint": endpoint, "tasks": 0, "results_sent": 0, "welcomed": False}
 
-    def save():
-        report.write_text(json.dumps(stats))
+    def save():  # atomically: the test may read it at any time
+        tmp = report.with_suffix(".tmp")
+        tmp.write_text(json.dumps(stats))
+        os.replace(tmp, report)
     save()
     last_hb = 0.0
     frames = {}
