@@ -1057,25 +1057,29 @@ class Broker:
         if not self._queue or not self._workers:
             return
         t0 = time.perf_counter()
-        views = self._worker_views()
-        free = sum(v.free for v in views)
+        free = sum(max(0, self._faults.credit(w.ident, w.credit) - len(w.inflight))
+                   for w in self._workers.values())
         if free == 0:
             return
-        assigned = scheduler.assign(self._pending_tasks(free), views)
+        pending = self._pending_tasks(free)
+        views = self._worker_views({t.set_key for t in pending})
+        assigned = scheduler.assign(pending, views)
         if assigned:
             self._apply_assignments(assigned)
         self._dispatch_times.append(time.perf_counter() - t0)
 
-    def _worker_views(self) -> list:
+    def _worker_views(self, queued_sets: set) -> list:
         """What the policy sees of every worker that may get tasks: its effective credit
-        (bounded by what it delivered), tasks in flight, and the sets it holds or builds."""
+        (bounded by what it delivered), tasks in flight, and which of the ``queued_sets`` it
+        holds or builds (the others do not matter to the policy)."""
         views = []
         for w in self._workers.values():
             if w.scene_state is None or self._faults.quarantined(w.ident):
                 continue
-            sets = w.cached | {self._set_of(key) for key in w.inflight}
+            building = {self._set_of(key) for key in w.inflight}
+            sets = frozenset(k for k in queued_sets if k in w.cached or k in building)
             views.append(scheduler.WorkerView(w.ident, self._faults.credit(w.ident, w.credit),
-                                              len(w.inflight), frozenset(sets)))
+                                              len(w.inflight), sets))
         return views
 
     def _set_of(self, key) -> tuple | None:

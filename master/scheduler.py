@@ -77,7 +77,13 @@ def assign(pending: Sequence[PendingTask], workers: Iterable[WorkerView],
     by_set: dict = {}
     for pos, t in enumerate(pending):
         by_set.setdefault(t.set_key, []).append(pos)
-    holders = {key: {wid for wid, s in state.items() if key in s[2]} for key in by_set}
+    holders: dict = {}  # set key -> workers holding it (computed when first needed)
+
+    def holders_of(key) -> set:
+        h = holders.get(key)
+        if h is None:
+            h = holders[key] = {wid for wid, s in state.items() if key in s[2]}
+        return h
     taken: set[int] = set()
     heads = {key: 0 for key in by_set}  # index into by_set[key] of the first untaken position
     out: list[tuple[Hashable, Hashable]] = []
@@ -113,10 +119,11 @@ def assign(pending: Sequence[PendingTask], workers: Iterable[WorkerView],
             pos = first_for(key, wid)
             if pos is None:
                 continue
-            able = holders[key] - pending[pos].avoid  # holders that may take this task
+            h = holders_of(key)
+            able = h - pending[pos].avoid  # holders that may take this task
             if able and state[wid][1] >= share_below:
                 continue  # another worker builds/holds it; help only when (nearly) idle
-            cands.append((2 if able else 1, len(holders[key]), pos))
+            cands.append((2 if able else 1, len(h), pos))
         return min(cands) if cands else None
 
     while len(out) < cap:
@@ -140,7 +147,8 @@ def assign(pending: Sequence[PendingTask], workers: Iterable[WorkerView],
         state[wid][1] += 1
         if t.set_key not in state[wid][2]:
             state[wid][2].add(t.set_key)
-            holders[t.set_key].add(wid)
+            if t.set_key in holders:
+                holders[t.set_key].add(wid)
     return out
 
 
