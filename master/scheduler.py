@@ -220,9 +220,13 @@ class FaultLedger:
         self.quarantine_after = max(1, int(quarantine_after))
         self.records: dict = {}
 
+    MAX_RECORDS = 10_000  # a peer reconnecting under new identities cannot grow this without bound
+
     def record(self, wid) -> WorkerRecord:
         r = self.records.get(wid)
         if r is None:
+            if len(self.records) >= self.MAX_RECORDS:
+                del self.records[next(iter(self.records))]  # the oldest
             r = self.records[wid] = WorkerRecord()
         return r
 

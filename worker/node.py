@@ -95,7 +95,7 @@ class WorkerNode:
         self.tasks_done = 0
         self._rl = RateLimitedLog(log)  # junk from the master: one line per kind per interval
         self._sets_lock = threading.Lock()
-        self._sets_sent: tuple | None = None  # (session, list) last sent in a RESULT
+        self._sets_sent: tuple | None = None  # (session, id(renderer), list) last sent in a RESULT
 
     # ------------------------------------------------------------------ control
     def stop(self, reason: str = "stopped") -> None:
