@@ -934,7 +934,7 @@ class Broker:
     def _on_hello(self, ident: bytes, body: dict) -> None:
         old = self._workers.get(ident)
         if old is not None:
-            self._drop_worker(old, "said HELLO again")
+            self._re_registered(old)
         now = time.monotonic()
         w = _Worker(ident=ident, name=body["name"], host=body["host"], pid=body["pid"],
                     threads=body["threads"], credit=body["credit"], scenes=set(body["scenes"]),
@@ -1210,10 +1210,23 @@ class Broker:
                 lost.append(key)
         return lost
 
-    def _drop_worker(self, w: _Worker, reason: str) -> None:
+    def _re_registered(self, w: _Worker) -> None:
+        """A registered worker said HELLO again (a worker that restarts uses a new identity):
+        the tasks it held go to other workers first and count as a fault, so a peer cannot
+        keep the front of the queue by re-registering."""
+        lost = self._take_back(w)
+        w.inflight.clear()
+        if lost:
+            self._queue = collections.deque(scheduler.requeue_front(list(self._queue), lost))
+            self._counters["tasks_requeued"] += len(lost)
+            self._worker_fault(w, self._faults.timed_out(w.ident, f"said HELLO again with {len(lost)} task(s) in flight"))
+        self._drop_worker(w, "said HELLO again", forget=False)
+
+    def _drop_worker(self, w: _Worker, reason: str, forget: bool = True) -> None:
         if self._workers.pop(w.ident, None) is None:
             return
-        self._faults.forget(w.ident)
+        if forget:
+            self._faults.forget(w.ident)
         lost = []
         for key, epoch in w.inflight.items():
             f = self._frames.get(key[0])

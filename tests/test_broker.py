@@ -256,3 +256,34 @@ def test_master_keeps_the_last_set_list_of_each_worker(broker):
         answered += 1
     fut.result(10)
     a.close()
+
+
+def test_re_registering_does_not_keep_the_front_of_the_queue(broker):
+    """Issue 20: a peer that says HELLO again and again gets other tasks each time (the ones it
+    held avoid it) and is quarantined after three such faults; the frame still completes."""
+    good = FakeWorker(broker.endpoint, "good", credit=1)
+    hello_ok(good)
+    rogue = FakeWorker(broker.endpoint, "rehello", credit=4096)
+    hello_ok(rogue)
+    fut = broker.submit_frame(broker.frame_spec(0, {}))
+    first = good.tasks(1)  # the good worker is busy meanwhile
+    assert first
+    held = set()
+    for _ in range(3):
+        got = {t["task"] for t in rogue.tasks(2, timeout=2)}
+        assert got and not got & held, "the re-queued tasks avoid the peer that held them"
+        held |= got
+        rogue.hello()
+        hello_ok(rogue, expect_blob=True)
+    assert rogue.tasks(1, timeout=1.0) == [], "quarantined: no more tasks"
+    assert broker.stats()["quarantined"] == ["rehello"]
+    good.result(first[0])
+    answered = 1
+    while answered < 9:
+        got = good.tasks(1)
+        assert got
+        good.result(got[0])
+        answered += 1
+    assert fut.result(10).tasks == 9
+    rogue.close()
+    good.close()
