@@ -160,16 +160,23 @@ class _Task:
     sent: float = 0.0
     failures: int = 0
     avoid: frozenset = frozenset()  # workers this task failed or timed out on (issue 20)
+    trusted_only: bool = False  # lost by a worker that never delivered: to trusted workers first
     pending: Any = None  # its scheduler.PendingTask (rebuilt when ``avoid`` changes)
 
     def as_pending(self, key) -> scheduler.PendingTask:
         if self.pending is None:
-            self.pending = scheduler.PendingTask(key, self.set_key, self.avoid)
+            self.pending = scheduler.PendingTask(key, self.set_key, self.avoid, self.trusted_only)
         return self.pending
 
     def avoid_worker(self, ident: bytes) -> None:
         self.avoid = self.avoid | {ident}
         self.pending = None
+
+    def lost_by(self, ident: bytes, trusted: bool) -> None:
+        """The worker ``ident`` gave this task back without a result (left, timed out, failed)."""
+        self.avoid_worker(ident)
+        if not trusted:
+            self.trusted_only = True
 
 
 @dataclass
@@ -1026,7 +1033,7 @@ class Broker:
         t.failures += 1
         t.worker = None
         if w is not None:
-            t.avoid_worker(w.ident)  # another worker first
+            t.lost_by(w.ident, self._faults.trusted(w.ident))  # another worker first
             self._worker_fault(w, self._faults.failed(w.ident, why))
         if t.failures >= MAX_TASK_FAILURES:
             self._frames.pop(f.spec.frame, None)
@@ -1079,7 +1086,7 @@ class Broker:
             building = {self._set_of(key) for key in w.inflight}
             sets = frozenset(k for k in queued_sets if k in w.cached or k in building)
             views.append(scheduler.WorkerView(w.ident, self._faults.credit(w.ident, w.credit),
-                                              len(w.inflight), sets))
+                                              len(w.inflight), sets, self._faults.trusted(w.ident)))
         return views
 
     def _set_of(self, key) -> tuple | None:
@@ -1170,7 +1177,7 @@ class Broker:
                     w = self._workers.get(t.worker)
                     self._warn("task_timeout", "task (%d, %d) unanswered for %.1f s on %s (timeout %.1f s); "
                                "re-queued", t.frame, t.task, now - t.sent, w.name if w else "?", timeout)
-                    t.avoid_worker(t.worker)
+                    t.lost_by(t.worker, self._faults.trusted(t.worker))
                     t.worker = None
                     t.epoch = 0
                     lost.append((t.frame, t.task))
@@ -1206,7 +1213,7 @@ class Broker:
             t = f.tasks.get(key[1]) if f is not None else None
             if t is not None and t.epoch == epoch and t.worker == w.ident:
                 t.worker = None
-                t.avoid_worker(w.ident)
+                t.lost_by(w.ident, self._faults.trusted(w.ident))
                 lost.append(key)
         return lost
 
@@ -1225,16 +1232,10 @@ class Broker:
     def _drop_worker(self, w: _Worker, reason: str, forget: bool = True) -> None:
         if self._workers.pop(w.ident, None) is None:
             return
+        lost = self._take_back(w)  # to other workers first; trusted ones if w never delivered
+        w.inflight.clear()
         if forget:
             self._faults.forget(w.ident)
-        lost = []
-        for key, epoch in w.inflight.items():
-            f = self._frames.get(key[0])
-            t = f.tasks.get(key[1]) if f is not None else None
-            if t is not None and t.epoch == epoch and t.worker == w.ident:
-                t.worker = None
-                lost.append(key)
-        w.inflight.clear()
         if lost:
             self._queue = collections.deque(scheduler.requeue_front(list(self._queue), lost))
             self._counters["tasks_requeued"] += len(lost)

@@ -25,8 +25,11 @@ Policy (DESIGN.md §1, §5; set-aware since issue 19):
    flight, so nobody is idle while a task it may take waits, and busy workers do not build
    second copies of sets.
 4. Faults: a task that failed on (or timed out at) a worker is not given to that worker again
-   while another eligible worker exists (``PendingTask.avoid``); quarantined workers are simply
-   not passed in (the broker leaves them out: see :class:`FaultLedger`).
+   while another eligible worker exists (``PendingTask.avoid``); a task lost by a worker that
+   never delivered a result (``PendingTask.trusted_only``: a peer cycling through identities
+   cannot keep the front of the queue) goes only to workers that have delivered
+   (``WorkerView.trusted``) while any is there; quarantined workers are simply not passed in
+   (the broker leaves them out: see :class:`FaultLedger`).
 5. Re-queued tasks (of an expired, disconnected or departing worker) are put at the FRONT of
    the queue in their original order (:func:`requeue_front`); among tasks of one set the
    queue order is kept.
@@ -43,6 +46,7 @@ class PendingTask:
     task: Hashable  # the broker's task id
     set_key: Hashable  # the VPL/photon set the task needs, e.g. (scene_version, seed, k)
     avoid: frozenset = frozenset()  # workers on which this task failed or timed out
+    trusted_only: bool = False  # lost by a worker that never delivered: trusted workers first
 
 
 @dataclass(frozen=True)
@@ -51,6 +55,7 @@ class WorkerView:
     credit: int  # task slots (the effective credit: see FaultLedger.credit)
     inflight: int = 0  # tasks assigned and not yet answered
     cached: frozenset = field(default_factory=frozenset)  # set keys the worker holds or is building
+    trusted: bool = True  # has delivered results (FaultLedger.trusted)
 
     @property
     def free(self) -> int:
@@ -73,6 +78,9 @@ def assign(pending: Sequence[PendingTask], workers: Iterable[WorkerView],
     workers = list(workers)
     state = {w.id: [w.credit, w.inflight, set(w.cached)] for w in workers}
     all_ids = set(state)
+    untrusted = {w.id for w in workers if not w.trusted}
+    if len(untrusted) == len(all_ids):
+        untrusted = set()  # nobody has delivered yet: trust does not restrict anyone
     # the queue by set: set key -> positions (queue order), and the order sets first appear
     by_set: dict = {}
     for pos, t in enumerate(pending):
@@ -98,7 +106,8 @@ def assign(pending: Sequence[PendingTask], workers: Iterable[WorkerView],
             i += 1
         heads[key] = i
         for pos in lst[i:]:
-            if pos not in taken and _may_take(pending[pos], wid, all_ids):
+            if pos not in taken and _may_take(pending[pos], wid, all_ids) \
+                    and not (pending[pos].trusted_only and wid in untrusted):
                 return pos
         return None
 
@@ -234,6 +243,11 @@ class FaultLedger:
         r = self.records.get(wid)
         window = r.window if r is not None else 0
         return max(0, min(int(advertised), self.initial_credit + window))
+
+    def trusted(self, wid) -> bool:
+        """Has ``wid`` delivered a result?"""
+        r = self.records.get(wid)
+        return r is not None and r.delivered > 0
 
     def quarantined(self, wid) -> str | None:
         r = self.records.get(wid)

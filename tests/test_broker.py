@@ -287,3 +287,33 @@ def test_re_registering_does_not_keep_the_front_of_the_queue(broker):
     assert fut.result(10).tasks == 9
     rogue.close()
     good.close()
+
+
+def test_a_peer_cycling_identities_cannot_keep_the_lost_tasks(broker):
+    """Issue 20: tasks given back by a worker that never delivered (here: BYE right after taking
+    them) go to a worker that has delivered, not to the next newcomer."""
+    good = FakeWorker(broker.endpoint, "good", credit=2)
+    hello_ok(good)
+    fut = broker.submit_frame(broker.frame_spec(0, {}))
+    first = good.tasks(2)
+    good.result(first[0])  # "good" has delivered: trusted
+    busy = [first[1]] + good.tasks(1)  # and is full again
+    lost = set()
+    for i in range(2):
+        r = FakeWorker(broker.endpoint, f"cycler{i}", credit=4096)
+        hello_ok(r)
+        got = {t["task"] for t in r.tasks(2, timeout=2)}
+        assert got and not got & lost, "a newcomer never gets the tasks a newcomer gave back"
+        lost |= got
+        r.send(P.BYE, {"reason": "cycling"})
+        r.close()
+    assert wait_until(lambda: broker.stats()["workers"] == 1, 5)
+    answered = 1
+    pending = busy
+    while answered < 9:
+        t = pending.pop()
+        good.result(t)
+        answered += 1
+        pending += good.tasks(1, timeout=2)
+    assert fut.result(10).tasks == 9
+    good.close()

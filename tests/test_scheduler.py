@@ -252,3 +252,18 @@ def test_a_late_answer_lifts_a_quarantine_caused_by_timeouts_alone():
     led.timed_out("bad")
     assert led.failed("bad", "y")
     assert led.answered("bad") is False and led.quarantined("bad")
+
+
+def test_tasks_lost_by_an_untrusted_worker_go_to_trusted_workers():
+    lost = PendingTask(0, (0, 0, 1), trusted_only=True)
+    other = PendingTask(1, (0, 0, 2))
+    ws = [WorkerView("new", 2, 0, trusted=False), WorkerView("good", 2, 2, trusted=True)]
+    assert assign([lost, other], ws) == [(1, "new")]  # the lost task waits for "good"
+    ws = [WorkerView("new", 2, 0, trusted=False), WorkerView("good", 2, 1, trusted=True)]
+    assert sorted(assign([lost, other], ws)) == [(0, "good"), (1, "new")]
+    # nobody has delivered yet (a fresh cluster): trust restricts nobody
+    assert assign([lost], [WorkerView("new", 2, 0, trusted=False)]) == [(0, "new")]
+    led = FaultLedger()
+    assert not led.trusted("w")
+    led.delivered("w")
+    assert led.trusted("w")
