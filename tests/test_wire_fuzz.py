@@ -28,7 +28,7 @@ def test_master_drops_bad_messages_with_rate_limited_log_lines_and_keeps_serving
     assert res["refusal_log_lines"] <= 5 and (res["refusal_log_lines"] > 0) == (res["refused"] > 0)  # one line per 10 s
     assert res["dropped"] >= exp["drop"]  # every malformed one (+ valid ones from unregistered peers)
     assert 1 <= res["drop_log_lines"] <= 5  # one line per 10 s for the kind "dropped", not one each
-    assert res["warning_log_lines"] <= 10  # ... and hardly any other
+    assert res["warning_log_lines"] <= 30  # ... and a few others (fuzz peers that registered, then expire)
     assert res["oversize_delivered"] is False  # > MAX_MESSAGE_SIZE: ZeroMQ drops the peer, never delivered
     assert res["oversize_header_refused"] is True  # a 1 TiB frame header closes the connection at once
     assert res["serves_after"] is True and res["crashes"] == 0, res.get("serves_after_error")
