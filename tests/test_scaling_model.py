@@ -295,3 +295,12 @@ def test_a_deeper_pipeline_builds_fewer_sets():
     three = simulate(c, Config(workers=16, pipeline=3))
     assert three.set_builds_per_frame <= two.set_builds_per_frame
     assert three.fps >= two.fps * (1 - 1e-9)
+
+
+def test_result_cost_micro_benchmark_runs():
+    """master/result_cost.py drives the broker's own RESULT handler (no sockets); figures > 0."""
+    from master.result_cost import measure
+
+    r = measure(width=96, height=72, workers=4, results=40, reps=1)
+    assert r["no_sets"]["per_result_us"] > 0 and r["sets_64"]["per_result_us"] > 0
+    assert r["config"]["pipeline"] == 3
