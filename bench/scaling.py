@@ -599,7 +599,7 @@ def report(results: dict, model: dict, args) -> str:
           "Cells: frames/s (bottleneck).")
         a("")
         a("| workers | " + " | ".join(nets) + " | bytes/frame | set builds/frame | camera moving, 10 Gbit/s "
-          "| what-if: set-spreading scheduler, 10 Gbit/s (set builds) |")
+          "| what-if: issue 12's lookahead policy, 10 Gbit/s (set builds) |")
         a("|---|" + "---|" * len(nets) + "---|---|---|---|")
         by, mv, sp = {}, {}, {}
         for r in preds:
@@ -626,6 +626,11 @@ def report(results: dict, model: dict, args) -> str:
             if 1 in mv and 64 in mv:
                 line += f", {mv[64]['fps'] / (64 * mv[1]['fps']) * 100:.0f}% with the camera moving"
             a(line + ".")
+        sixteen = by.get(16, {}).get("10 Gbit/s")
+        if one and sixteen:  # issue 19's target: >= 90% at 16 workers accumulating, <= 20 set builds
+            a("")
+            a(f"At 16 workers on 10 Gbit/s: {sixteen['fps'] / (16 * one['fps']) * 100:.0f}% of linear when "
+              f"accumulating, {sixteen['set_builds_per_frame']:.1f} set builds per frame.")
         b = base["sizes"].get(key)
         if b:
             a("")
@@ -668,20 +673,20 @@ def _findings(model: dict) -> str:
                    + f"The master is not the bottleneck there (loop thread {r['utilization']['master loop'] * 100:.0f}% "
                    f"busy, finishing {r['utilization']['master finish'] * 100:.0f}%).")
     if 16 in acc and 16 in sp:
-        out.append(f"- When accumulating, every frame has new VPL/photon sets. The broker's strict queue order "
-                   f"spreads each set's tasks over many workers: {acc[16]['set_builds_per_frame']:.0f} set builds "
-                   f"per frame at 16 workers (~1 per task). A set-spreading policy (what-if column) would build "
-                   f"{sp[16]['set_builds_per_frame']:.0f} and run {sp[16]['fps'] / acc[16]['fps']:.2f}x faster there; "
-                   f"past ~64 workers each worker needs a set of its own every frame anyway, so cheaper sets "
-                   f"(or keeping sets across frames) are what scales.")
+        out.append(f"- When accumulating, every frame has new VPL/photon sets. The broker's set-aware policy "
+                   f"(issue 19) gives each set of a frame one owner: {acc[16]['set_builds_per_frame']:.1f} set builds "
+                   f"per frame at 16 workers (105 with the strict queue order before it; issue 12's lookahead "
+                   f"what-if column: {sp[16]['set_builds_per_frame']:.0f}); "
+                   f"past ~32 workers there are more workers than sets in flight and sets are shared, so cheaper "
+                   f"sets (or keeping sets across frames) are what scales.")
     if 256 in mv:
         out.append(f"- Past 64–128 workers at 640x480 a frame has too few tasks "
-                   f"({mv[256]['tasks_per_frame']} of ~4096 pixels) and the loop keeps 2 frames in flight: "
+                   f"({mv[256]['tasks_per_frame']} of ~4096 pixels) and the loop keeps 3 frames in flight: "
                    f"{mv[256]['fps']:.1f} fps at 256 workers ({mv[256]['bottleneck']}). Smaller tasks or a deeper "
                    f"pipeline move that limit; the master's per-RESULT cost then matters more.")
-    out.append("- Per RESULT the loop thread pays for protocol validation of the worker's full list of cached "
-               "sets (it grows to ~64 entries): this, not the pixel path, is now the largest master cost per "
-               "task; sending the list only when it changes would cut it (common/protocol.py, worker/node.py).")
+    out.append("- Workers list their cached sets in a RESULT only when the list changed (issue 19), so the "
+               "loop thread no longer validates ~64 entries per RESULT; `python -m bench.result_cost` measures "
+               "the loop thread's cost per RESULT with and without the list.")
     out.append("")
     return "\n".join(out)
 
@@ -691,9 +696,10 @@ STEADY_SETS_NOTE = "64"
 MODEL_NOTES = """## What the model is
 
 `bench/scaling_model.py` simulates the frame loop of `Broker.render_sequence` event by event:
-`pipeline` (2) frames in flight; a frame's tasks dispatched by the broker's own scheduling
-policy (`master.scheduler.assign`: credit 3 per render thread, affinity to the workers
-holding the task's VPL/photon set, then least loaded); TASK latency; the worker's render
+`pipeline` (3) frames in flight; a frame's tasks dispatched by the broker's own scheduling
+policy (`master.scheduler.assign`: credit 3 per render thread; set-aware — a free worker takes
+a task of a VPL/photon set it holds or builds, else of the set fewest workers hold, and takes a
+set another worker holds only when it is idle; then least loaded); TASK latency; the worker's render
 thread (plus a set build when it does not hold set (seed, k)); encode; the RESULT through the
 worker's link and the master's link (bandwidth, FIFO) and the latency; the master's loop
 thread (one FIFO server: zmq receive, protocol decode, validation + lz4 + storing the tile,
@@ -704,11 +710,10 @@ background load on one 2-core host. Bottleneck: the resource with the highest ut
 in the measured window when it is >= 85% busy; otherwise "task supply" (fewer tasks in
 flight than worker threads) or "frame latency" (the pipeline depth bounds the rate).
 
-The "set-spreading" column is a what-if, not the broker: `Config.affinity_lookahead` lets a
-free worker take the first queued task (of the whole frame) whose set it holds, else a task of
-the set fewest workers hold. The broker's policy takes tasks strictly in queue order, so when
-results come back one by one only one worker is free at a time, affinity has no choice, and
-the tasks of one set scatter over many workers that all build it.
+The "lookahead" column is issue 12's what-if, not the broker: `Config.affinity_lookahead`
+lets a free worker take the first queued task whose set it holds, else a task of the set
+fewest workers hold, with no restraint on sharing sets. Before issue 19 the broker took tasks
+strictly in queue order (105 set builds per frame at 16 workers).
 
 Assumptions: each worker is one render thread on its own host with its own link; the master
 has one link of the same bandwidth; the finishing stage's serial share is 10% (numpy releases

@@ -6,7 +6,9 @@ simulates what ``Broker.render_sequence`` does, event by event:
 - the master keeps ``pipeline`` frames in flight: frame i + pipeline is submitted when frame
   i's image is made (the caller's loop); a frame's tasks (``task_tiles``, k-major) join the
   queue and are dispatched by THE scheduling policy (``master.scheduler.assign``: credit,
-  affinity to workers holding the VPL/photon set, least loaded);
+  set-aware — a worker takes tasks of the sets it holds or builds, else of the set fewest
+  workers hold —, least loaded), over the whole queue, with the master's view of each
+  worker's sets (last reported list + sets of its tasks in flight);
 - a TASK reaches its worker after the network latency; the worker's render threads (FIFO)
   render it — plus the set build when the worker does not hold set (frame seed, k) — and
   encode it; the RESULT crosses the worker's link and the master's link (bandwidth, FIFO
@@ -100,9 +102,10 @@ class Config:
     task_pixels: int = 4096
     threads_per_worker: int = 1
     credit_per_thread: int = 3
-    pipeline: int = 2  # frames in flight (Broker.pipeline)
-    frames: int = 10  # simulated frames
-    warmup: int = 3  # frames before the measured window
+    pipeline: int = 3  # frames in flight (Broker.pipeline; 3 since issue 19: the set-aware policy
+    # needs the next frame's sets queued to keep every worker on sets of its own)
+    frames: int = 24  # simulated frames (with 3 frames in flight completions come in bursts:
+    warmup: int = 8  # frames before the measured window   a long window is needed for steady state)
     network: Network = NETWORKS[1]
     master_cores: int = 16  # the master's host
     master_threads: int = 8  # threads of the parallel finishing stages
@@ -111,9 +114,9 @@ class Config:
     accumulate: bool = True  # a new seed (new sets) every frame, as when accumulating; False:
     # the camera moves, the seed and the workers' sets stay (docs/design-notes.md): no set builds
     prewarm_frames: int = 0  # sets of frames 0 .. prewarm-1 already held by every worker
-    affinity_lookahead: int = 0  # 0: the broker's policy (scheduler.assign, strict queue order);
-    # L > 0: a what-if policy: a free worker takes the first of the next L queued tasks whose set
-    # it holds or is building (else the first), to quantify what stricter affinity would buy
+    affinity_lookahead: int = 0  # 0: the broker's policy (scheduler.assign, set-aware);
+    # L > 0: the older what-if policy (before issue 19): a free worker takes the first of the
+    # next L queued tasks whose set it holds or is building, else of the least-held set
 
 
 # ---------------------------------------------------------------------------------- engine
@@ -326,28 +329,50 @@ def simulate(costs: Costs, cfg: Config) -> SimResult:
     bytes_total = [0.0]
     next_image = [0]
 
+    # the queue by set, in queue order (a frame's tasks are k-major, so each set's tasks are
+    # contiguous and the sets come in queue order): the policy only ever needs the first
+    # ``free`` tasks of each set, which keeps a dispatch cheap however long the queue
+    by_set: dict = {}
+    queued = [0]
+
     def submit(f: int) -> None:
         remaining[f] = ntasks
         for i in range(ntasks):
-            queue.append((f, i))
+            if cfg.affinity_lookahead > 0:
+                queue.append((f, i))
+            by_set.setdefault(set_key(f, tiles[i][0].k), collections.deque()).append((f, i))
+        queued[0] += ntasks
         dispatch()
 
     def dispatch() -> None:
-        views = [scheduler.WorkerView(w, credit, inflight[w], master_view[w]) for w in range(cfg.workers)]
-        free = sum(v.free for v in views)
-        if not free or not queue:
+        if not queued[0]:
             return
-        pending = [scheduler.PendingTask(key, set_key(key[0], tiles[key[1]][0].k))
-                   for key in itertools.islice(queue, free)]
+        free = sum(max(0, credit - x) for x in inflight)
+        if not free:
+            return
         if cfg.affinity_lookahead > 0:
             assigned = _lookahead_assign(queue, cfg.workers, credit, inflight, master_view, inflight_keys,
                                          lambda key: set_key(key[0], tiles[key[1]][0].k), cfg.affinity_lookahead)
         else:
+            # the master's view of a worker's sets: its last reported list plus the sets of the
+            # tasks it has in flight (it builds them), as the broker keeps it
+            # (only the sets still queued matter to the policy)
+            views = [scheduler.WorkerView(w, credit, inflight[w],
+                                          frozenset(k for k in by_set if k in master_view[w] or k in inflight_keys[w]))
+                     for w in range(cfg.workers)]
+            pending = [scheduler.PendingTask(t, key) for key, dq in by_set.items()
+                       for t in itertools.islice(dq, free)]
             assigned = scheduler.assign(pending, views)
         for (f, i), w in assigned:
             inflight[w] += 1
-            inflight_keys[w].append(set_key(f, tiles[i][0].k))
-            queue.remove((f, i))
+            key = set_key(f, tiles[i][0].k)
+            inflight_keys[w].append(key)
+            if cfg.affinity_lookahead > 0:
+                queue.remove((f, i))
+            by_set[key].remove((f, i))
+            if not by_set[key]:
+                del by_set[key]
+            queued[0] -= 1
             sim.at(sim.now + net.latency_s + costs.task_bytes / bps, arrive, f, i, w)
 
     def arrive(f: int, i: int, w: int) -> None:
@@ -358,9 +383,11 @@ def simulate(costs: Costs, cfg: Config) -> SimResult:
             work = px * costs.render_s_per_px * costs.render_weight(fx, fy) + px * costs.encode_s_per_px
             if key not in worker_sets[w]:  # checked when the render starts, as the renderer does
                 worker_sets[w].add(key)
-                set_builds[0] += 1
+                if f < cfg.frames:  # frames past the measured ones only keep the pipeline full
+                    set_builds[0] += 1
                 work += costs.set_build_s
-            work_total[0] += work
+            if f < cfg.frames:
+                work_total[0] += work
             worker_hosts[w].start(work, done)
 
         wstations[w].submit(run, lambda: send(f, i, w))
@@ -380,14 +407,16 @@ def simulate(costs: Costs, cfg: Config) -> SimResult:
             inflight[w] -= 1
             inflight_keys[w].remove(set_key(f, tiles[i][0].k))
             master_view[w] = sets
-            bytes_total[0] += nbytes
+            if f < cfg.frames:
+                bytes_total[0] += nbytes
             remaining[f] -= 1
             if remaining[f] == 0:
                 merged.add(f)
                 make_images()
             dispatch()
 
-        master_total[0] += costs.master_msg_s + px * costs.master_recv_s_per_px
+        if f < cfg.frames:
+            master_total[0] += costs.master_msg_s + px * costs.master_recv_s_per_px
         loop.submit(_cpu(master_host, costs.master_msg_s + px * costs.master_recv_s_per_px), handled)
 
     def make_images() -> None:
@@ -421,7 +450,7 @@ def simulate(costs: Costs, cfg: Config) -> SimResult:
             shared._advance()
             cpu_marks.append(shared.cpu_busy)
         next_image[0] = f + 1
-        if submitted[0] < cfg.frames:
+        if submitted[0] < cfg.frames + cfg.pipeline - 1:  # the pipeline stays full to the end
             submitted[0] += 1
             submit(submitted[0] - 1)
         make_images()
@@ -586,11 +615,17 @@ def calibrate(scene, params=None, width: int = 640, height: int = 480, sample: i
 
     master = measure_master(w, h, n, [(t, d) for t, _, d, _ in wire], pdict, tp,
                             msgs=[m for _, _, _, m in wire], reps=3)
-    # the same RESULTs listing only the current frame's n² sets (a moving camera keeps them)
+    # the same RESULTs listing only the current frame's n² sets (a moving camera keeps them);
+    # workers list their sets only when the list changes (issue 19): most RESULTs carry none
     few = [P.encode(P.RESULT, dict(P.decode(m).body, sets=[[0, k] for k in range(n * n)]), check=False)
            for _, _, _, m in wire]
     master_few = measure_master(w, h, n, [(t, d) for t, _, d, _ in wire], pdict, tp, msgs=few, reps=3)
     master["msg_s_current_sets"] = master_few["msg_s"]
+    none = [P.encode(P.RESULT, {k: v for k, v in P.decode(m).body.items() if k != "sets"}, check=False)
+            for _, _, _, m in wire]
+    master_none = measure_master(w, h, n, [(t, d) for t, _, d, _ in wire], pdict, tp, msgs=none, reps=3)
+    master["msg_s_all_sets"] = master["msg_s"]
+    master["msg_s"] = master["msg_s_no_sets"] = master_none["msg_s"]
     costs = Costs(render_s_per_px=render_px, set_build_s=sum(builds) / max(1, len(builds)),
                   encode_s_per_px=enc_s / enc_px, bytes_per_px=bytes_px, result_overhead_bytes=overhead,
                   master_msg_s=master["msg_s"], master_recv_s_per_px=master["recv_s_per_px"],

@@ -28,7 +28,11 @@ FRAME      M->W  frame, hash, scene_version, seed, camera (16 floats), fov_x, wi
                  before the first TASK of that frame it gets
 TASK       M->W  frame, task, epoch, k, tile [sx0, sy0, sx1, sy1] of sub-image k
 RESULT     W->M  frame, task, epoch, count (pixels), data (common.codec bytes),
-                 timings {name: seconds}, sets [[seed, k], ...] held by the worker,
+                 timings {name: seconds}, sets [[seed, k], ...] held by the worker (optional:
+                 sent only when the list changed since the worker's last RESULT on this
+                 connection; absent = unchanged plus the task's own set, which the master
+                 adds — so a master keeps the last list per worker; an older worker that
+                 sends it every time is still understood, hence no version bump),
                  rays (the worker's cumulative ray count, for rays/s)
 HEARTBEAT  both  queued (tasks waiting or running on the worker; optional)
 BYE        both  reason
@@ -509,10 +513,10 @@ class CurveServer:
         self._auths: list = []
 
     def __call__(self, sock) -> None:
-        from zmq.auth.thread import ThreadAuthenticator
+        from .curve_log import LoggingAuthenticator
 
         if not any(a.context is sock.context for a in self._auths):
-            auth = ThreadAuthenticator(sock.context, log=logging.getLogger("igi.auth"))
+            auth = LoggingAuthenticator(sock.context, log=logging.getLogger("igi.auth"))  # denials: INFO
             auth.start()
             auth.configure_curve(domain="*", location=str(self.allowed))
             self._auths.append(auth)

@@ -19,16 +19,27 @@ Reliability (ZeroMQ guide, Paranoid Pirate over the data socket; ``common/protoc
 - Tasks of an expired, disconnected or departing (BYE) worker go back to the FRONT of the
   queue. Every assignment has a fresh epoch; a RESULT counts only for the task's current epoch
   and the worker it was given to, in an open frame — stale and duplicate results are dropped.
-- Garbage, oversize and invalid messages are dropped with one log line each; a peer speaking
-  another protocol version gets a REFUSE naming both versions. Nothing a peer sends can raise
-  out of the loop.
+- Garbage, oversize and invalid messages are dropped and counted, with rate-limited warnings
+  (``common/ratelimit_log.py``: one line per kind per 10 s, the next one carries the count of
+  those not shown); a peer speaking another protocol version gets a REFUSE naming both
+  versions. Nothing a peer sends can raise out of the loop. With CURVE, denied peers are
+  logged at INFO (``common/curve_log.py``).
 - Credit-based flow control and task choice come from the pure policy in
-  ``master/scheduler.py``.
+  ``master/scheduler.py`` (set-aware since issue 19), over the whole queue.
+- Per-worker fault accounting (issue 20, ``scheduler.FaultLedger``): a worker's effective
+  credit starts at 2 and grows with the results it delivers (a worker advertising 4,096 slots
+  that never answers holds 2 tasks); a task that failed or timed out on a worker goes to
+  another worker first; a worker with 3 consecutive task faults is quarantined (logged once,
+  with the reason; it stays connected but gets no tasks). Task timeouts follow the measured
+  task times (``scheduler.task_timeout``: max(8 × median, 2 s), at most ``task_timeout``).
+- Scene edits are folded into a new content-hashed blob every :data:`FOLD_EDITS` edits, so the
+  SCENE a joining worker gets never carries more than that many edits (issue 20); workers
+  already in step keep their blob and get EDITs naming it.
 
 API (thread-safe)
 -----------------
     Broker(scene=None, bind="tcp://127.0.0.1:5555", heartbeat=1.0, liveness=3, task_pixels=4096,
-           pipeline=2, task_timeout=60, configure_socket=None)   # configure_socket(sock): before bind
+           pipeline=3, task_timeout=60, configure_socket=None)   # configure_socket(sock): before bind
     .start() -> Broker / .stop() / context manager; .endpoint (the bound address)
     .set_scene(scene) / .apply_edit(edit) -> version / .scene / .scene_version
     .submit_frame(spec) -> Future[FrameResult];  .render_frame(spec) -> FrameResult
@@ -58,6 +69,7 @@ import zmq
 from common import protocol as P
 from common.frame import FrameSpec, Tile, accumulation_index
 from common.params import make_params, params_to_dict
+from common.ratelimit_log import RateLimitedLog
 from common.scene import Scene
 
 from . import scheduler
@@ -68,6 +80,7 @@ log = logging.getLogger("igi.master")
 
 DEFAULT_BIND = "tcp://127.0.0.1:5555"
 MAX_TASK_FAILURES = 3  # a task that fails this often fails its frame
+FOLD_EDITS = 64  # edits on top of the scene blob before they are folded into a new blob (issue 20)
 LATENCY_WINDOW = 2000  # task latencies kept for the stats
 
 
@@ -146,6 +159,24 @@ class _Task:
     worker: bytes | None = None
     sent: float = 0.0
     failures: int = 0
+    avoid: frozenset = frozenset()  # workers this task failed or timed out on (issue 20)
+    trusted_only: bool = False  # lost by a worker that never delivered: to trusted workers first
+    pending: Any = None  # its scheduler.PendingTask (rebuilt when ``avoid`` changes)
+
+    def as_pending(self, key) -> scheduler.PendingTask:
+        if self.pending is None:
+            self.pending = scheduler.PendingTask(key, self.set_key, self.avoid, self.trusted_only)
+        return self.pending
+
+    def avoid_worker(self, ident: bytes) -> None:
+        self.avoid = self.avoid | {ident}
+        self.pending = None
+
+    def lost_by(self, ident: bytes, trusted: bool) -> None:
+        """The worker ``ident`` gave this task back without a result (left, timed out, failed)."""
+        self.avoid_worker(ident)
+        if not trusted:
+            self.trusted_only = True
 
 
 @dataclass
@@ -165,7 +196,7 @@ class Broker:
 
     def __init__(self, scene: Scene | None = None, bind: str = DEFAULT_BIND, *,
                  heartbeat: float = P.HEARTBEAT_INTERVAL, liveness: int = P.HEARTBEAT_LIVENESS,
-                 task_pixels: int = DEFAULT_TASK_PIXELS, pipeline: int = 2,
+                 task_pixels: int = DEFAULT_TASK_PIXELS, pipeline: int = 3,
                  task_timeout: float = 60.0, context: zmq.Context | None = None,
                  configure_socket: Callable[[zmq.Socket], None] | None = None):
         self.bind_address = bind
@@ -177,6 +208,7 @@ class Broker:
         self._configure_socket = configure_socket  # e.g. CURVE server keys (issue 8), before bind
         self._ctx = context or zmq.Context.instance()
         self._sock: zmq.Socket | None = None
+        self._monitor = None  # CURVE handshake failures (common/curve_log.py)
         self.endpoint: str | None = None
         self._thread: threading.Thread | None = None
         self._running = False
@@ -200,6 +232,10 @@ class Broker:
         self._merge_times: collections.deque = collections.deque(maxlen=LATENCY_WINDOW)  # decode + scatter
         self._task_bytes: collections.deque = collections.deque(maxlen=LATENCY_WINDOW)
         self._counters = collections.Counter()
+        self._faults = scheduler.FaultLedger()  # per-worker fault accounting (issue 20)
+        self._rl = RateLimitedLog(log)  # one line per kind of junk per interval, counted
+        self._result_times: collections.deque = collections.deque(maxlen=LATENCY_WINDOW)  # _on_result
+        self._dispatch_times: collections.deque = collections.deque(maxlen=LATENCY_WINDOW)
         self._frame_times: collections.deque = collections.deque(maxlen=64)  # completion times
         self._frame_bytes: collections.deque = collections.deque(maxlen=64)
         self._rays: collections.deque = collections.deque(maxlen=4096)  # (time, rays traced)
@@ -249,6 +285,7 @@ class Broker:
             raise OSError(f"cannot bind master to {self.bind_address}: {e}") from None
         self._sock = sock
         self.endpoint = sock.getsockopt(zmq.LAST_ENDPOINT).decode()
+        self._monitor = _handshake_monitor(sock)
         self._running = True
         self._thread = threading.Thread(target=self._loop, name="igi-master-loop", daemon=True)
         self._thread.start()
@@ -338,11 +375,39 @@ class Broker:
 
     def apply_edit(self, edit: dict) -> int:
         """Apply a scene edit (``common.scene_codec`` delta) on the master and every worker.
-        Raises ValueError for an invalid edit. Returns the new scene version."""
+        Raises ValueError for an invalid edit. Returns the new scene version.
+
+        Every :data:`FOLD_EDITS` edits the edited scene becomes the new content-hashed blob
+        (encoded here, in the caller's thread): a worker that joins later gets that blob and
+        the few edits since, never an ever-growing log (issue 20). Workers already in step
+        keep their blob and get the edits one by one, as before."""
         from common.scene_codec import apply_edit
 
         P.validate(P.EDIT, {"hash": "0" * 64, "version": 1, "edit": edit})  # wire shape
-        return self._call(lambda: self._apply_edit(edit, apply_edit))
+        version, fold = self._call(lambda: self._apply_edit(edit, apply_edit))
+        if fold is not None:
+            self._fold_edits(*fold)
+        return version
+
+    def _fold_edits(self, scene: Scene, version: int, base_hash: str) -> None:
+        from common.scene_codec import encode_scene, scene_hash
+
+        blob = encode_scene(scene)
+        h = scene_hash(blob)
+        self._call(lambda: self._install_fold(scene, version, base_hash, blob, h))
+
+    def _install_fold(self, scene: Scene, version: int, base_hash: str, blob: bytes, h: str) -> None:
+        """Loop thread: ``blob`` (hash ``h``) is the scene at ``version``; it becomes the base
+        that SCENE messages send, with the edits made since. Skipped when the scene was
+        replaced meanwhile."""
+        if self._scene_hash != base_hash or not self._base_version <= version <= self.scene_version:
+            return
+        with self._lock:
+            self._edits = self._edits[version - self._base_version:]
+            self._base_version = version
+            self._scene_blob, self._scene_hash = blob, h
+        self._counters["scene_folds"] += 1
+        log.info("scene edits folded: version %d is scene %s… (%d bytes)", version, h[:12], len(blob))
 
     def _install_scene(self, scene: Scene, blob: bytes | None = None, h: str | None = None) -> int:
         from common.scene_codec import encode_scene, scene_hash
@@ -364,7 +429,8 @@ class Broker:
                  scene.triangle_count)
         return version
 
-    def _apply_edit(self, edit: dict, apply_fn) -> int:
+    def _apply_edit(self, edit: dict, apply_fn) -> tuple:
+        """Loop thread: (new version, None or (scene, version, hash) to fold into a blob)."""
         if self._scene is None:
             raise ValueError("no scene loaded")
         new_scene = apply_fn(self._scene, edit)  # ValueError on a bad edit
@@ -373,15 +439,21 @@ class Broker:
             self._edits.append(edit)
             version = self._base_version + len(self._edits)
         self._cancel_frames(lambda f: f.spec.scene_version != version, FrameCancelled("scene edited"))
-        msg = P.encode(P.EDIT, {"hash": self._scene_hash, "version": version, "edit": edit})
         for w in list(self._workers.values()):
-            if w.scene_state == (self._scene_hash, version - 1):
-                if self._send(w, msg):
-                    w.scene_state = (self._scene_hash, version)
-            else:
-                self._send_scene(w)
+            self._send_edit(w, edit, version)
         self._stream_changed(reset_index=True)
-        return version
+        fold = (new_scene, version, self._scene_hash) if len(self._edits) >= FOLD_EDITS else None
+        return version, fold
+
+    def _send_edit(self, w: _Worker, edit: dict, version: int) -> None:
+        """EDIT to a worker one version behind (on whatever blob it was brought up from: a
+        fold changes the master's blob, not the workers'), else the whole SCENE."""
+        st = w.scene_state
+        if st is not None and st[1] == version - 1:
+            if self._send(w, P.encode(P.EDIT, {"hash": st[0], "version": version, "edit": edit})):
+                w.scene_state = (st[0], version)
+        else:
+            self._send_scene(w)
 
     def _send_scene(self, w: _Worker) -> None:
         if self._scene_hash is None:
@@ -681,6 +753,7 @@ class Broker:
             "messages_dropped": self._counters["dropped"],
             "refused": self._counters["refused"],
             "scene_blobs_sent": self._counters["scene_blobs_sent"],
+            "scene_folds": self._counters["scene_folds"],
             "bytes_per_frame": float(np.mean(self._frame_bytes)) if self._frame_bytes else 0.0,
             "task_latency_ms": None if lat is None else {
                 "mean": float(lat.mean() * 1e3), "p50": float(np.percentile(lat, 50) * 1e3),
@@ -689,6 +762,13 @@ class Broker:
             "task_encode_ms": float(np.mean(self._encode_times) * 1e3) if self._encode_times else None,
             "task_merge_ms": float(np.mean(self._merge_times) * 1e3) if self._merge_times else None,
             "task_bytes": float(np.mean(self._task_bytes)) if self._task_bytes else None,
+            # the loop thread's cost per RESULT (issue 19): handling it (decode excluded) and
+            # one dispatch round, in µs
+            "result_handle_us": _us_stats(self._result_times),
+            "dispatch_us": _us_stats(self._dispatch_times),
+            "task_timeout_s": self.current_task_timeout(),
+            "quarantined": [w.name for w in self._workers.values() if self._faults.quarantined(w.ident)],
+            "warnings_suppressed": sum(self._rl.counts.values()) - sum(self._rl.written.values()),
             "accumulated": latest.accumulated if latest else 0,
             "relative_error": latest.relative_error if latest else None,
             "scene_version": self._base_version + len(self._edits),
@@ -720,6 +800,8 @@ class Broker:
         poller = zmq.Poller()
         poller.register(self._sock, zmq.POLLIN)
         poller.register(self._wake_r.fileno(), zmq.POLLIN)
+        if self._monitor is not None:
+            poller.register(self._monitor.socket, zmq.POLLIN)
         self._next_tick = time.monotonic() + self.heartbeat
         while self._running:
             timeout_ms = max(0, int((self._next_tick - time.monotonic()) * 1000))
@@ -734,11 +816,15 @@ class Broker:
                         pass
                 except (BlockingIOError, OSError):
                     pass
+            if self._monitor is not None and self._monitor.socket in events:
+                self._monitor.drain()  # CURVE denials: INFO, rate-limited
             try:
                 self._run_commands()
                 self._service(events)
             except Exception:  # a bug must never take the master down
                 log.exception("master loop error (continuing)")
+        if self._monitor is not None:
+            self._monitor.close()
         self._sock.close(linger=500)  # let the BYEs of _shutdown leave
 
     def _service(self, events: dict) -> None:
@@ -810,7 +896,7 @@ class Broker:
             msg = P.decode(frame)
         except P.VersionMismatch as e:
             self._counters["refused"] += 1
-            log.warning("refused peer %s: %s", _peer(ident), e)
+            self._warn("refused", "refused peer %s: %s", _peer(ident), e)
             self._send_raw(ident, P.refusal(e.theirs))
             w = self._workers.get(ident)
             if w is not None:
@@ -846,12 +932,16 @@ class Broker:
 
     def _drop(self, ident: bytes, why: str) -> None:
         self._counters["dropped"] += 1
-        log.warning("dropped message from %s: %s", _peer(ident), why)
+        self._warn("dropped", "dropped message from %s: %s", _peer(ident), why)
+
+    def _warn(self, kind: str, msg: str, *args) -> None:
+        """A warning about what a peer did: rate-limited per kind, every one counted."""
+        self._rl.warning(kind, msg, *args)
 
     def _on_hello(self, ident: bytes, body: dict) -> None:
         old = self._workers.get(ident)
         if old is not None:
-            self._drop_worker(old, "said HELLO again")
+            self._re_registered(old)
         now = time.monotonic()
         w = _Worker(ident=ident, name=body["name"], host=body["host"], pid=body["pid"],
                     threads=body["threads"], credit=body["credit"], scenes=set(body["scenes"]),
@@ -865,13 +955,21 @@ class Broker:
         self._dispatch()
 
     def _on_result(self, w: _Worker, body: dict) -> None:
+        t0 = time.perf_counter()
+        self._handle_result(w, body)
+        self._result_times.append(time.perf_counter() - t0)
+
+    def _handle_result(self, w: _Worker, body: dict) -> None:
         key = (body["frame"], body["task"])
         now = time.monotonic()
-        if w.inflight.get(key) == body["epoch"]:
+        answered = w.inflight.get(key) == body["epoch"]
+        if answered:
             del w.inflight[key]  # the slot is free again whatever happens to the result
         f = self._frames.get(body["frame"])
         t = f.tasks.get(body["task"]) if f is not None else None
         if t is None or t.epoch != body["epoch"] or t.worker != w.ident:
+            if answered and self._faults.answered(w.ident):  # late, not silent
+                log.warning("worker %s answers again (late): quarantine lifted", w.name)
             self._counters["results_stale"] += 1
             log.debug("stale/duplicate result %s epoch %d from %s", key, body["epoch"], w.name)
             return
@@ -895,9 +993,10 @@ class Broker:
             # once per frame, in parallel stripes, when the frame's image is made
             f.assembler.add_wire(t.tile, body["data"])
         except Exception as e:
-            log.warning("bad result for task %s from %s: %s; re-queued", key, w.name, e)
-            self._task_failed(f, t, f"bad result: {e}")
+            self._warn("bad_result", "bad result for task %s from %s: %s; re-queued", key, w.name, e)
+            self._task_failed(f, t, f"bad result: {e}", w)
             return
+        self._faults.delivered(w.ident)
         if "sets" in body:
             v = f.spec.scene_version
             w.cached = {(v, s, k) for s, k in body["sets"]}
@@ -921,8 +1020,8 @@ class Broker:
             f = self._frames.get(body["frame"])
             t = f.tasks.get(body["task"]) if f is not None else None
             if t is not None and t.epoch == body["epoch"] and t.worker == w.ident:
-                log.warning("task %s failed on %s: %s: %s", key, w.name, body["code"], body["message"])
-                self._task_failed(f, t, f"{body['code']}: {body['message']}")
+                self._warn("task_failed", "task %s failed on %s: %s: %s", key, w.name, body["code"], body["message"])
+                self._task_failed(f, t, f"{body['code']}: {body['message']}", w)
             return
         if body["code"] == "scene_unavailable":
             w.scenes.discard(self._scene_hash)
@@ -930,9 +1029,12 @@ class Broker:
             return
         log.warning("worker %s reports %s: %s", w.name, body["code"], body["message"])
 
-    def _task_failed(self, f: _Frame, t: _Task, why: str) -> None:
+    def _task_failed(self, f: _Frame, t: _Task, why: str, w: _Worker | None = None) -> None:
         t.failures += 1
         t.worker = None
+        if w is not None:
+            t.lost_by(w.ident, self._faults.trusted(w.ident))  # another worker first
+            self._worker_fault(w, self._faults.failed(w.ident, why))
         if t.failures >= MAX_TASK_FAILURES:
             self._frames.pop(f.spec.frame, None)
             self._queue = collections.deque(k for k in self._queue if k[0] != f.spec.frame)
@@ -961,28 +1063,59 @@ class Broker:
     def _dispatch(self) -> None:
         if not self._queue or not self._workers:
             return
-        views = [scheduler.WorkerView(w.ident, w.credit, len(w.inflight), frozenset(w.cached))
-                 for w in self._workers.values() if w.scene_state is not None]
-        free = sum(v.free for v in views)
+        t0 = time.perf_counter()
+        free = sum(max(0, self._faults.credit(w.ident, w.credit) - len(w.inflight))
+                   for w in self._workers.values())
         if free == 0:
             return
+        pending = self._pending_tasks(free)
+        views = self._worker_views({t.set_key for t in pending})
+        assigned = scheduler.assign(pending, views)
+        if assigned:
+            self._apply_assignments(assigned)
+        self._dispatch_times.append(time.perf_counter() - t0)
+
+    def _worker_views(self, queued_sets: set) -> list:
+        """What the policy sees of every worker that may get tasks: its effective credit
+        (bounded by what it delivered), tasks in flight, and which of the ``queued_sets`` it
+        holds or builds (the others do not matter to the policy)."""
+        views = []
+        for w in self._workers.values():
+            if w.scene_state is None or self._faults.quarantined(w.ident):
+                continue
+            building = {self._set_of(key) for key in w.inflight}
+            sets = frozenset(k for k in queued_sets if k in w.cached or k in building)
+            views.append(scheduler.WorkerView(w.ident, self._faults.credit(w.ident, w.credit),
+                                              len(w.inflight), sets, self._faults.trusted(w.ident)))
+        return views
+
+    def _set_of(self, key) -> tuple | None:
+        f = self._frames.get(key[0])
+        t = f.tasks.get(key[1]) if f is not None else None
+        return t.set_key if t is not None else None
+
+    def _pending_tasks(self, free: int) -> list:
+        """The queue as the policy sees it: the whole queue (set-aware choice looks past the
+        front), but at most the first ``free`` tasks of each set — no more can be assigned.
+        Tasks of frames gone meanwhile are dropped from the queue."""
         pending = []
+        per_set: collections.Counter = collections.Counter()
         stale = 0
         for key in self._queue:
-            if len(pending) >= free:
-                break
             f = self._frames.get(key[0])
             t = f.tasks.get(key[1]) if f is not None else None
             if t is None:
                 stale += 1
                 continue
-            pending.append(scheduler.PendingTask(key, t.set_key))
+            if per_set[t.set_key] < free:
+                per_set[t.set_key] += 1
+                pending.append(t.as_pending(key))
         if stale:
             self._queue = collections.deque(k for k in self._queue
                                             if k[0] in self._frames and k[1] in self._frames[k[0]].tasks)
-        assigned = scheduler.assign(pending, views)
-        if not assigned:
-            return
+        return pending
+
+    def _apply_assignments(self, assigned: list) -> None:
         done = set()
         for key, wid in assigned:
             w = self._workers.get(wid)
@@ -1010,7 +1143,10 @@ class Broker:
     def _ensure_frame_sent(self, w: _Worker, f: _Frame) -> bool:
         if f.spec.frame in w.frames_sent:
             return True
-        if not self._send(w, P.encode(P.FRAME, P.frame_body(f.spec, self._scene_hash), check=False)):
+        # the hash of the blob this worker's scene came from (same content at this version)
+        st = w.scene_state
+        h = st[0] if st is not None and st[1] == f.spec.scene_version else self._scene_hash
+        if not self._send(w, P.encode(P.FRAME, P.frame_body(f.spec, h), check=False)):
             return False
         w.frames_sent[f.spec.frame] = True
         while len(w.frames_sent) > 64:
@@ -1034,30 +1170,72 @@ class Broker:
         through) goes back to the front of the queue. Its slot stays taken on that worker until
         something comes back, so a worker that never answers runs out of credit."""
         lost = []
+        timeout = self.current_task_timeout()
         for f in self._frames.values():
             for t in f.tasks.values():
-                if t.worker is not None and now - t.sent > self.task_timeout:
+                if t.worker is not None and now - t.sent > timeout:
                     w = self._workers.get(t.worker)
-                    log.warning("task (%d, %d) unanswered for %.0f s on %s; re-queued", t.frame, t.task,
-                                now - t.sent, w.name if w else "?")
+                    self._warn("task_timeout", "task (%d, %d) unanswered for %.1f s on %s (timeout %.1f s); "
+                               "re-queued", t.frame, t.task, now - t.sent, w.name if w else "?", timeout)
+                    t.lost_by(t.worker, self._faults.trusted(t.worker))
                     t.worker = None
                     t.epoch = 0
                     lost.append((t.frame, t.task))
+                    if w is not None:
+                        self._worker_fault(w, self._faults.timed_out(w.ident, f"task unanswered for {now - t.sent:.1f} s"))
         if lost:
             self._queue = collections.deque(scheduler.requeue_front(list(self._queue), lost))
             self._counters["tasks_requeued"] += len(lost)
 
-    def _drop_worker(self, w: _Worker, reason: str) -> None:
-        if self._workers.pop(w.ident, None) is None:
+    def current_task_timeout(self) -> float:
+        """Seconds a task may stay unanswered: from the measured task times (issue 20), at most
+        the configured ``task_timeout``."""
+        return scheduler.task_timeout(self._latencies, cap=self.task_timeout)
+
+    def _worker_fault(self, w: _Worker, quarantined: str | None) -> None:
+        """After a task fault on ``w``: when that quarantined it, say so once and give its
+        tasks in flight to the others (it keeps its connection but gets no more tasks)."""
+        if quarantined is None:
             return
+        self._counters["quarantined"] += 1
+        log.warning("worker %s (%s, pid %d) quarantined: %s", w.name, w.host, w.pid, quarantined)
+        lost = self._take_back(w)
+        if lost:
+            self._queue = collections.deque(scheduler.requeue_front(list(self._queue), lost))
+            self._counters["tasks_requeued"] += len(lost)
+
+    def _take_back(self, w: _Worker) -> list:
+        """The tasks in flight on ``w`` (current epoch), unassigned and avoiding ``w``. Its slots
+        stay taken, so a late answer is still recognized as its own (see FaultLedger.answered)."""
         lost = []
         for key, epoch in w.inflight.items():
             f = self._frames.get(key[0])
             t = f.tasks.get(key[1]) if f is not None else None
             if t is not None and t.epoch == epoch and t.worker == w.ident:
                 t.worker = None
+                t.lost_by(w.ident, self._faults.trusted(w.ident))
                 lost.append(key)
+        return lost
+
+    def _re_registered(self, w: _Worker) -> None:
+        """A registered worker said HELLO again (a worker that restarts uses a new identity):
+        the tasks it held go to other workers first and count as a fault, so a peer cannot
+        keep the front of the queue by re-registering."""
+        lost = self._take_back(w)
         w.inflight.clear()
+        if lost:
+            self._queue = collections.deque(scheduler.requeue_front(list(self._queue), lost))
+            self._counters["tasks_requeued"] += len(lost)
+            self._worker_fault(w, self._faults.timed_out(w.ident, f"said HELLO again with {len(lost)} task(s) in flight"))
+        self._drop_worker(w, "said HELLO again", forget=False)
+
+    def _drop_worker(self, w: _Worker, reason: str, forget: bool = True) -> None:
+        if self._workers.pop(w.ident, None) is None:
+            return
+        lost = self._take_back(w)  # to other workers first; trusted ones if w never delivered
+        w.inflight.clear()
+        if forget:
+            self._faults.forget(w.ident)
         if lost:
             self._queue = collections.deque(scheduler.requeue_front(list(self._queue), lost))
             self._counters["tasks_requeued"] += len(lost)
@@ -1073,6 +1251,25 @@ def _params_dict(params) -> dict:
     if dataclasses.is_dataclass(params):
         return params_to_dict(params)
     raise TypeError("params must be a Params, a dict of overrides or None")
+
+
+def _handshake_monitor(sock: zmq.Socket):
+    """A CURVE server socket's handshake-failure monitor (common/curve_log.py), else None."""
+    try:
+        if not sock.getsockopt(zmq.CURVE_SERVER):
+            return None
+        from common.curve_log import HandshakeMonitor
+
+        return HandshakeMonitor(sock)
+    except zmq.ZMQError:  # pragma: no cover - monitoring unsupported
+        return None
+
+
+def _us_stats(times) -> dict | None:
+    if not times:
+        return None
+    a = np.asarray(times) * 1e6
+    return {"mean": float(a.mean()), "p50": float(np.percentile(a, 50)), "p95": float(np.percentile(a, 95))}
 
 
 def _peer(ident: bytes) -> str:

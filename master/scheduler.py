@@ -3,24 +3,40 @@
 No sockets, no clocks, no randomness: :func:`assign` maps (pending tasks in queue order,
 worker views) to a list of (task id, worker id) assignments, so the policy is tested alone
 (ipyparallel's schedulers are built the same way) and the broker only applies what it returns.
+:class:`FaultLedger` (per-worker fault accounting, issue 20) and :func:`task_timeout` are pure
+too: the caller passes what happened, they say what follows.
 
-Policy (docs/architecture.md; the network side in docs/scale-out.md, "The network contract"):
+Policy (docs/architecture.md, docs/scaling.md; set-aware since issue 19):
 
-1. Tasks are taken strictly in queue order (the broker puts re-queued tasks at the front, see
-   :func:`requeue_front`); when no worker has a free credit slot, assignment stops — later tasks
-   never overtake earlier ones.
-2. Credit-based flow control: a worker with ``credit`` slots (granted in its HELLO, default
-   :data:`common.protocol.CREDIT_PER_THREAD` per render thread) never gets more than ``credit``
-   tasks in flight.
-3. Affinity: among workers with a free slot, those already holding the task's VPL/photon set
-   (key ``(scene_version, seed, k)``) come first — the set is not recomputed. A worker that is
-   given a task of a set it lacks will compute that set, so within one call it counts as a
-   holder for the later tasks of that set.
-4. Then least loaded: the smallest ``inflight / credit`` (load fraction), ties broken by more
-   free slots, then by worker id (deterministic).
+1. Credit-based flow control: a worker with ``credit`` slots (granted in its HELLO, default
+   :data:`common.protocol.CREDIT_PER_THREAD` per render thread, bounded by what it delivers:
+   :meth:`FaultLedger.credit`) never gets more than ``credit`` tasks in flight.
+2. Set-aware: a free worker takes the first queued task of a VPL/photon set it *holds* (key
+   ``(scene_version, seed, k)``: cached, or being built for a task in flight), else the first
+   queued task of the set the *fewest* workers hold (ties: the set queued first). So the sets
+   of a new frame are spread over the workers once — one owner per k, the owner then gets the
+   set's tasks — and a set is built a second time only when no unheld set waits (its owner is
+   slow, busy or gone: the least-loaded free worker helps). A worker given a set within one
+   call holds it for the rest of the call.
+3. One task at a time, to the free worker that holds a queued set first, then to one that
+   would build an unheld set, then to a (nearly) idle one that helps with a held set; among
+   those the least loaded (``inflight / credit``, ties: more free slots, then worker id). A
+   worker takes a set another worker holds only with fewer than ``share_below`` (1) tasks in
+   flight, so nobody is idle while a task it may take waits, and busy workers do not build
+   second copies of sets.
+4. Faults: a task that failed on (or timed out at) a worker is not given to that worker again
+   while another eligible worker exists (``PendingTask.avoid``); a task lost by a worker that
+   never delivered a result (``PendingTask.trusted_only``: a peer cycling through identities
+   cannot keep the front of the queue) goes only to workers that have delivered
+   (``WorkerView.trusted``) while any is there; quarantined workers are simply not passed in
+   (the broker leaves them out: see :class:`FaultLedger`).
+5. Re-queued tasks (of an expired, disconnected or departing worker) are put at the FRONT of
+   the queue in their original order (:func:`requeue_front`); among tasks of one set the
+   queue order is kept.
 """
 from __future__ import annotations
 
+import statistics
 from dataclasses import dataclass, field
 from typing import Hashable, Iterable, Sequence
 
@@ -29,14 +45,17 @@ from typing import Hashable, Iterable, Sequence
 class PendingTask:
     task: Hashable  # the broker's task id
     set_key: Hashable  # the VPL/photon set the task needs, e.g. (scene_version, seed, k)
+    avoid: frozenset = frozenset()  # workers on which this task failed or timed out
+    trusted_only: bool = False  # lost by a worker that never delivered: trusted workers first
 
 
 @dataclass(frozen=True)
 class WorkerView:
     id: Hashable
-    credit: int  # task slots granted by the worker
+    credit: int  # task slots (the effective credit: see FaultLedger.credit)
     inflight: int = 0  # tasks assigned and not yet answered
-    cached: frozenset = field(default_factory=frozenset)  # set keys the worker holds
+    cached: frozenset = field(default_factory=frozenset)  # set keys the worker holds or is building
+    trusted: bool = True  # has delivered results (FaultLedger.trusted)
 
     @property
     def free(self) -> int:
@@ -47,29 +66,106 @@ class WorkerView:
         return self.inflight / self.credit if self.credit > 0 else float("inf")
 
 
+SHARE_BELOW = 1  # a worker takes a set another worker holds only with fewer tasks in flight
+
+
 def assign(pending: Sequence[PendingTask], workers: Iterable[WorkerView],
-           limit: int | None = None) -> list[tuple[Hashable, Hashable]]:
-    """Assignments (task id, worker id) for a prefix of ``pending``; see the module docstring.
+           limit: int | None = None, share_below: int = SHARE_BELOW) -> list[tuple[Hashable, Hashable]]:
+    """Assignments (task id, worker id); see the module docstring.
 
     ``limit`` caps the number of assignments (None: as many as credit allows).
     """
+    workers = list(workers)
     state = {w.id: [w.credit, w.inflight, set(w.cached)] for w in workers}
-    order = sorted(state, key=_id_order)
+    all_ids = set(state)
+    untrusted = {w.id for w in workers if not w.trusted}
+    if len(untrusted) == len(all_ids):
+        untrusted = set()  # nobody has delivered yet: trust does not restrict anyone
+    # the queue by set: set key -> positions (queue order), and the order sets first appear
+    by_set: dict = {}
+    for pos, t in enumerate(pending):
+        by_set.setdefault(t.set_key, []).append(pos)
+    holders: dict = {}  # set key -> workers holding it (computed when first needed)
+
+    def holders_of(key) -> set:
+        h = holders.get(key)
+        if h is None:
+            h = holders[key] = {wid for wid, s in state.items() if key in s[2]}
+        return h
+    taken: set[int] = set()
+    heads = {key: 0 for key in by_set}  # index into by_set[key] of the first untaken position
     out: list[tuple[Hashable, Hashable]] = []
-    for t in pending:
-        if limit is not None and len(out) >= limit:
+    blocked: set = set()  # workers with a free slot but no task they may take
+    cap = len(pending) if limit is None else min(limit, len(pending))
+
+    def first_for(key, wid):
+        """First untaken position of ``key`` that ``wid`` may take (None when none)."""
+        lst = by_set[key]
+        i = heads[key]
+        while i < len(lst) and lst[i] in taken:
+            i += 1
+        heads[key] = i
+        for pos in lst[i:]:
+            if pos not in taken and _may_take(pending[pos], wid, all_ids) \
+                    and not (pending[pos].trusted_only and wid in untrusted):
+                return pos
+        return None
+
+    def choice(wid):
+        """(kind, position) of the task ``wid`` would take: kind 0 a set it holds, 1 a set
+        nobody holds, 2 a set others hold (only when the worker is nearly idle); None: none."""
+        held = state[wid][2]
+        best = None
+        for key in by_set:
+            if key in held:
+                pos = first_for(key, wid)
+                if pos is not None and (best is None or pos < best):
+                    best = pos
+        if best is not None:
+            return (0, 0, best)
+        cands = []
+        for key in by_set:
+            pos = first_for(key, wid)
+            if pos is None:
+                continue
+            h = holders_of(key)
+            able = h - pending[pos].avoid  # holders that may take this task
+            if able and state[wid][1] >= share_below:
+                continue  # another worker builds/holds it; help only when (nearly) idle
+            cands.append((2 if able else 1, len(h), pos))
+        return min(cands) if cands else None
+
+    while len(out) < cap:
+        best = None
+        for wid, s in state.items():
+            if s[1] >= s[0] or wid in blocked:
+                continue
+            c = choice(wid)
+            if c is None:
+                blocked.add(wid)
+                continue
+            rank = (c[0], s[1] / s[0], -(s[0] - s[1]), _id_order(wid))
+            if best is None or rank < best[0]:
+                best = (rank, wid, c[2])
+        if best is None:
             break
-        free = [wid for wid in order if state[wid][1] < state[wid][0]]
-        if not free:
-            break
-        holders = [wid for wid in free if t.set_key in state[wid][2]]
-        pool = holders or free
-        best = min(pool, key=lambda wid: (state[wid][1] / state[wid][0],
-                                          -(state[wid][0] - state[wid][1]), _id_order(wid)))
-        out.append((t.task, best))
-        state[best][1] += 1
-        state[best][2].add(t.set_key)
+        _, wid, pos = best
+        t = pending[pos]
+        taken.add(pos)
+        out.append((t.task, wid))
+        state[wid][1] += 1
+        if t.set_key not in state[wid][2]:
+            state[wid][2].add(t.set_key)
+            if t.set_key in holders:
+                holders[t.set_key].add(wid)
     return out
+
+
+def _may_take(t: PendingTask, wid, all_ids: set) -> bool:
+    """A task avoids the workers it failed on while any other worker is there to take it."""
+    if wid not in t.avoid:
+        return True
+    return all_ids <= t.avoid
 
 
 def _id_order(wid):
@@ -89,3 +185,129 @@ def credit_for(threads: int, per_thread: int | None = None) -> int:
     from common.protocol import CREDIT_PER_THREAD
 
     return max(1, int(threads) * (CREDIT_PER_THREAD if per_thread is None else per_thread))
+
+
+# ------------------------------------------------------------------ fault accounting (issue 20)
+INITIAL_CREDIT = 2  # slots a new worker gets before it has delivered anything
+QUARANTINE_AFTER = 3  # consecutive failures/timeouts that quarantine a worker
+TIMEOUT_FACTOR = 8.0  # task timeout = max(factor * median recent task time, floor), <= cap
+TIMEOUT_FLOOR = 2.0  # seconds
+TIMEOUT_WINDOW = 64  # recent task times considered
+
+
+@dataclass
+class WorkerRecord:
+    delivered: int = 0  # results accepted (all time)
+    window: int = 0  # results delivered since the last fault (grows the credit)
+    consecutive: int = 0  # failures/timeouts since the last delivered result
+    failures: int = 0
+    timeouts: int = 0
+    quarantined: str | None = None  # why, once quarantined
+    streak_kinds: set = field(default_factory=set)  # kinds of the consecutive faults ("failed", "timeout")
+    soft: bool = False  # quarantined for timeouts alone: a late answer lifts it
+
+
+class FaultLedger:
+    """Per-worker fault accounting: pure bookkeeping, the broker reports events.
+
+    - :meth:`credit`: the effective credit is ``min(advertised, INITIAL_CREDIT + window)``,
+      where ``window`` counts the results delivered since the last fault (halved by a fault),
+      so a worker that advertises 4,096 slots and never answers holds at most
+      :data:`INITIAL_CREDIT` tasks; a good worker reaches its advertised credit after a few
+      results.
+    - :meth:`failed` / :meth:`timed_out`: after :data:`QUARANTINE_AFTER` consecutive faults (no
+      delivered result between them) the worker is quarantined: it keeps its connection but
+      gets no task. The call that quarantines returns the reason (log it once); later ones
+      return None.
+    - :meth:`answered`: a worker that answers a task after its timeout (a stale but genuine
+      answer) was slow, not silent: its streak ends, and a quarantine caused by timeouts alone
+      is lifted (a stall of the machine must not cost a render its only good worker).
+    """
+
+    def __init__(self, initial_credit: int = INITIAL_CREDIT, quarantine_after: int = QUARANTINE_AFTER):
+        self.initial_credit = max(1, int(initial_credit))
+        self.quarantine_after = max(1, int(quarantine_after))
+        self.records: dict = {}
+
+    MAX_RECORDS = 10_000  # a peer reconnecting under new identities cannot grow this without bound
+
+    def record(self, wid) -> WorkerRecord:
+        r = self.records.get(wid)
+        if r is None:
+            if len(self.records) >= self.MAX_RECORDS:
+                del self.records[next(iter(self.records))]  # the oldest
+            r = self.records[wid] = WorkerRecord()
+        return r
+
+    def credit(self, wid, advertised: int) -> int:
+        r = self.records.get(wid)
+        window = r.window if r is not None else 0
+        return max(0, min(int(advertised), self.initial_credit + window))
+
+    def trusted(self, wid) -> bool:
+        """Has ``wid`` delivered a result?"""
+        r = self.records.get(wid)
+        return r is not None and r.delivered > 0
+
+    def quarantined(self, wid) -> str | None:
+        r = self.records.get(wid)
+        return r.quarantined if r is not None else None
+
+    def delivered(self, wid) -> None:
+        r = self.record(wid)
+        r.delivered += 1
+        r.window += 1
+        self._end_streak(r)
+
+    def answered(self, wid) -> bool:
+        """A late (stale) answer to a task given to ``wid``; True when that lifted a quarantine."""
+        r = self.records.get(wid)
+        if r is None:
+            return False
+        lifted = r.quarantined is not None and r.soft
+        if lifted:
+            r.quarantined, r.soft = None, False
+        self._end_streak(r)
+        return lifted
+
+    @staticmethod
+    def _end_streak(r: WorkerRecord) -> None:
+        r.consecutive = 0
+        r.streak_kinds = set()
+
+    def failed(self, wid, why: str) -> str | None:
+        r = self.record(wid)
+        r.failures += 1
+        return self._fault(r, why, "failed")
+
+    def timed_out(self, wid, why: str = "task timed out") -> str | None:
+        r = self.record(wid)
+        r.timeouts += 1
+        return self._fault(r, why, "timeout")
+
+    def _fault(self, r: WorkerRecord, why: str, kind: str) -> str | None:
+        r.consecutive += 1
+        r.streak_kinds.add(kind)
+        r.window //= 2
+        if r.quarantined is None and r.consecutive >= self.quarantine_after:
+            r.quarantined = (f"{r.consecutive} consecutive task faults "
+                             f"({r.failures} failed, {r.timeouts} timed out; last: {why})")
+            r.soft = r.streak_kinds == {"timeout"}
+            return r.quarantined
+        return None
+
+    def forget(self, wid) -> None:
+        """Drop the record of a worker that left cleanly (a quarantined one is remembered)."""
+        r = self.records.get(wid)
+        if r is not None and r.quarantined is None:
+            del self.records[wid]
+
+
+def task_timeout(recent: Sequence[float], cap: float, factor: float = TIMEOUT_FACTOR,
+                 floor: float = TIMEOUT_FLOOR) -> float:
+    """Seconds a task may stay unanswered: ``max(factor × median of the recent task times,
+    floor)``, at most ``cap``; ``cap`` alone before any task time is known."""
+    if not recent:
+        return float(cap)
+    med = statistics.median(list(recent)[-TIMEOUT_WINDOW:])
+    return min(float(cap), max(float(floor), factor * med))

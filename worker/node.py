@@ -44,6 +44,7 @@ import zmq
 
 from common import protocol as P
 from common.frame import Tile
+from common.ratelimit_log import RateLimitedLog
 
 log = logging.getLogger("igi.worker")
 
@@ -92,6 +93,9 @@ class WorkerNode:
         self._pending: set[cf.Future] = set()  # render futures of the current session
         self.exit_code = 0
         self.tasks_done = 0
+        self._rl = RateLimitedLog(log)  # junk from the master: one line per kind per interval
+        self._sets_lock = threading.Lock()
+        self._sets_sent: tuple | None = None  # (session, id(renderer), list) last sent in a RESULT
 
     # ------------------------------------------------------------------ control
     def stop(self, reason: str = "stopped") -> None:
@@ -305,7 +309,7 @@ class WorkerNode:
             self.exit_code = 2
             return "refused"
         except P.ProtocolError as e:
-            log.warning("dropped message from the master: %s", e)
+            self._rl.warning("dropped", "dropped message from the master: %s", e)
             return None
         kind, body = msg.kind, msg.body
         if kind == P.WELCOME:
@@ -338,7 +342,7 @@ class WorkerNode:
             (log.info if self.exit_with_master else log.warning)("master said BYE (%s)", body.get("reason", ""))
             return "bye"
         else:
-            log.warning("dropped %s: not a message the master sends", kind)
+            self._rl.warning("dropped", "dropped %s: not a message the master sends", kind)
         return None
 
     def _on_scene(self, body: dict, send) -> None:
@@ -413,6 +417,20 @@ class WorkerNode:
         self._pending.add(fut)
         fut.add_done_callback(self._pending.discard)
 
+    def _sets_to_send(self, renderer, session: int) -> list | None:
+        """The renderer's cached (seed, k) sets when they differ from the list last sent on
+        this connection (issue 19: RESULT.sets only on change), else None. Caller holds
+        ``_sets_lock``."""
+        cached = getattr(renderer, "cached_sets", None)
+        if cached is None:
+            return None
+        sets = [[int(s), int(k)] for s, k in sorted(cached())][:4096]
+        key = (session, id(renderer), sets)  # a new renderer (scene version) lists again
+        if self._sets_sent == key:
+            return None
+        self._sets_sent = key
+        return sets
+
     def _task_error(self, body: dict, code: str, message: str) -> bytes:
         return P.encode(P.ERROR, {"code": code, "message": message[:1024], "frame": body["frame"],
                                   "task": body["task"], "epoch": body["epoch"]})
@@ -434,17 +452,16 @@ class WorkerNode:
             t2 = time.perf_counter()
             data = encode(bufs)
             t3 = time.perf_counter()
-            sets = []
-            cached = getattr(renderer, "cached_sets", None)
-            if cached is not None:
-                sets = [[int(s), int(k)] for s, k in sorted(cached())][:4096]
             counters = getattr(getattr(renderer, "geom", None), "counters", None) or {}
             rays = int(sum(v for v in counters.values() if isinstance(v, int)))
-            frame = P.encode(P.RESULT, {
-                "frame": body["frame"], "task": body["task"], "epoch": body["epoch"],
-                "count": len(bufs), "data": data, "sets": sets, "rays": min(rays, P.INT53),
-                "timings": {"wait_scene": t1 - t0, "render": t2 - t1, "encode": t3 - t2}}, check=False)
-            self._outbox.put((session, frame))
+            result = {"frame": body["frame"], "task": body["task"], "epoch": body["epoch"],
+                      "count": len(bufs), "data": data, "rays": min(rays, P.INT53),
+                      "timings": {"wait_scene": t1 - t0, "render": t2 - t1, "encode": t3 - t2}}
+            with self._sets_lock:  # the list goes out only when it changed, in outbox order
+                sets = self._sets_to_send(renderer, session)
+                if sets is not None:
+                    result["sets"] = sets
+                self._outbox.put((session, P.encode(P.RESULT, result, check=False)))
             self.tasks_done += 1
         except Exception as e:
             log.error("task %d of frame %d failed: %s", body["task"], body["frame"],

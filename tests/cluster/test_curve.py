@@ -119,3 +119,35 @@ def test_plain_dealer_gets_no_answer_from_a_curve_master(curve_broker):
     assert curve_broker.stats()["workers"] == 0
     s.close(0)
     ctx.term()
+
+
+def test_plain_worker_against_a_curve_master_leaves_one_info_line(curve_broker, caplog):
+    """Issue 20: a denial is logged at INFO (default level), once per interval however often
+    the worker retries."""
+    import logging
+
+    caplog.set_level(logging.INFO, logger="igi.master")
+    node, t, ctx = _start_worker(curve_broker.endpoint, None)
+    try:
+        # several handshake attempts (reconnect backoff <= 1 s) within the wait
+        assert not wait_until(lambda: curve_broker.stats()["workers"] > 0, 4.0)
+    finally:
+        _stop_worker(node, t, ctx)
+    lines = [r for r in caplog.records if r.name == "igi.master" and "denied" in r.getMessage()]
+    assert len(lines) == 1, [r.getMessage() for r in lines]
+    assert lines[0].levelno == logging.INFO and "CURVE" in lines[0].getMessage()
+    assert curve_broker.endpoint in lines[0].getMessage()
+
+
+def test_unknown_key_denial_is_logged_with_the_peer_address(curve_broker, keys, caplog):
+    import logging
+
+    d, rogue = keys
+    caplog.set_level(logging.INFO, logger="igi.master")
+    node, t, ctx = _start_worker(curve_broker.endpoint, _unknown_key_client(d, rogue))
+    try:
+        assert not wait_until(lambda: curve_broker.stats()["workers"] > 0, 3.0)
+    finally:
+        _stop_worker(node, t, ctx)
+    lines = [r.getMessage() for r in caplog.records if r.name == "igi.master" and "denied" in r.getMessage()]
+    assert len(lines) == 1 and "127.0.0.1" in lines[0], lines

@@ -1,7 +1,10 @@
 """The scheduling policy alone: a pure function of pending tasks and worker views."""
 from __future__ import annotations
 
-from master.scheduler import PendingTask, WorkerView, assign, credit_for, requeue_front
+import collections
+
+from master.scheduler import (TIMEOUT_FLOOR, FaultLedger, PendingTask, WorkerView, assign, credit_for,
+                              requeue_front, task_timeout)
 
 
 def tasks(*keys):
@@ -41,12 +44,42 @@ def test_credit_limits_in_flight_tasks():
 def test_a_worker_given_a_set_counts_as_holding_it():
     ws = [WorkerView("a", 3), WorkerView("b", 3)]
     out = assign(tasks((0, 0, 5), (0, 0, 5), (0, 0, 6), (0, 0, 6)), ws)
-    assert out == [(0, "a"), (1, "a"), (2, "b"), (3, "b")]
+    assert sorted(out) == [(0, "a"), (1, "a"), (2, "b"), (3, "b")]
 
 
 def test_affinity_falls_back_when_the_holder_is_full():
     ws = [WorkerView("a", 1, 1, frozenset({(0, 0, 1)})), WorkerView("b", 3)]
     assert assign(tasks((0, 0, 1)), ws) == [(0, "b")]
+
+
+def test_a_busy_worker_takes_an_unheld_set_not_a_set_another_holds():
+    # a holds set 1 (and is busy with it); b has a task in flight: it builds set 2 rather
+    # than a second copy of set 1, although set 1 is queued first
+    ws = [WorkerView("a", 3, 3, frozenset({(0, 0, 1)})), WorkerView("b", 3, 1, frozenset({(0, 0, 9)}))]
+    assert assign(tasks((0, 0, 1), (0, 0, 2)), ws) == [(1, "b"), ]
+    # an idle worker helps with a held set when nothing else waits (never idle)
+    ws = [WorkerView("a", 3, 3, frozenset({(0, 0, 1)})), WorkerView("b", 3, 0)]
+    assert assign(tasks((0, 0, 1)), ws) == [(0, "b")]
+    # b busy and nothing unheld: it waits for its own work rather than build set 1 again
+    ws = [WorkerView("a", 3, 3, frozenset({(0, 0, 1)})), WorkerView("b", 3, 1)]
+    assert assign(tasks((0, 0, 1)), ws) == []
+
+
+def test_a_worker_takes_its_own_sets_first_then_the_least_held():
+    ws = [WorkerView("a", 4, 0, frozenset({(0, 0, 3)}))]
+    out = assign(tasks((0, 0, 1), (0, 0, 3), (0, 0, 2), (0, 0, 3)), ws)
+    assert [t for t, _ in out] == [1, 3, 0, 2]
+
+
+def test_failed_task_goes_to_another_worker_first():
+    t = [PendingTask(0, (0, 0, 1), avoid=frozenset({"a"}))]
+    ws = [WorkerView("a", 3, 0, frozenset({(0, 0, 1)})), WorkerView("b", 3, 2)]
+    assert assign(t, ws) == [(0, "b")]
+    # the other worker is full: the task waits for it, a takes other work meanwhile
+    ws = [WorkerView("a", 3, 0), WorkerView("b", 1, 1)]
+    assert assign(t + [PendingTask(1, (0, 0, 2))], ws) == [(1, "a")]
+    # every worker failed it: anyone may take it again
+    assert assign([PendingTask(0, (0, 0, 1), avoid=frozenset({"a"}))], [WorkerView("a", 3)]) == [(0, "a")]
 
 
 def test_limit():
@@ -68,3 +101,169 @@ def test_requeued_tasks_are_assigned_first():
 
 def test_default_credit_is_three_per_thread():
     assert credit_for(1) == 3 and credit_for(4) == 12 and credit_for(0) == 1
+
+
+# ------------------------------------------------------------------ many frames, many workers
+def _simulate(workers=16, ks=9, tiles_per_k=12, frames=30, pipeline=3, credit=3, events=None, speed=None):
+    """A step simulation of the broker's use of :func:`assign`: every worker renders one task
+    per step (``speed`` < 1: slower), a frame's tasks are queued k-major (as task_tiles), a new
+    frame is queued when one completes (``pipeline`` frames open), workers join / leave at the
+    steps of ``events`` (a leaver's tasks go back to the front of the queue). Returns the set
+    builds of every completed frame, the number of steps a worker sat idle while tasks waited,
+    and the order in which lost tasks were re-queued."""
+    speed = speed or {}
+    events = events or {}
+    ws = {}
+
+    def join(wid):
+        ws[wid] = {"inflight": collections.deque(), "cache": set(), "acc": 0.0}
+    for i in range(workers):
+        join(f"w{i:02d}")
+    queue, remaining, builds, done, idle, requeued = [], {}, collections.Counter(), [], 0, []
+    nxt = [0]
+
+    def submit():
+        f = nxt[0]
+        nxt[0] += 1
+        remaining[f] = ks * tiles_per_k
+        queue.extend((f, k, t) for k in range(ks) for t in range(tiles_per_k))
+    for _ in range(pipeline):
+        submit()
+    step = 0
+    while len(done) < frames:
+        step += 1
+        assert step < 100_000, "stalled"
+        for kind, wid in events.get(step, ()):
+            if kind == "join":
+                join(wid)
+            else:
+                lost = list(ws.pop(wid)["inflight"])
+                requeued.append((lost, list(queue)))
+                queue[:] = requeue_front(queue, lost)
+        views = [WorkerView(wid, credit, len(w["inflight"]),
+                            frozenset(w["cache"]) | {(t[0], t[1]) for t in w["inflight"]})
+                 for wid, w in ws.items()]
+        out = assign([PendingTask(t, (t[0], t[1])) for t in queue], views)
+        for t, wid in out:
+            ws[wid]["inflight"].append(t)
+        got = {t for t, _ in out}
+        queue[:] = [t for t in queue if t not in got]
+        idle += bool(queue) and sum(1 for w in ws.values() if not w["inflight"])
+        for wid, w in ws.items():
+            w["acc"] += speed.get(wid, 1.0)
+            while w["acc"] >= 1.0 and w["inflight"]:
+                w["acc"] -= 1.0
+                f, k, _ = t = w["inflight"].popleft()
+                if (f, k) not in w["cache"]:
+                    w["cache"].add((f, k))
+                    builds[f] += 1
+                remaining[f] -= 1
+                if remaining[f] == 0:
+                    done.append(f)
+                    submit()
+            if not w["inflight"]:
+                w["acc"] = 0.0
+    return [builds[f] for f in done], idle, requeued
+
+
+def test_set_builds_per_frame_at_most_the_sets_of_the_frame():
+    builds, idle, _ = _simulate()
+    assert max(builds) <= 9, builds
+    assert idle == 0
+
+
+def test_set_builds_bounded_when_workers_join_and_leave():
+    events = {20: [("leave", "w03")], 45: [("join", "x1")], 70: [("leave", "w07"), ("join", "x2")],
+              71: [("leave", "w11")]}
+    builds, idle, requeued = _simulate(frames=40, events=events)
+    changes = sum(len(v) for v in events.values())
+    assert max(builds) <= 9 + changes, builds
+    assert sum(builds) <= 9 * len(builds) + changes, builds  # each change costs at most one build
+    assert idle == 0
+    for lost, _ in requeued:
+        assert lost  # the leavers had work in flight
+
+
+def test_requeue_order_after_a_worker_dies_is_unchanged():
+    events = {25: [("leave", "w05")]}
+    _, _, requeued = _simulate(frames=6, events=events)
+    (lost, before), = requeued
+    after = requeue_front(before, lost)
+    assert after[:len(lost)] == lost and after[len(lost):] == [t for t in before if t not in lost]
+    # and assign hands the lost tasks out in that order: a new worker takes them first
+    pending = [PendingTask(t, (t[0], t[1])) for t in after]
+    out = assign(pending, [WorkerView("new", len(lost))])
+    assert [t for t, _ in out] == lost
+
+
+def test_no_worker_idle_while_work_waits_even_with_slow_workers():
+    builds, idle, _ = _simulate(frames=20, speed={"w01": 0.3, "w05": 0.5}, pipeline=2)
+    assert idle == 0
+    # more workers than the sets in flight: every worker still works (sets are shared)
+    builds, idle, _ = _simulate(workers=40, frames=10)
+    assert idle == 0
+
+
+# ------------------------------------------------------------------ fault accounting
+def test_effective_credit_grows_with_delivered_results():
+    led = FaultLedger(initial_credit=2)
+    assert led.credit("r", 4096) == 2  # a new worker: small, whatever it advertises
+    assert led.credit("g", 1) == 1
+    for _ in range(5):
+        led.delivered("g")
+    assert led.credit("g", 4096) == 7 and led.credit("g", 3) == 3
+    led.failed("g", "x")
+    assert led.credit("g", 4096) == 2 + 5 // 2
+
+
+def test_quarantine_after_consecutive_faults_once():
+    led = FaultLedger(quarantine_after=3)
+    assert led.failed("r", "bad result") is None
+    led.delivered("r")  # a success in between resets the count
+    assert led.failed("r", "bad result") is None
+    assert led.timed_out("r") is None
+    why = led.failed("r", "bad result: 7 pixels, tile has 12")
+    assert why and "3 consecutive" in why and "7 pixels" in why
+    assert led.quarantined("r") == why
+    assert led.failed("r", "again") is None  # reported once
+    led.forget("r")
+    assert led.quarantined("r") == why  # a quarantined worker is remembered
+    led.delivered("g")
+    led.forget("g")
+    assert "g" not in led.records
+
+
+def test_task_timeout_follows_measured_task_times():
+    assert task_timeout([], cap=60.0) == 60.0
+    assert task_timeout([0.05] * 10, cap=60.0) == TIMEOUT_FLOOR
+    assert task_timeout([1.0, 1.0, 50.0], cap=60.0, factor=8) == 8.0
+    assert task_timeout([30.0] * 3, cap=60.0) == 60.0
+
+
+def test_a_late_answer_lifts_a_quarantine_caused_by_timeouts_alone():
+    led = FaultLedger(quarantine_after=3)
+    for _ in range(2):
+        assert led.timed_out("slow") is None
+    assert led.timed_out("slow")
+    assert led.quarantined("slow")
+    assert led.answered("slow") is True and led.quarantined("slow") is None
+    # a worker quarantined for bad results stays quarantined whatever it answers later
+    led.failed("bad", "x")
+    led.timed_out("bad")
+    assert led.failed("bad", "y")
+    assert led.answered("bad") is False and led.quarantined("bad")
+
+
+def test_tasks_lost_by_an_untrusted_worker_go_to_trusted_workers():
+    lost = PendingTask(0, (0, 0, 1), trusted_only=True)
+    other = PendingTask(1, (0, 0, 2))
+    ws = [WorkerView("new", 2, 0, trusted=False), WorkerView("good", 2, 2, trusted=True)]
+    assert assign([lost, other], ws) == [(1, "new")]  # the lost task waits for "good"
+    ws = [WorkerView("new", 2, 0, trusted=False), WorkerView("good", 2, 1, trusted=True)]
+    assert sorted(assign([lost, other], ws)) == [(0, "good"), (1, "new")]
+    # nobody has delivered yet (a fresh cluster): trust restricts nobody
+    assert assign([lost], [WorkerView("new", 2, 0, trusted=False)]) == [(0, "new")]
+    led = FaultLedger()
+    assert not led.trusted("w")
+    led.delivered("w")
+    assert led.trusted("w")
