@@ -192,7 +192,7 @@ def decode_into(raw: np.ndarray, p: int, h: int, w: int, n: int, y0: int, x0: in
         raise ValueError(f"tile {h}x{w} at ({y0}, {x0}) step {n} is outside the {W}x{H} planes")
     o = section_offsets(p)
     decode_tile(raw, h, w, o["reflectance"], o["irradiance"], o["unfiltered"], o["depth"], o["normal"],
-                _F16_TO_F32, n, y0, x0, vals, nrm, depth.view(np.uint32))
+                n, y0, x0, vals, nrm, depth.view(np.uint32))
 
 
 def decode(data: bytes, count: int | None = None) -> TileBuffers:

@@ -67,7 +67,7 @@ class FrameAssembler:
         if self._buffers is None:
             self._buffers = _empty_buffers(self.width, self.height)
             if self._wire is not None:
-                self._wire.to_buffers(self._buffers, self._tiles, self.n)
+                self._wire.to_buffers(self._buffers, self._tiles)
                 self._wire = None
         return self._buffers
 
@@ -103,18 +103,20 @@ class FrameAssembler:
         if self._buffers is not None:
             scatter(tile, self.n, decode_raw(p, raw), self._buffers)
         else:
-            if self._wire is None:
-                self._wire = _Planes.acquire(self.width, self.height)
-                weakref.finalize(self, _Planes.release, self._wire)
+            wf = self._planes()
             _, _, h, w = tile_slices(tile, self.n, self.width, self.height)
-            ky, kx = divmod(tile.k, self.n)
-            wf = self._wire
-            decode_into(raw, p, h, w, self.n, tile.sy0 * self.n + ky, tile.sx0 * self.n + kx,
-                        wf.vals, wf.nrm, wf.depth)
+            k = tile.k
+            decode_into(raw, p, h, w, 1, tile.sy0, tile.sx0, wf.vals[k], wf.nrm[k], wf.depth[k])
             wf.covered += p
         self._tiles.add(tile)
         self.received += count
         return self.complete
+
+    def _planes(self) -> "_Planes":
+        if self._wire is None:
+            self._wire = _Planes.acquire(self.width, self.height, self.n)
+            weakref.finalize(self, _Planes.release, self._wire)
+        return self._wire
 
     def image(self, params, index: int = 0) -> np.ndarray:
         """The filtered image (H, W, 3) float32, linear radiance, of accumulation frame ``index``.
@@ -128,12 +130,7 @@ class FrameAssembler:
         window = resolve_window(int(p["filter_window"]), self.n)
         w = filter_weight(p, index)
         if self._buffers is None:
-            planes = self._wire
-            if planes is None:
-                planes = self._wire = _Planes.acquire(self.width, self.height)
-                weakref.finalize(self, _Planes.release, planes)
-            planes.fill_missing(self._tiles, self.n)
-            return _finish(planes.vals, planes.nrm, planes.depth, window, w, p)
+            return self._planes().image(self._tiles, window, w, p)
         b = self.buffers
         planar = lambda a: a.transpose(2, 0, 1)
         vals = np.concatenate([planar(b["reflectance"]), planar(b["irradiance"]), planar(b["unfiltered"])])
@@ -156,31 +153,38 @@ def _finish(vals: np.ndarray, nrm: np.ndarray, depth: np.ndarray, window: int, w
 
 
 class _Planes:
-    """A frame's decoded buffers in image space, planar float32: ``vals`` (9, H, W)
-    reflectance, irradiance, unfiltered (x RGB), ``nrm`` (3, H, W), ``depth`` (H, W).
+    """A frame's decoded buffers as they arrive, per sub-image k of the interleave (a tile is
+    a rectangle of one, so its decode writes contiguous rows): ``vals`` (n², 9, sh, sw)
+    float32 reflectance, irradiance, unfiltered (x RGB), ``nrm`` (n², 3, sh, sw), ``depth``
+    (n², sh, sw), sh x sw the largest sub-image. The image is made in row stripes that are
+    first gathered into image order (``master.kernels.discontinuity.finish_block``).
 
     Pooled per resolution (fresh multi-megabyte arrays cost page faults every frame): an
     assembler takes a set when its first tile arrives and gives it back when it is collected.
-    Pixels no tile has written (``covered`` < all) get the values of a pixel before its tile
-    arrives (0, depth +inf = miss, normal 0) only when an incomplete frame is read."""
+    Pixels no tile has written get the values of a pixel before its tile arrives (0, depth
+    +inf = miss, normal 0) only when an incomplete frame is read."""
 
     _lock = threading.Lock()
-    _free: dict[tuple[int, int], list["_Planes"]] = {}
+    _free: dict[tuple[int, int, int], list["_Planes"]] = {}
+    STRIPE_ROWS = 16  # rows gathered at a time: their planes (with halo rows) stay in L2
 
-    def __init__(self, width: int, height: int):
-        self.key = (width, height)
-        self.vals = np.empty((9, height, width), np.float32)
-        self.nrm = np.empty((3, height, width), np.float32)
-        self.depth = np.empty((height, width), np.float32)
+    def __init__(self, width: int, height: int, n: int):
+        self.key = (width, height, n)
+        self.width, self.height, self.n = width, height, n
+        K = n * n
+        sw, sh = -(-width // n), -(-height // n)
+        self.vals = np.empty((K, 9, sh, sw), np.float32)
+        self.nrm = np.empty((K, 3, sh, sw), np.float32)
+        self.depth = np.empty((K, sh, sw), np.float32)
         self.covered = 0  # pixels written since acquire
 
     @classmethod
-    def acquire(cls, width: int, height: int) -> "_Planes":
+    def acquire(cls, width: int, height: int, n: int) -> "_Planes":
         with cls._lock:
-            free = cls._free.get((width, height))
+            free = cls._free.get((width, height, n))
             pl = free.pop() if free else None
         if pl is None:
-            pl = cls(width, height)
+            pl = cls(width, height, n)
         pl.covered = 0
         return pl
 
@@ -193,27 +197,47 @@ class _Planes:
             if len(lst) < 2:
                 lst.append(pl)
 
-    def fill_missing(self, tiles, n: int) -> None:
+    def fill_missing(self, tiles) -> None:
         """Give every pixel none of ``tiles`` wrote its before-arrival values (incomplete
         frames only: a complete frame has written every pixel)."""
-        H, W = self.depth.shape
-        if self.covered >= H * W:
+        if self.covered >= self.width * self.height:
             return
-        missing = np.ones((H, W), bool)
+        missing = np.ones(self.depth.shape, bool)
         for t in tiles:
-            ys, xs, _, _ = tile_slices(t, n, W, H)
-            missing[ys, xs] = False
-        self.vals[:, missing] = 0.0
-        self.nrm[:, missing] = 0.0
+            _, _, h, w = tile_slices(t, self.n, self.width, self.height)
+            missing[t.k, t.sy0:t.sy0 + h, t.sx0:t.sx0 + w] = False
+        for k in range(len(missing)):
+            self.vals[k][:, missing[k]] = 0.0
+            self.nrm[k][:, missing[k]] = 0.0
         self.depth[missing] = np.inf
-        self.covered = H * W
+        self.covered = self.width * self.height
 
-    def to_buffers(self, b: dict[str, np.ndarray], tiles, n: int) -> None:
-        self.fill_missing(tiles, n)
+    def image(self, tiles, window: int, w: float, p: dict) -> np.ndarray:
+        from master.kernels.discontinuity import finish_block
+
+        self.fill_missing(tiles)
+        H, W = self.height, self.width
+        use_filter = w > 0.0 and window > 1
+        offs = window_offsets(window)
+        lo, hi = -offs[0], offs[-1]
+        dt, nt = float(p["depth_threshold"]), float(p["normal_threshold"])
+        img = np.empty((H, W, 3), np.float32)
+        run_stripes(H, W, lambda y0, y1: finish_block(self.vals, self.nrm, self.depth, self.n, H, W, y0, y1,
+                                                      self.STRIPE_ROWS, use_filter, lo, hi, dt, nt,
+                                                      float(w), img))
+        return img
+
+    def to_buffers(self, b: dict[str, np.ndarray], tiles) -> None:
+        from master.kernels.discontinuity import gather_rows
+
+        self.fill_missing(tiles)
+        H, W = self.height, self.width
+        vals = np.empty((9, H, W), np.float32)
+        nrm = np.empty((3, H, W), np.float32)
+        gather_rows(self.vals, self.nrm, self.depth, self.n, W, 0, H, vals, nrm, b["depth"])
         for s, name in enumerate(("reflectance", "irradiance", "unfiltered")):
-            np.copyto(b[name], self.vals[3 * s:3 * s + 3].transpose(1, 2, 0))
-        np.copyto(b["normal"], self.nrm.transpose(1, 2, 0))
-        np.copyto(b["depth"], self.depth)
+            np.copyto(b[name], vals[3 * s:3 * s + 3].transpose(1, 2, 0))
+        np.copyto(b["normal"], nrm.transpose(1, 2, 0))
 
 
 def _empty_buffers(width: int, height: int) -> dict[str, np.ndarray]:

@@ -28,8 +28,6 @@ def oct_decode_one(qx: int, qy: int) -> tuple:
     p = max(q/32767, -1); z = 1 - |px| - |py|; below the diamond (z < 0) fold
     (1 - |p_other|)·sign(p); normalise by 1/sqrt((x x + y y) + z z) — float32 throughout."""
     zero = np.float32(0.0)
-    if qx == _ZERO_NORMAL and qy == _ZERO_NORMAL:
-        return zero, zero, zero
     one = np.float32(1.0)
     m1 = np.float32(-1.0)
     px = max(np.float32(qx) * _SNORM_INV, m1)
@@ -37,20 +35,21 @@ def oct_decode_one(qx: int, qy: int) -> tuple:
     ax = abs(px)
     ay = abs(py)
     z = (one - ax) - ay
-    if z < zero:
-        vx = one - ay
-        vy = one - ax
-        if px < zero:  # px is never -0 (q/32767 of an integer): sign(0) = +1
-            vx = -vx
-        if py < zero:
-            vy = -vy
-    else:
-        vx = px
-        vy = py
+    lower = z < zero
+    # below the diamond: (1 - |p_other|) with p's sign (px is never -0: q/32767 of an
+    # integer, so sign(0) = +1); selects, not branches (the fold is data-dependent)
+    ux = one - ay
+    uy = one - ax
+    ux = -ux if px < zero else ux
+    uy = -uy if py < zero else uy
+    vx = ux if lower else px
+    vy = uy if lower else py
     n2 = vx * vx + vy * vy
     n2 = n2 + z * z
     inv = one / np.float32(math.sqrt(n2))
-    return vx * inv, vy * inv, z * inv
+    # the reserved code (a zero normal, +0 exactly): selects, not a branch
+    zn = (qx == _ZERO_NORMAL) & (qy == _ZERO_NORMAL)
+    return (zero if zn else vx * inv), (zero if zn else vy * inv), (zero if zn else z * inv)
 
 
 @njit(cache=True, nogil=True)
@@ -64,37 +63,84 @@ def oct_decode_into(qx, qy, out) -> None:
 
 
 @njit(cache=True, nogil=True)
-def decode_tile(raw, h, w, o_refl, o_irr, o_unf, o_depth, o_nor, f16_table, n, y0, x0,
+def f16_to_f32(lo, hi, bits, out) -> None:
+    """float16 values (little-endian bytes ``lo``, ``hi``) -> float32 ``out``; ``bits`` is
+    ``out`` viewed as uint32. Exact for every code, the way numpy's cast defines it: the
+    magnitude bits shifted into float32 position are the value x 2^-112 for normal and
+    subnormal halves alike (one exact multiply); exponent 31 becomes inf / NaN with the
+    mantissa kept. Unit-stride, branch-free loops (vectorized)."""
+    m = out.shape[0]
+    for i in range(m):
+        h = np.uint32(lo[i]) | (np.uint32(hi[i]) << np.uint32(8))
+        bits[i] = (h & np.uint32(0x7FFF)) << np.uint32(13)
+    scale = np.float32(2.0 ** 112)
+    for i in range(m):
+        out[i] = out[i] * scale
+    for i in range(m):
+        h = np.uint32(lo[i]) | (np.uint32(hi[i]) << np.uint32(8))
+        sign = (h & np.uint32(0x8000)) << np.uint32(16)
+        special = (h & np.uint32(0x7C00)) == np.uint32(0x7C00)
+        b = (np.uint32(0x7F800000) | ((h & np.uint32(0x3FF)) << np.uint32(13))) if special else bits[i]
+        bits[i] = b | sign
+
+
+@njit(cache=True, nogil=True)
+def _u32(b0, b1, b2, b3, dst) -> None:
+    for c in range(dst.shape[0]):
+        dst[c] = (np.uint32(b0[c]) | (np.uint32(b1[c]) << np.uint32(8))
+                  | (np.uint32(b2[c]) << np.uint32(16)) | (np.uint32(b3[c]) << np.uint32(24)))
+
+
+@njit(cache=True, nogil=True)
+def _oct(xl, xh, yl, yh, d0, d1, d2) -> None:
+    for c in range(d0.shape[0]):
+        qx = np.int64(xl[c]) | (np.int64(xh[c]) << 8)
+        qy = np.int64(yl[c]) | (np.int64(yh[c]) << 8)
+        qx = qx - 65536 if qx >= 32768 else qx
+        qy = qy - 65536 if qy >= 32768 else qy
+        a, b, d = oct_decode_one(qx, qy)
+        d0[c] = a
+        d1[c] = b
+        d2[c] = d
+
+
+@njit(cache=True, nogil=True)
+def decode_tile(raw, h, w, o_refl, o_irr, o_unf, o_depth, o_nor, n, y0, x0,
                 vals, nrm, depth_bits) -> None:
     """Decode an h x w tile's payload ``raw`` (uint8, codec byte layout, section byte offsets
     ``o_*``) into ``vals`` (9, H, W) float32 (reflectance, irradiance, unfiltered x RGB),
     ``nrm`` (3, H, W) float32 and ``depth_bits`` (H, W) uint32 (the float32 depth's bits),
-    tile pixel (r, c) at (y0 + r n, x0 + c n). ``f16_table``: float16 bits -> float32."""
+    tile pixel (r, c) at (y0 + r n, x0 + c n). Each section is converted in tile order
+    (unit stride, vectorized), then scattered to its planes."""
     p = h * w
-    p3 = 3 * p
+    tmp = np.empty(3 * p, np.float32)
+    tbits = tmp.view(np.uint32)
+    for s in range(3):
+        base = o_refl if s == 0 else (o_irr if s == 1 else o_unf)
+        f16_to_f32(raw[base:base + 3 * p], raw[base + 3 * p:base + 6 * p], tbits, tmp)
+        for r in range(h):
+            y = y0 + r * n
+            for c in range(w):
+                i = 3 * (r * w + c)
+                x = x0 + c * n
+                vals[3 * s, y, x] = tmp[i]
+                vals[3 * s + 1, y, x] = tmp[i + 1]
+                vals[3 * s + 2, y, x] = tmp[i + 2]
+    o = o_depth
+    _u32(raw[o:o + p], raw[o + p:o + 2 * p], raw[o + 2 * p:o + 3 * p], raw[o + 3 * p:o + 4 * p], tbits[:p])
+    for r in range(h):
+        y = y0 + r * n
+        for c in range(w):
+            depth_bits[y, x0 + c * n] = tbits[r * w + c]
+    o = o_nor
+    q = o + 2 * p
+    _oct(raw[o:o + 2 * p:2], raw[q:q + 2 * p:2], raw[o + 1:o + 2 * p:2], raw[q + 1:q + 2 * p:2],
+         tmp[:p], tmp[p:2 * p], tmp[2 * p:])
     for r in range(h):
         y = y0 + r * n
         for c in range(w):
             i = r * w + c
             x = x0 + c * n
-            for s in range(3):
-                base = o_refl if s == 0 else (o_irr if s == 1 else o_unf)
-                for ch in range(3):
-                    j = base + 3 * i + ch
-                    code = np.int64(raw[j]) | (np.int64(raw[j + p3]) << 8)
-                    vals[3 * s + ch, y, x] = f16_table[code]
-            j = o_depth + i
-            bits = (np.int64(raw[j]) | (np.int64(raw[j + p]) << 8) | (np.int64(raw[j + 2 * p]) << 16)
-                    | (np.int64(raw[j + 3 * p]) << 24))
-            depth_bits[y, x] = np.uint32(bits)
-            j = o_nor + 2 * i
-            qx = np.int64(raw[j]) | (np.int64(raw[j + 2 * p]) << 8)
-            qy = np.int64(raw[j + 1]) | (np.int64(raw[j + 1 + 2 * p]) << 8)
-            if qx >= 32768:
-                qx -= 65536
-            if qy >= 32768:
-                qy -= 65536
-            a, b, d = oct_decode_one(qx, qy)
-            nrm[0, y, x] = a
-            nrm[1, y, x] = b
-            nrm[2, y, x] = d
+            nrm[0, y, x] = tmp[i]
+            nrm[1, y, x] = tmp[p + i]
+            nrm[2, y, x] = tmp[2 * p + i]

@@ -26,65 +26,75 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def _filter_px(irr, i0, nrm, depth, y, x, lo, hi, t, nt, exact):
-    """Filtered irradiance (3 float32) of pixel (y, x) with a finite depth. ``irr`` planes
-    i0 .. i0 + 2 hold the irradiance. ``exact``: also add the +0 terms the numpy version
-    added for rejected or outside neighbours (they only matter for a -0 sum)."""
+def _filter_row(irr, i0, nrm, depth, y, lo, hi, t, nt, acc, cnt, dlo, dhi) -> None:
+    """Sum and count of row y's continuous neighbours, as the numpy version computed them:
+    ``acc`` (3, W) = centre + every offset's (irradiance or 0) x (1 or 0), offsets row by row,
+    ``cnt`` (W,) = neighbours counted. Rejected and outside neighbours add +0 exactly as
+    there (it matters only for a -0 sum). Branch-free inner loops over x (vectorizable)."""
     H, W = depth.shape
     one = np.float32(1.0)
     zero = np.float32(0.0)
-    dc = depth[y, x]
-    dlo = dc * (one - t)
-    dhi = dc * (one + t)
-    n0 = nrm[0, y, x]
-    n1 = nrm[1, y, x]
-    n2 = nrm[2, y, x]
-    a0 = irr[i0, y, x]
-    a1 = irr[i0 + 1, y, x]
-    a2 = irr[i0 + 2, y, x]
-    cnt = 0
+    inf = np.float32(np.inf)
+    d0 = depth[y]
+    c0, c1, c2 = nrm[0, y], nrm[1, y], nrm[2, y]
+    a0, a1, a2 = acc[0], acc[1], acc[2]
+    for x in range(W):
+        dlo[x] = d0[x] * (one - t)
+        dhi[x] = d0[x] * (one + t)
+        a0[x] = irr[i0, y, x]
+        a1[x] = irr[i0 + 1, y, x]
+        a2[x] = irr[i0 + 2, y, x]
+        cnt[x] = 0
     for oy in range(-lo, hi + 1):
         j = y + oy
+        if j < 0 or j >= H:
+            for x in range(W):
+                a0[x] += zero
+                a1[x] += zero
+                a2[x] += zero
+            continue
+        dj = depth[j]
+        m0, m1, m2 = nrm[0, j], nrm[1, j], nrm[2, j]
+        v0, v1, v2 = irr[i0, j], irr[i0 + 1, j], irr[i0 + 2, j]
         for ox in range(-lo, hi + 1):
             if oy == 0 and ox == 0:
                 continue
-            i = x + ox
-            if j < 0 or j >= H or i < 0 or i >= W:
-                if exact:
-                    a0 += zero
-                    a1 += zero
-                    a2 += zero
-                continue
-            dj = depth[j, i]
-            ok = math.isfinite(dj) and dj >= dlo and dj <= dhi
-            if ok:
-                dot = (nrm[0, j, i] * n0 + nrm[1, j, i] * n1) + nrm[2, j, i] * n2
-                ok = dot >= nt
-            if ok or exact:
-                f = one if ok else zero
-                v0 = irr[i0, j, i]
-                v1 = irr[i0 + 1, j, i]
-                v2 = irr[i0 + 2, j, i]
-                a0 += (v0 if math.isfinite(v0) else zero) * f
-                a1 += (v1 if math.isfinite(v1) else zero) * f
-                a2 += (v2 if math.isfinite(v2) else zero) * f
-            if ok:
-                cnt += 1
-    cf = np.float32(cnt) + one
-    return a0 / cf, a1 / cf, a2 / cf
+            xa = max(0, -ox)
+            xb = min(W, W - ox)
+            for x in range(0, xa):
+                a0[x] += zero
+                a1[x] += zero
+                a2[x] += zero
+            for x in range(max(xa, xb), W):
+                a0[x] += zero
+                a1[x] += zero
+                a2[x] += zero
+            if xb > xa:
+                s0, s1 = xa + ox, xb + ox
+                _add_offset(dj[s0:s1], m0[s0:s1], m1[s0:s1], m2[s0:s1], v0[s0:s1], v1[s0:s1], v2[s0:s1],
+                            c0[xa:xb], c1[xa:xb], c2[xa:xb], dlo[xa:xb], dhi[xa:xb],
+                            a0[xa:xb], a1[xa:xb], a2[xa:xb], cnt[xa:xb], nt)
 
 
 @njit(cache=True, nogil=True)
-def _minus_zero(v) -> bool:
-    return v == 0 and math.copysign(1.0, v) < 0
-
-
-@njit(cache=True, nogil=True)
-def _filtered(irr, i0, nrm, depth, y, x, lo, hi, t, nt):
-    f0, f1, f2 = _filter_px(irr, i0, nrm, depth, y, x, lo, hi, t, nt, False)
-    if _minus_zero(f0) or _minus_zero(f1) or _minus_zero(f2):  # rare: redo with every +0 term
-        f0, f1, f2 = _filter_px(irr, i0, nrm, depth, y, x, lo, hi, t, nt, True)
-    return f0, f1, f2
+def _add_offset(dj, m0, m1, m2, v0, v1, v2, c0, c1, c2, dlo, dhi, a0, a1, a2, cnt, nt) -> None:
+    """One window offset over a row: neighbour arrays (depth, normal, irradiance) already
+    shifted to line up with the centres'. Branch-free, so LLVM vectorizes it."""
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    inf = np.float32(np.inf)
+    for x in range(dj.shape[0]):
+        d = dj[x]
+        dot = (m0[x] * c0[x] + m1[x] * c1[x]) + m2[x] * c2[x]
+        ok = (d >= dlo[x]) & (d <= dhi[x]) & (abs(d) < inf) & (dot >= nt)
+        f = one if ok else zero
+        u0 = v0[x]
+        u1 = v1[x]
+        u2 = v2[x]
+        a0[x] += (u0 if abs(u0) < inf else zero) * f
+        a1[x] += (u1 if abs(u1) < inf else zero) * f
+        a2[x] += (u2 if abs(u2) < inf else zero) * f
+        cnt[x] += np.int32(ok)
 
 
 @njit(cache=True, nogil=True)
@@ -94,15 +104,21 @@ def filter_rows(irr, nrm, depth, y0, y1, lo, hi, depth_threshold, normal_thresho
     t = np.float32(depth_threshold)
     nt = np.float32(normal_threshold)
     W = depth.shape[1]
+    one = np.float32(1.0)
+    acc = np.empty((3, W), np.float32)
+    cnt = np.empty(W, np.int32)
+    dlo = np.empty(W, np.float32)
+    dhi = np.empty(W, np.float32)
     for y in range(y0, y1):
+        _filter_row(irr, 0, nrm, depth, y, lo, hi, t, nt, acc, cnt, dlo, dhi)
         for x in range(W):
             if math.isfinite(depth[y, x]):
-                f0, f1, f2 = _filtered(irr, 0, nrm, depth, y, x, lo, hi, t, nt)
+                cf = np.float32(cnt[x]) + one
+                for c in range(3):
+                    out[c, y, x] = acc[c, x] / cf
             else:
-                f0, f1, f2 = irr[0, y, x], irr[1, y, x], irr[2, y, x]
-            out[0, y, x] = f0
-            out[1, y, x] = f1
-            out[2, y, x] = f2
+                for c in range(3):
+                    out[c, y, x] = irr[c, y, x]
 
 
 @njit(cache=True, nogil=True)
@@ -116,23 +132,86 @@ def finish_rows(vals, nrm, depth, y0, y1, use_filter, lo, hi, depth_threshold, n
     mode's fading filter; w and 1 - w rounded to float32 as numpy's scalar arithmetic does)."""
     t = np.float32(depth_threshold)
     nt = np.float32(normal_threshold)
-    blend = w < 1.0
+    blend = use_filter and w < 1.0
     wf = np.float32(w)
     wr = np.float32(1.0 - w)
     W = depth.shape[1]
+    one = np.float32(1.0)
+    acc = np.empty((3, W), np.float32)
+    cnt = np.empty(W, np.int32)
+    dlo = np.empty(W, np.float32)
+    dhi = np.empty(W, np.float32)
     for y in range(y0, y1):
+        if use_filter:
+            _filter_row(vals, 3, nrm, depth, y, lo, hi, t, nt, acc, cnt, dlo, dhi)
         for x in range(W):
             r0 = vals[3, y, x]
             r1 = vals[4, y, x]
             r2 = vals[5, y, x]
+            f0, f1, f2 = r0, r1, r2
             if use_filter and math.isfinite(depth[y, x]):
-                f0, f1, f2 = _filtered(vals, 3, nrm, depth, y, x, lo, hi, t, nt)
-            else:
-                f0, f1, f2 = r0, r1, r2
-            if use_filter and blend:
+                cf = np.float32(cnt[x]) + one
+                f0 = acc[0, x] / cf
+                f1 = acc[1, x] / cf
+                f2 = acc[2, x] / cf
+            if blend:
                 f0 = wf * f0 + wr * r0
                 f1 = wf * f1 + wr * r1
                 f2 = wf * f2 + wr * r2
             img[y, x, 0] = vals[0, y, x] * f0 + vals[6, y, x]
             img[y, x, 1] = vals[1, y, x] * f1 + vals[7, y, x]
             img[y, x, 2] = vals[2, y, x] * f2 + vals[8, y, x]
+
+
+@njit(cache=True, nogil=True)
+def gather_rows(vals_s, nrm_s, dep_s, n, W, ya, yb, vals, nrm, depth) -> None:
+    """Image rows ya .. yb of the frame kept as sub-images (interleave n): ``vals_s`` (n², 9,
+    sh, sw), ``nrm_s`` (n², 3, sh, sw), ``dep_s`` (n², sh, sw); image pixel (y, x) is pixel
+    (y div n, x div n) of sub-image (y mod n)·n + x mod n. Written to row 0 .. yb - ya of
+    ``vals`` (9, R, W), ``nrm`` (3, R, W), ``depth`` (R, W)."""
+    for y in range(ya, yb):
+        r = y - ya
+        ky = y % n
+        sy = y // n
+        for kx in range(n):
+            k = ky * n + kx
+            cols = (W - kx + n - 1) // n
+            for b in range(9):
+                src = vals_s[k, b, sy]
+                dst = vals[b, r]
+                for sx in range(cols):
+                    dst[sx * n + kx] = src[sx]
+            for b in range(3):
+                src = nrm_s[k, b, sy]
+                dst = nrm[b, r]
+                for sx in range(cols):
+                    dst[sx * n + kx] = src[sx]
+            src = dep_s[k, sy]
+            dst = depth[r]
+            for sx in range(cols):
+                dst[sx * n + kx] = src[sx]
+
+
+@njit(cache=True, nogil=True)
+def finish_block(vals_s, nrm_s, dep_s, n, H, W, y0, y1, stripe, use_filter, lo, hi,
+                 depth_threshold, normal_threshold, w, img) -> None:
+    """Image rows y0 .. y1 (``img`` (H, W, 3)) of a frame kept as sub-images (see
+    :func:`gather_rows`): ``stripe`` rows at a time, each gathered into image order with the
+    window's halo rows (a cache-sized buffer), then :func:`finish_rows` on it."""
+    halo_lo = lo if use_filter else 0
+    halo_hi = hi if use_filter else 0
+    R = stripe + halo_lo + halo_hi
+    vbuf = np.empty(9 * R * W, np.float32)
+    nbuf = np.empty(3 * R * W, np.float32)
+    dbuf = np.empty(R * W, np.float32)
+    for s0 in range(y0, y1, stripe):
+        s1 = min(y1, s0 + stripe)
+        ya = max(0, s0 - halo_lo)
+        yb = min(H, s1 + halo_hi)
+        m = yb - ya
+        vals = vbuf[:9 * m * W].reshape((9, m, W))
+        nrm = nbuf[:3 * m * W].reshape((3, m, W))
+        depth = dbuf[:m * W].reshape((m, W))
+        gather_rows(vals_s, nrm_s, dep_s, n, W, ya, yb, vals, nrm, depth)
+        finish_rows(vals, nrm, depth, s0 - ya, s1 - ya, use_filter, lo, hi,
+                    depth_threshold, normal_threshold, w, img[ya:yb])
