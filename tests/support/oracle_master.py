@@ -514,3 +514,13 @@ def _asdict(params) -> dict:
     from common.params import params_to_dict
 
     return params_to_dict(params)
+
+
+# ---- accumulation (old master/accumulation.py Accumulator.add / mean) ----
+def accumulate_numpy(total: np.ndarray, half: np.ndarray, img: np.ndarray) -> None:
+    total += img
+    half += img
+
+
+def mean_numpy(total: np.ndarray, count: int) -> np.ndarray:
+    return (total / count).astype(np.float32)
