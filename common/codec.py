@@ -182,17 +182,23 @@ def decode_into(raw: np.ndarray, p: int, h: int, w: int, n: int, y0: int, x0: in
     planar float32 arrays: ``vals`` (9, H, W) reflectance, irradiance, unfiltered (x RGB),
     ``nrm`` (3, H, W), ``depth`` (H, W); tile pixel (r, c) lands on (y0 + r·n, x0 + c·n).
     One compiled pass (``common.kernels.wire_decode``); the layout is this module's."""
-    from common.kernels.wire_decode import decode_tile
-
+    global _decode_tile
+    if _decode_tile is None:  # numba loads only when something decodes
+        from common.kernels.wire_decode import decode_tile as _decode_tile
     if h * w != p or len(raw) != p * BYTES_PER_PIXEL:
         raise ValueError(f"tile {h}x{w} does not match {p} pixels / {len(raw)} bytes")
     H, W = depth.shape
     if p and not (0 <= y0 and y0 + (h - 1) * n < H and 0 <= x0 and x0 + (w - 1) * n < W
                   and vals.shape == (9, H, W) and nrm.shape == (3, H, W)):
         raise ValueError(f"tile {h}x{w} at ({y0}, {x0}) step {n} is outside the {W}x{H} planes")
-    o = section_offsets(p)
-    decode_tile(raw, h, w, o["reflectance"], o["irradiance"], o["unfiltered"], o["depth"], o["normal"],
-                n, y0, x0, vals, nrm, depth.view(np.uint32))
+    o_r, o_i, o_u, o_d, o_n = (p * o for o in _PIXEL_OFFSETS)
+    _decode_tile(raw, h, w, o_r, o_i, o_u, o_d, o_n, n, y0, x0, vals, nrm, depth.view(np.uint32))
+
+
+_decode_tile = None
+# Section offsets are linear in the pixel count: those of one pixel, in _sections' order.
+_PIXEL_OFFSETS = tuple(section_offsets(1)[name] for name in ("reflectance", "irradiance", "unfiltered",
+                                                             "depth", "normal"))
 
 
 def decode(data: bytes, count: int | None = None) -> TileBuffers:

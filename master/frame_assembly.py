@@ -29,7 +29,7 @@ from common.codec import decode_into, decode_raw, decompress
 from common.frame import Tile, TileBuffers
 from common.interleave import make_tiles, scatter, task_tile_size, tile_slices
 from master.discontinuity_buffer import resolve_window, run_stripes, window_offsets
-from master.kernels.discontinuity import finish_rows
+from master.kernels.discontinuity import finish_sub
 
 DEFAULT_TASK_PIXELS = 4096  # ~20-50 ms of worker time at 22 VPLs on this machine's cores
 
@@ -134,21 +134,23 @@ class FrameAssembler:
         b = self.buffers
         planar = lambda a: a.transpose(2, 0, 1)
         vals = np.concatenate([planar(b["reflectance"]), planar(b["irradiance"]), planar(b["unfiltered"])])
-        return _finish(vals, np.ascontiguousarray(planar(b["normal"])), b["depth"], window, w, p)
+        return _finish(vals[None], np.ascontiguousarray(planar(b["normal"]))[None], b["depth"][None], 1,
+                       self.width, self.height, window, w, p)
 
 
-def _finish(vals: np.ndarray, nrm: np.ndarray, depth: np.ndarray, window: int, w: float, p: dict) -> np.ndarray:
-    """The image from a frame's planes (``_Planes`` layout): discontinuity filter (when
-    ``w`` > 0 and the window > 1), the fading blend (w < 1) and the compose, one compiled pass
-    per row stripe on ``master.parallel``'s threads."""
-    H, W = depth.shape
+def _finish(vals: np.ndarray, nrm: np.ndarray, depth: np.ndarray, n: int, W: int, H: int, window: int,
+            w: float, p: dict) -> np.ndarray:
+    """The image from a frame kept per sub-image (``_Planes`` layout; n = 1 and one sub-image:
+    a frame in image order): discontinuity filter (when ``w`` > 0 and the window > 1), the
+    fading blend (w < 1) and the compose, one compiled pass per block of sub-image rows on
+    ``master.parallel``'s threads (blocks write disjoint image rows)."""
     use_filter = w > 0.0 and window > 1
     offs = window_offsets(window)
     lo, hi = -offs[0], offs[-1]
     dt, nt = float(p["depth_threshold"]), float(p["normal_threshold"])
     img = np.empty((H, W, 3), np.float32)
-    run_stripes(H, W, lambda y0, y1: finish_rows(vals, nrm, depth, y0, y1, use_filter, lo, hi, dt, nt,
-                                                 float(w), img))
+    run_stripes(depth.shape[1], W * n, lambda y0, y1: finish_sub(vals, nrm, depth, n, H, W, y0, y1, use_filter,
+                                                                 lo, hi, dt, nt, float(w), img))
     return img
 
 
@@ -157,7 +159,7 @@ class _Planes:
     a rectangle of one, so its decode writes contiguous rows): ``vals`` (n², 9, sh, sw)
     float32 reflectance, irradiance, unfiltered (x RGB), ``nrm`` (n², 3, sh, sw), ``depth``
     (n², sh, sw), sh x sw the largest sub-image. The image is made in row stripes that are
-    first gathered into image order (``master.kernels.discontinuity.finish_block``).
+    filtered and composed in sub-image space (``master.kernels.discontinuity.finish_sub``).
 
     Pooled per resolution (fresh multi-megabyte arrays cost page faults every frame): an
     assembler takes a set when its first tile arrives and gives it back when it is collected.
@@ -166,7 +168,6 @@ class _Planes:
 
     _lock = threading.Lock()
     _free: dict[tuple[int, int, int], list["_Planes"]] = {}
-    STRIPE_ROWS = 16  # rows gathered at a time: their planes (with halo rows) stay in L2
 
     def __init__(self, width: int, height: int, n: int):
         self.key = (width, height, n)
@@ -213,19 +214,8 @@ class _Planes:
         self.covered = self.width * self.height
 
     def image(self, tiles, window: int, w: float, p: dict) -> np.ndarray:
-        from master.kernels.discontinuity import finish_block
-
         self.fill_missing(tiles)
-        H, W = self.height, self.width
-        use_filter = w > 0.0 and window > 1
-        offs = window_offsets(window)
-        lo, hi = -offs[0], offs[-1]
-        dt, nt = float(p["depth_threshold"]), float(p["normal_threshold"])
-        img = np.empty((H, W, 3), np.float32)
-        run_stripes(H, W, lambda y0, y1: finish_block(self.vals, self.nrm, self.depth, self.n, H, W, y0, y1,
-                                                      self.STRIPE_ROWS, use_filter, lo, hi, dt, nt,
-                                                      float(w), img))
-        return img
+        return _finish(self.vals, self.nrm, self.depth, self.n, self.width, self.height, window, w, p)
 
     def to_buffers(self, b: dict[str, np.ndarray], tiles) -> None:
         from master.kernels.discontinuity import gather_rows

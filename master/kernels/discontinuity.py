@@ -122,48 +122,6 @@ def filter_rows(irr, nrm, depth, y0, y1, lo, hi, depth_threshold, normal_thresho
 
 
 @njit(cache=True, nogil=True)
-def finish_rows(vals, nrm, depth, y0, y1, use_filter, lo, hi, depth_threshold, normal_threshold,
-                w, img) -> None:
-    """Image rows y0 .. y1 (``img`` (H, W, 3) float32) from the frame's planes: ``vals``
-    (9, H, W) reflectance, irradiance, unfiltered x RGB; ``nrm`` (3, H, W); ``depth`` (H, W).
-
-    radiance = reflectance · f + unfiltered, with f the irradiance (``use_filter`` false), the
-    filtered irradiance (w >= 1) or w·filtered + (1 - w)·irradiance (0 < w < 1, the consistent
-    mode's fading filter; w and 1 - w rounded to float32 as numpy's scalar arithmetic does)."""
-    t = np.float32(depth_threshold)
-    nt = np.float32(normal_threshold)
-    blend = use_filter and w < 1.0
-    wf = np.float32(w)
-    wr = np.float32(1.0 - w)
-    W = depth.shape[1]
-    one = np.float32(1.0)
-    acc = np.empty((3, W), np.float32)
-    cnt = np.empty(W, np.int32)
-    dlo = np.empty(W, np.float32)
-    dhi = np.empty(W, np.float32)
-    for y in range(y0, y1):
-        if use_filter:
-            _filter_row(vals, 3, nrm, depth, y, lo, hi, t, nt, acc, cnt, dlo, dhi)
-        for x in range(W):
-            r0 = vals[3, y, x]
-            r1 = vals[4, y, x]
-            r2 = vals[5, y, x]
-            f0, f1, f2 = r0, r1, r2
-            if use_filter and math.isfinite(depth[y, x]):
-                cf = np.float32(cnt[x]) + one
-                f0 = acc[0, x] / cf
-                f1 = acc[1, x] / cf
-                f2 = acc[2, x] / cf
-            if blend:
-                f0 = wf * f0 + wr * r0
-                f1 = wf * f1 + wr * r1
-                f2 = wf * f2 + wr * r2
-            img[y, x, 0] = vals[0, y, x] * f0 + vals[6, y, x]
-            img[y, x, 1] = vals[1, y, x] * f1 + vals[7, y, x]
-            img[y, x, 2] = vals[2, y, x] * f2 + vals[8, y, x]
-
-
-@njit(cache=True, nogil=True)
 def gather_rows(vals_s, nrm_s, dep_s, n, W, ya, yb, vals, nrm, depth) -> None:
     """Image rows ya .. yb of the frame kept as sub-images (interleave n): ``vals_s`` (n², 9,
     sh, sw), ``nrm_s`` (n², 3, sh, sw), ``dep_s`` (n², sh, sw); image pixel (y, x) is pixel
@@ -193,25 +151,99 @@ def gather_rows(vals_s, nrm_s, dep_s, n, W, ya, yb, vals, nrm, depth) -> None:
 
 
 @njit(cache=True, nogil=True)
-def finish_block(vals_s, nrm_s, dep_s, n, H, W, y0, y1, stripe, use_filter, lo, hi,
-                 depth_threshold, normal_threshold, w, img) -> None:
-    """Image rows y0 .. y1 (``img`` (H, W, 3)) of a frame kept as sub-images (see
-    :func:`gather_rows`): ``stripe`` rows at a time, each gathered into image order with the
-    window's halo rows (a cache-sized buffer), then :func:`finish_rows` on it."""
-    halo_lo = lo if use_filter else 0
-    halo_hi = hi if use_filter else 0
-    R = stripe + halo_lo + halo_hi
-    vbuf = np.empty(9 * R * W, np.float32)
-    nbuf = np.empty(3 * R * W, np.float32)
-    dbuf = np.empty(R * W, np.float32)
-    for s0 in range(y0, y1, stripe):
-        s1 = min(y1, s0 + stripe)
-        ya = max(0, s0 - halo_lo)
-        yb = min(H, s1 + halo_hi)
-        m = yb - ya
-        vals = vbuf[:9 * m * W].reshape((9, m, W))
-        nrm = nbuf[:3 * m * W].reshape((3, m, W))
-        depth = dbuf[:m * W].reshape((m, W))
-        gather_rows(vals_s, nrm_s, dep_s, n, W, ya, yb, vals, nrm, depth)
-        finish_rows(vals, nrm, depth, s0 - ya, s1 - ya, use_filter, lo, hi,
-                    depth_threshold, normal_threshold, w, img[ya:yb])
+def finish_sub(vals_s, nrm_s, dep_s, n, H, W, sy0, sy1, use_filter, lo, hi, depth_threshold,
+               normal_threshold, w, img) -> None:
+    """Image pixels of sub-image rows sy0 .. sy1 of every sub-image k of a frame kept per
+    sub-image (interleave n; see :func:`gather_rows` for the layout): the discontinuity
+    filter (as :func:`filter_rows`), the fading blend and the compose, written to ``img``
+    (H, W, 3) at (sy·n + k div n, sx·n + k mod n). n = 1 with one sub-image is a frame in
+    image order.
+
+    The filter runs in sub-image space: the neighbour (oy, ox) of every pixel of sub-image k
+    lies in one sub-image k' at a constant shift (dy, dx), so each window offset is one
+    unit-stride pass over a row (:func:`_add_offset`, vectorized), and nothing is first
+    rearranged into image order. Same terms, same order as in image order: bit-identical."""
+    t = np.float32(depth_threshold)
+    nt = np.float32(normal_threshold)
+    blend = use_filter and w < 1.0
+    wf = np.float32(w)
+    wr = np.float32(1.0 - w)
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    swm = vals_s.shape[3]
+    acc = np.empty((3, swm), np.float32)
+    cnt = np.empty(swm, np.int32)
+    dlo = np.empty(swm, np.float32)
+    dhi = np.empty(swm, np.float32)
+    for sy in range(sy0, sy1):  # all k of a row block together: their image rows stay in cache
+        for k in range(n * n):
+            ky = k // n
+            kx = k % n
+            sw = (W - kx + n - 1) // n
+            sh = (H - ky + n - 1) // n
+            if sw <= 0 or sy >= sh:
+                continue
+            a0, a1, a2 = acc[0, :sw], acc[1, :sw], acc[2, :sw]
+            y = sy * n + ky
+            d0 = dep_s[k, sy, :sw]
+            c0, c1, c2 = nrm_s[k, 0, sy, :sw], nrm_s[k, 1, sy, :sw], nrm_s[k, 2, sy, :sw]
+            i0, i1, i2 = vals_s[k, 3, sy, :sw], vals_s[k, 4, sy, :sw], vals_s[k, 5, sy, :sw]
+            if use_filter:
+                for x in range(sw):
+                    dlo[x] = d0[x] * (one - t)
+                    dhi[x] = d0[x] * (one + t)
+                    a0[x] = i0[x]
+                    a1[x] = i1[x]
+                    a2[x] = i2[x]
+                    cnt[x] = 0
+                for oy in range(-lo, hi + 1):
+                    ty = ky + oy
+                    kyp = ty % n
+                    syp = sy + ty // n
+                    if syp < 0 or syp >= (H - kyp + n - 1) // n:
+                        for x in range(sw):  # a row outside the image: +0 terms
+                            a0[x] += zero
+                            a1[x] += zero
+                            a2[x] += zero
+                        continue
+                    for ox in range(-lo, hi + 1):
+                        if oy == 0 and ox == 0:
+                            continue
+                        tx = kx + ox
+                        kxp = tx % n
+                        dx = tx // n
+                        kp = kyp * n + kxp
+                        xa = max(0, -dx)
+                        xb = min(sw, (W - kxp + n - 1) // n - dx)
+                        for x in range(0, min(xa, sw)):  # columns outside the image: +0 terms
+                            a0[x] += zero
+                            a1[x] += zero
+                            a2[x] += zero
+                        for x in range(max(xa, xb), sw):
+                            a0[x] += zero
+                            a1[x] += zero
+                            a2[x] += zero
+                        if xb > xa:
+                            s0, s1 = xa + dx, xb + dx
+                            _add_offset(dep_s[kp, syp, s0:s1], nrm_s[kp, 0, syp, s0:s1], nrm_s[kp, 1, syp, s0:s1],
+                                        nrm_s[kp, 2, syp, s0:s1], vals_s[kp, 3, syp, s0:s1],
+                                        vals_s[kp, 4, syp, s0:s1], vals_s[kp, 5, syp, s0:s1],
+                                        c0[xa:xb], c1[xa:xb], c2[xa:xb], dlo[xa:xb], dhi[xa:xb],
+                                        a0[xa:xb], a1[xa:xb], a2[xa:xb], cnt[xa:xb], nt)
+            r0, r1, r2 = vals_s[k, 0, sy, :sw], vals_s[k, 1, sy, :sw], vals_s[k, 2, sy, :sw]
+            u0, u1, u2 = vals_s[k, 6, sy, :sw], vals_s[k, 7, sy, :sw], vals_s[k, 8, sy, :sw]
+            for sx in range(sw):
+                f0, f1, f2 = i0[sx], i1[sx], i2[sx]
+                if use_filter and math.isfinite(d0[sx]):
+                    cf = np.float32(cnt[sx]) + one
+                    f0 = a0[sx] / cf
+                    f1 = a1[sx] / cf
+                    f2 = a2[sx] / cf
+                if blend:
+                    f0 = wf * f0 + wr * i0[sx]
+                    f1 = wf * f1 + wr * i1[sx]
+                    f2 = wf * f2 + wr * i2[sx]
+                x = sx * n + kx
+                img[y, x, 0] = r0[sx] * f0 + u0[sx]
+                img[y, x, 1] = r1[sx] * f1 + u1[sx]
+                img[y, x, 2] = r2[sx] * f2 + u2[sx]
