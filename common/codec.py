@@ -181,7 +181,7 @@ def decode_into(raw: np.ndarray, p: int, h: int, w: int, n: int, y0: int, x0: in
     """Decode a payload of an h x w tile (``p`` = h·w pixels, from :func:`decompress`) into
     planar float32 arrays: ``vals`` (9, H, W) reflectance, irradiance, unfiltered (x RGB),
     ``nrm`` (3, H, W), ``depth`` (H, W); tile pixel (r, c) lands on (y0 + r·n, x0 + c·n).
-    One compiled pass (``common.kernels.wire_decode``); the layout is this module's."""
+    Compiled (``common.kernels.wire_decode``); the layout is this module's."""
     global _decode_tile
     if _decode_tile is None:  # numba loads only when something decodes
         from common.kernels.wire_decode import decode_tile as _decode_tile

@@ -1,14 +1,15 @@
-"""Decode of a task's wire payload (common.codec, version 1), compiled: one pass over a tile's
-decompressed, byte-shuffled planes that rebuilds every value (float16 by table, float32 depth
-from its 4 byte planes, octahedral snorm16 normals) and writes it straight to its place in
-planar destination arrays — the master's full-frame planes (pixel (r, c) of a tile lands on
-(y0 + r·n, x0 + c·n)) or a tile's own arrays (n = 1).
+"""Decode of a task's wire payload (common.codec, version 1), compiled: a tile's decompressed,
+byte-shuffled sections are converted in tile order (float16 -> float32 exactly, depth from its
+4 byte planes, octahedral snorm16 normals) and written to planar destination arrays — the
+master's per-sub-image planes (n = 1, tile pixel (r, c) at (y0 + r, x0 + c)), a frame in
+image order (step n), or a tile's own arrays.
 
-Why: the numpy decode took a byte-plane copy, a table gather, a transpose and a scatter per
-section, each a pass over memory; here every byte is read once and every value written once.
-The byte layout itself is owned by :mod:`common.codec` (``section_offsets``); callers pass
-the section offsets in. The float operations of the octahedral decode are the codec's, in
-the same order, so results are bit-identical to the numpy decode (tests/common/test_wire_decode_kernel.py).
+Why: the numpy decode made a byte-plane copy, a table gather, a transpose and a scatter per
+section, each a pass over memory with its temporaries; here each section is read once in
+unit-stride loops and each value written once to its destination. The byte layout itself is
+owned by :mod:`common.codec` (``section_offsets``); callers pass the section offsets in. The
+float operations of the octahedral decode are the codec's, in the same order, so results are
+bit-identical to the numpy decode (tests/common/test_wire_decode_kernel.py).
 """
 from __future__ import annotations
 

@@ -11,11 +11,14 @@ keep their irradiance and are never anyone's neighbour; a non-finite neighbour i
 counts as 0 (one firefly must not wipe out its window), the centre keeps its own value.
 
 Why a kernel: the numpy version made ~10 passes over memory per window offset (comparisons,
-masks, products, sums, all as full-frame temporaries); here each pixel reads its window once
-from cache and writes its final radiance once. The float32 operations are the numpy
-version's, in the same order (the sum runs over offsets row by row, as its loop did), so the
-image is bit-identical to it, signed zeros included (tests/master/test_master_kernels.py).
-Rows are independent: callers split a frame into row stripes across threads (``nogil``).
+masks, products, sums, all as temporaries of a strip); here a row's sums and counts stay in
+cache while every window offset adds to them in one branch-free, vectorized pass, and the
+compose follows at once. The master runs it in sub-image space (``finish_sub``), straight on
+the planes the wire decode wrote. The float32 operations are the numpy version's, in the
+same order (offsets row by row, as its loop did, rejected and outside neighbours adding +0),
+so the image is bit-identical to it, signed zeros included (tests/master/test_master_kernels.py;
+only which NaN payload survives when two NaNs meet may differ). Rows are independent: callers
+split a frame into row blocks across threads (``nogil``).
 """
 from __future__ import annotations
 
