@@ -168,6 +168,9 @@ class _Planes:
 
     _lock = threading.Lock()
     _free: dict[tuple[int, int, int], list["_Planes"]] = {}
+    # kept per resolution: a few frames are in flight at once (fresh planes cost ~30 ms of
+    # page faults at 640x480, more than the frame's decode and filter together)
+    POOL = 4
 
     def __init__(self, width: int, height: int, n: int):
         self.key = (width, height, n)
@@ -195,7 +198,7 @@ class _Planes:
             if len(cls._free) > 4 and pl.key not in cls._free:  # resolutions come and go
                 cls._free.clear()
             lst = cls._free.setdefault(pl.key, [])
-            if len(lst) < 2:
+            if len(lst) < cls.POOL:
                 lst.append(pl)
 
     def fill_missing(self, tiles) -> None:
