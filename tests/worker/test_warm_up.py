@@ -21,4 +21,28 @@ def test_the_worker_warms_up_before_it_connects():
     from worker import node
 
     src = inspect.getsource(node.run_from_args)
-    assert src.index("warm_up()") < src.index("node.run()")
+    assert src.index("warm_up_before_hello(log)") < src.index("node.run()")
+
+
+def test_a_failing_warm_up_is_logged_not_fatal(monkeypatch, caplog):
+    import logging
+
+    from worker.kernels import warm
+
+    def boom(*a, **k):
+        raise RuntimeError("no scene today")
+
+    monkeypatch.setattr(warm, "warm_up", boom)
+    with caplog.at_level(logging.INFO):
+        warm.warm_up_before_hello(logging.getLogger("igi.worker"))
+    assert "warm-up failed" in caplog.text
+
+
+def test_warm_up_logs_its_duration(caplog):
+    import logging
+
+    from worker.kernels import warm
+
+    with caplog.at_level(logging.INFO):
+        warm.warm_up_before_hello(logging.getLogger("igi.worker"))
+    assert "kernels ready in" in caplog.text

@@ -147,3 +147,16 @@ def warm_up(render: bool = True) -> dict:
                 pass
     cold = sorted(name for name, disp in kernels.items() if not disp.signatures)
     return {"seconds": time.perf_counter() - t0, "kernels": len(kernels), "cold": cold}
+
+
+def warm_up_before_hello(log) -> None:
+    """The worker's start (worker.node): :func:`warm_up`, its duration logged at INFO. A
+    failure here must not keep a worker from serving (its kernels then load on first use):
+    it is logged as a warning."""
+    try:
+        res = warm_up()
+    except Exception as e:  # noqa: BLE001 - any failure only costs the first frame's latency
+        log.warning("kernel warm-up failed (%s: %s); kernels load on first use", type(e).__name__, e)
+        return
+    log.info("kernels ready in %.2f s (%d compiled kernels, loaded from numba's cache or compiled)",
+             res["seconds"], res["kernels"])
