@@ -10,6 +10,8 @@ unit-stride loops and each value written once to its destination. The byte layou
 owned by :mod:`common.codec` (``section_offsets``); callers pass the section offsets in. The
 float operations of the octahedral decode are the codec's, in the same order, so results are
 bit-identical to the numpy decode (tests/common/test_wire_decode_kernel.py).
+``error_model="numpy"``: no ZeroDivisionError checks (no divisor here can be 0), so the
+loops vectorize; the arithmetic is IEEE float32 either way (no fastmath).
 """
 from __future__ import annotations
 
@@ -22,7 +24,7 @@ _SNORM_INV = np.float32(1.0 / 32767)
 _ZERO_NORMAL = -32768
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def oct_decode_one(qx: int, qy: int) -> tuple:
     """int16 octahedral codes -> float32 unit normal (x, y, z); (0, 0, 0) for the reserved code.
 
@@ -53,7 +55,7 @@ def oct_decode_one(qx: int, qy: int) -> tuple:
     return (zero if zn else vx * inv), (zero if zn else vy * inv), (zero if zn else z * inv)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def oct_decode_into(qx, qy, out) -> None:
     """Planar decode of int16 codes ``qx``, ``qy`` (P,) into ``out`` (3, P) float32."""
     for i in range(qx.shape[0]):
@@ -63,7 +65,7 @@ def oct_decode_into(qx, qy, out) -> None:
         out[2, i] = z
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def f16_to_f32(lo, hi, bits, out) -> None:
     """float16 values (little-endian bytes ``lo``, ``hi``) -> float32 ``out``; ``bits`` is
     ``out`` viewed as uint32. Exact for every code, the way numpy's cast defines it: the
@@ -85,27 +87,31 @@ def f16_to_f32(lo, hi, bits, out) -> None:
         bits[i] = b | sign
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _u32(b0, b1, b2, b3, dst) -> None:
     for c in range(dst.shape[0]):
         dst[c] = (np.uint32(b0[c]) | (np.uint32(b1[c]) << np.uint32(8))
                   | (np.uint32(b2[c]) << np.uint32(16)) | (np.uint32(b3[c]) << np.uint32(24)))
 
 
-@njit(cache=True, nogil=True)
-def _oct(xl, xh, yl, yh, d0, d1, d2) -> None:
+@njit(cache=True, nogil=True, error_model="numpy")
+def _oct(lo, hi, d0, d1, d2) -> None:
+    """Normals of a tile: ``lo``/``hi`` the normal section's two byte planes read as uint16
+    (pixel i: low bytes of qx, qy in lo[i], high bytes in hi[i])."""
     for c in range(d0.shape[0]):
-        qx = np.int64(xl[c]) | (np.int64(xh[c]) << 8)
-        qy = np.int64(yl[c]) | (np.int64(yh[c]) << 8)
+        a = np.int64(lo[c])
+        b = np.int64(hi[c])
+        qx = (a & 0xFF) | ((b & 0xFF) << 8)
+        qy = (a >> 8) | (b & 0xFF00)
         qx = qx - 65536 if qx >= 32768 else qx
         qy = qy - 65536 if qy >= 32768 else qy
-        a, b, d = oct_decode_one(qx, qy)
-        d0[c] = a
-        d1[c] = b
-        d2[c] = d
+        x, y, z = oct_decode_one(qx, qy)
+        d0[c] = x
+        d1[c] = y
+        d2[c] = z
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def decode_tile(raw, h, w, o_refl, o_irr, o_unf, o_depth, o_nor, n, y0, x0,
                 vals, nrm, depth_bits) -> None:
     """Decode an h x w tile's payload ``raw`` (uint8, codec byte layout, section byte offsets
@@ -134,9 +140,8 @@ def decode_tile(raw, h, w, o_refl, o_irr, o_unf, o_depth, o_nor, n, y0, x0,
         for c in range(w):
             depth_bits[y, x0 + c * n] = tbits[r * w + c]
     o = o_nor
-    q = o + 2 * p
-    _oct(raw[o:o + 2 * p:2], raw[q:q + 2 * p:2], raw[o + 1:o + 2 * p:2], raw[q + 1:q + 2 * p:2],
-         tmp[:p], tmp[p:2 * p], tmp[2 * p:])
+    _oct(raw[o:o + 2 * p].view(np.uint16), raw[o + 2 * p:o + 4 * p].view(np.uint16), tmp[:p], tmp[p:2 * p],
+         tmp[2 * p:])
     for r in range(h):
         y = y0 + r * n
         for c in range(w):

@@ -4,6 +4,7 @@ frame to the float64 running sum and to its half's sum, and one that writes the 
 Why: numpy made one pass per sum plus a float64 temporary for the mean; the float64
 additions and the final division are the same operations per element, so the results are
 bit-identical (tests/master/test_master_kernels.py). Flat (contiguous, raveled) arrays.
+``error_model="numpy"``: the mean's division is not checked for 0 (count >= 1).
 """
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def add_frame(total, half, img) -> None:
     """total += img; half += img (float64 sums of a float32 frame, element by element)."""
     for i in range(img.shape[0]):
@@ -20,7 +21,7 @@ def add_frame(total, half, img) -> None:
         half[i] += v
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def mean(total, count, out) -> None:
     """out = float32(total / count)."""
     c = np.float64(count)

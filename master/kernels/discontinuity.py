@@ -18,7 +18,9 @@ the planes the wire decode wrote. The float32 operations are the numpy version's
 same order (offsets row by row, as its loop did, rejected and outside neighbours adding +0),
 so the image is bit-identical to it, signed zeros included (tests/master/test_master_kernels.py;
 only which NaN payload survives when two NaNs meet may differ). Rows are independent: callers
-split a frame into row blocks across threads (``nogil``).
+split a frame into row blocks across threads (``nogil``). ``error_model="numpy"``: no
+ZeroDivisionError checks (the only divisor is a count >= 1), so loops vectorize; IEEE
+float32 arithmetic either way, no fastmath.
 """
 from __future__ import annotations
 
@@ -28,7 +30,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _filter_row(irr, i0, nrm, depth, y, lo, hi, t, nt, acc, cnt, dlo, dhi) -> None:
     """Sum and count of row y's continuous neighbours, as the numpy version computed them:
     ``acc`` (3, W) = centre + every offset's (irradiance or 0) x (1 or 0), offsets row by row,
@@ -79,7 +81,7 @@ def _filter_row(irr, i0, nrm, depth, y, lo, hi, t, nt, acc, cnt, dlo, dhi) -> No
                             a0[xa:xb], a1[xa:xb], a2[xa:xb], cnt[xa:xb], nt)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")  # inlined: its row views then cost nothing
 def _add_offset(dj, m0, m1, m2, v0, v1, v2, c0, c1, c2, dlo, dhi, a0, a1, a2, cnt, nt) -> None:
     """One window offset over a row: neighbour arrays (depth, normal, irradiance) already
     shifted to line up with the centres'. Branch-free, so LLVM vectorizes it."""
@@ -100,7 +102,7 @@ def _add_offset(dj, m0, m1, m2, v0, v1, v2, c0, c1, c2, dlo, dhi, a0, a1, a2, cn
         cnt[x] += np.int32(ok)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def filter_rows(irr, nrm, depth, y0, y1, lo, hi, depth_threshold, normal_threshold, out) -> None:
     """Filtered irradiance of rows y0 .. y1: ``irr``, ``nrm``, ``out`` (3, H, W) float32,
     ``depth`` (H, W) float32 (non-finite = miss)."""
@@ -124,7 +126,7 @@ def filter_rows(irr, nrm, depth, y0, y1, lo, hi, depth_threshold, normal_thresho
                     out[c, y, x] = irr[c, y, x]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def gather_rows(vals_s, nrm_s, dep_s, n, W, ya, yb, vals, nrm, depth) -> None:
     """Image rows ya .. yb of the frame kept as sub-images (interleave n): ``vals_s`` (n², 9,
     sh, sw), ``nrm_s`` (n², 3, sh, sw), ``dep_s`` (n², sh, sw); image pixel (y, x) is pixel
@@ -153,7 +155,7 @@ def gather_rows(vals_s, nrm_s, dep_s, n, W, ya, yb, vals, nrm, depth) -> None:
                 dst[sx * n + kx] = src[sx]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def finish_sub(vals_s, nrm_s, dep_s, n, H, W, sy0, sy1, use_filter, lo, hi, depth_threshold,
                normal_threshold, w, img) -> None:
     """Image pixels of sub-image rows sy0 .. sy1 of every sub-image k of a frame kept per

@@ -120,7 +120,8 @@ def _direct_calls() -> dict:
         "common.kernels.wire_decode.oct_decode_one": lambda: wire_decode.oct_decode_one(0, 0),
         "common.kernels.wire_decode.f16_to_f32": lambda: wire_decode.f16_to_f32(z, z, out1.view(np.uint32), out1),
         "common.kernels.wire_decode._u32": lambda: wire_decode._u32(z, z, z, z, out1.view(np.uint32)),
-        "common.kernels.wire_decode._oct": lambda: wire_decode._oct(z, z, z, z, out1, out1, out1),
+        "common.kernels.wire_decode._oct": lambda: wire_decode._oct(z.view(np.uint16), z.view(np.uint16), out1, out1,
+                                                                   out1),
         "common.kernels.wire_decode.oct_decode_into": lambda: wire_decode.oct_decode_into(
             np.zeros(1, np.int16), np.zeros(1, np.int16), np.zeros((3, 1), np.float32)),
         "worker.kernels.photon_query._cell": lambda: photon_query._cell(0.5, 2.0),
