@@ -60,60 +60,12 @@ def oct_encode(n: np.ndarray) -> np.ndarray:
 
 def oct_decode(q: np.ndarray) -> np.ndarray:
     """(P, 2) int16 octahedral snorm16 -> (P, 3) float32 unit normals (zero for the reserved code)."""
+    from common.kernels.wire_decode import oct_decode_into
+
     q = np.asarray(q).reshape(-1, 2)
     out = np.empty((3, len(q)), np.float32)
-    oct_decode_planes(q[:, 0], q[:, 1], out)
+    oct_decode_into(np.ascontiguousarray(q[:, 0], np.int16), np.ascontiguousarray(q[:, 1], np.int16), out)
     return np.ascontiguousarray(out.T)
-
-
-def oct_decode_planes(qx: np.ndarray, qy: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """Planar octahedral decode: int16 codes ``qx``, ``qy`` (any equal shape S) -> (3, *S)
-    float32 unit normals, written to ``out`` when given (zero for the reserved code).
-
-    The same float32 operations in the same order as the original per-pixel formulation
-    (p = max(q/32767, -1); z = 1 - |px| - |py|; fold when z < 0; v / sqrt(v.v)), so the
-    result is bit-identical to it; planar arrays just make every step one contiguous ufunc call.
-    """
-    qx, qy = np.asarray(qx), np.asarray(qy)
-    if out is None:
-        out = np.empty((3,) + qx.shape, np.float32)
-    s = np.float32(1.0 / _SNORM)
-    m1 = np.float32(-1.0)
-    px = np.maximum(qx.astype(np.float32) * s, m1)
-    py = np.maximum(qy.astype(np.float32) * s, m1)
-    ax, ay = np.abs(px), np.abs(py)
-    z = np.subtract(np.float32(1.0), ax, out=out[2])
-    z -= ay
-    # Branch-free, bit-exact selects on the float bits (np.where and np.copysign are several
-    # times slower on this data).
-    sign = np.uint32(0x80000000)
-    lower = np.less(z, np.float32(0.0)).view(np.uint8).astype(np.uint32)
-    mask = np.negative(lower, out=lower)  # 0xffffffff where folded, 0 elsewhere
-    # (1 - |p_other|) * sign(p) with sign(0) = +1: p is never -0 here (q/32767 of an int), and
-    # 1 - |p| >= +0, so OR-ing p's sign bit into it is the same product, bit for bit.
-    ux = np.subtract(np.float32(1.0), ay, out=ay).view(np.uint32)
-    ux |= px.view(np.uint32) & sign
-    uy = np.subtract(np.float32(1.0), ax, out=ax).view(np.uint32)
-    uy |= py.view(np.uint32) & sign
-    vx, vy = out[0], out[1]
-    for v, u, p in ((vx, ux, px), (vy, uy, py)):  # v = lower ? u : p, as bits
-        pb = p.view(np.uint32)
-        vb = v.view(np.uint32)
-        np.bitwise_xor(u, pb, out=vb)
-        vb &= mask
-        vb ^= pb
-    ux = ux.view(np.float32)
-    # |v|^2 = (vx vx + vy vy) + z z, summed in this order (as einsum does for 3 terms)
-    n2 = np.multiply(vx, vx, out=px)
-    n2 += np.multiply(vy, vy, out=py)
-    n2 += np.multiply(z, z, out=ux)
-    inv = np.divide(np.float32(1.0), np.sqrt(n2, out=n2), out=n2)
-    out *= inv
-    zero = np.equal(qx, _ZERO_NORMAL)
-    zero &= np.equal(qy, _ZERO_NORMAL)
-    if zero.any():
-        out[:, zero] = 0.0
-    return out
 
 
 # -- scalars ----------------------------------------------------------------------------
@@ -137,15 +89,6 @@ def _shuffle(a: np.ndarray) -> bytes:
     """Bytes of a grouped by byte position (all byte 0s, then all byte 1s, ...)."""
     b = np.ascontiguousarray(a).view(np.uint8).reshape(-1, a.dtype.itemsize)
     return b.T.tobytes()
-
-
-def _unshuffle(raw: memoryview, dtype: np.dtype, count: int) -> np.ndarray:
-    size = np.dtype(dtype).itemsize
-    planes = np.frombuffer(raw, dtype=np.uint8, count=count * size).reshape(size, count)
-    out = np.empty((count, size), np.uint8)
-    for i in range(size):  # one strided copy per byte plane: ~5x faster than a transpose copy
-        out[:, i] = planes[i]
-    return out.view(dtype).reshape(count)
 
 
 def _sections(p: int) -> list[tuple[str, np.dtype, int]]:
@@ -210,6 +153,17 @@ def decompress(data: bytes, count: int | None = None) -> tuple[int, np.ndarray]:
     return p, np.frombuffer(raw, np.uint8)
 
 
+def section_offsets(p: int) -> dict[str, int]:
+    """Byte offset of every section in a decompressed payload of ``p`` pixels (the layout in
+    this module's docstring; each section is ``itemsize`` byte planes of its values)."""
+    out = {}
+    pos = 0
+    for name, dtype, n in _sections(p):
+        out[name] = pos
+        pos += n * dtype.itemsize
+    return out
+
+
 def section_planes(raw: np.ndarray, p: int) -> dict[str, np.ndarray]:
     """Views of a decompressed payload: name -> (itemsize, P, channels) uint8 byte planes
     (plane b holds byte b of every little-endian value, pixels row-major, channels minor)."""
@@ -222,10 +176,29 @@ def section_planes(raw: np.ndarray, p: int) -> dict[str, np.ndarray]:
     return out
 
 
-def f16_to_f32(codes: np.ndarray) -> np.ndarray:
-    """float16 bit patterns (uint16, any shape) -> float32, by table (exact, no slow path for
-    subnormals). Indices are widened to intp first: take() with narrow indices is ~3x slower."""
-    return _F16_TO_F32.take(np.asarray(codes).astype(np.intp))
+def decode_into(raw: np.ndarray, p: int, h: int, w: int, n: int, y0: int, x0: int,
+                vals: np.ndarray, nrm: np.ndarray, depth: np.ndarray) -> None:
+    """Decode a payload of an h x w tile (``p`` = h·w pixels, from :func:`decompress`) into
+    planar float32 arrays: ``vals`` (9, H, W) reflectance, irradiance, unfiltered (x RGB),
+    ``nrm`` (3, H, W), ``depth`` (H, W); tile pixel (r, c) lands on (y0 + r·n, x0 + c·n).
+    Compiled (``common.kernels.wire_decode``); the layout is this module's."""
+    global _decode_tile
+    if _decode_tile is None:  # numba loads only when something decodes
+        from common.kernels.wire_decode import decode_tile as _decode_tile
+    if h * w != p or len(raw) != p * BYTES_PER_PIXEL:
+        raise ValueError(f"tile {h}x{w} does not match {p} pixels / {len(raw)} bytes")
+    H, W = depth.shape
+    if p and not (0 <= y0 and y0 + (h - 1) * n < H and 0 <= x0 and x0 + (w - 1) * n < W
+                  and vals.shape == (9, H, W) and nrm.shape == (3, H, W)):
+        raise ValueError(f"tile {h}x{w} at ({y0}, {x0}) step {n} is outside the {W}x{H} planes")
+    o_r, o_i, o_u, o_d, o_n = (p * o for o in _PIXEL_OFFSETS)
+    _decode_tile(raw, h, w, o_r, o_i, o_u, o_d, o_n, n, y0, x0, vals, nrm, depth.view(np.uint32))
+
+
+_decode_tile = None
+# Section offsets are linear in the pixel count: those of one pixel, in _sections' order.
+_PIXEL_OFFSETS = tuple(section_offsets(1)[name] for name in ("reflectance", "irradiance", "unfiltered",
+                                                             "depth", "normal"))
 
 
 def decode(data: bytes, count: int | None = None) -> TileBuffers:
@@ -240,18 +213,10 @@ def decode(data: bytes, count: int | None = None) -> TileBuffers:
 
 def decode_raw(p: int, raw: np.ndarray) -> TileBuffers:
     """TileBuffers of a payload from :func:`decompress`."""
-    out = {}
-    pos = 0
-    raw_mv = memoryview(raw)
-    for name, dtype, n in _sections(p):
-        size = n * dtype.itemsize
-        out[name] = _unshuffle(raw_mv[pos:pos + size], dtype, n)
-        pos += size
-    f32 = lambda h: f16_to_f32(h.view(np.uint16)).reshape(p, 3)
-    return TileBuffers(
-        reflectance=f32(out["reflectance"]),
-        irradiance=f32(out["irradiance"]),
-        unfiltered=f32(out["unfiltered"]),
-        depth=out["depth"].astype(np.float32),
-        normal=oct_decode(out["normal"].reshape(p, 2)),
-    )
+    vals = np.empty((9, 1, p), np.float32)
+    nrm = np.empty((3, 1, p), np.float32)
+    depth = np.empty((1, p), np.float32)
+    decode_into(raw, p, 1, p, 1, 0, 0, vals, nrm, depth)
+    t = lambda a: np.ascontiguousarray(a[:, 0].T)
+    return TileBuffers(reflectance=t(vals[0:3]), irradiance=t(vals[3:6]), unfiltered=t(vals[6:9]),
+                       depth=depth[0], normal=t(nrm))

@@ -221,13 +221,21 @@ class Geometry:
         """Trace recorded batches on raw Embree; returns the seconds it took."""
         import time
 
+        embree = getattr(self._embree, "inner", self._embree)  # never the timing wrapper
         t0 = time.perf_counter()
         for kind, o, d, dist in batches:
             if kind == "intersect":
-                self._embree.run(o, d, output=1)
+                embree.run(o, d, output=1)
             else:
-                self._embree.run(o, d, query="OCCLUDED", dists=dist)
+                embree.run(o, d, query="OCCLUDED", dists=dist)
         return time.perf_counter() - t0
+
+    def time_embree(self, on: bool = True) -> None:
+        """Benchmarks: accumulate the seconds spent inside Embree in ``counters`` (keys
+        ``intersect_seconds``, ``occluded_seconds``). Off by default, and then nothing is
+        measured: the queries call Embree directly."""
+        inner = getattr(self._embree, "inner", self._embree)
+        self._embree = _TimedEmbree(inner, self.counters) if on else inner
 
     # -- surface interaction -----------------------------------------------------------------
     def _empty(self) -> Hits:
@@ -270,3 +278,21 @@ class Geometry:
             good = ln > 1e-12
             n[np.nonzero(sm)[0][good]] = ns[good] / ln[good, None]
         return pos, n, uv
+
+
+class _TimedEmbree:
+    """Embree scene wrapper that adds each query's wall time to ``counters`` (time_embree)."""
+
+    def __init__(self, inner, counters: dict):
+        self.inner = inner
+        self.counters = counters
+
+    def run(self, *args, **kwargs):
+        import time
+
+        key = "occluded_seconds" if kwargs.get("query") == "OCCLUDED" else "intersect_seconds"
+        t0 = time.perf_counter()
+        try:
+            return self.inner.run(*args, **kwargs)
+        finally:
+            self.counters[key] = self.counters.get(key, 0.0) + time.perf_counter() - t0

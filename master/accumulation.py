@@ -17,6 +17,8 @@ from __future__ import annotations
 import numpy as np
 
 from common.frame import FrameSpec
+from master.kernels.accumulate import add_frame
+from master.kernels.accumulate import mean as mean_kernel
 
 SEED_MODULUS = 2**31  # seeds stay inside common.params' declared range
 
@@ -83,8 +85,12 @@ class Accumulator:
             self._sum = np.zeros(img.shape, np.float64)
             self._halves = [np.zeros(img.shape, np.float64), np.zeros(img.shape, np.float64)]
         half = self.count % 2
-        self._sum += img
-        self._halves[half] += img
+        if img.dtype == np.float32 and img.flags.c_contiguous:
+            # one compiled pass for both float64 sums (the same additions as below)
+            add_frame(self._sum.reshape(-1), self._halves[half].reshape(-1), img.reshape(-1))
+        else:
+            self._sum += img
+            self._halves[half] += img
         self._counts[half] += 1
         self.count += 1
         return self.count
@@ -93,7 +99,9 @@ class Accumulator:
         """The accumulated image (float32), None before the first frame."""
         if self._sum is None or self.count == 0:
             return None
-        return (self._sum / self.count).astype(np.float32)
+        out = np.empty(self._sum.shape, np.float32)
+        mean_kernel(self._sum.reshape(-1), self.count, out.reshape(-1))  # float32(sum / count)
+        return out
 
     def halves(self) -> tuple[np.ndarray, np.ndarray] | None:
         """Means of the even and the odd frames (independent realizations), None before 2 frames."""

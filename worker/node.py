@@ -511,6 +511,8 @@ def run_from_args(args: argparse.Namespace) -> int:
         node.stop(signal.Signals(signum).name)
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
+    from .kernels.warm import warm_up_before_hello  # compile / load every kernel before HELLO (issue 16)
+    warm_up_before_hello(log)
     log.info("worker %s: %d render thread(s), connecting to %s", node.name, node.threads, node.connect)
     return node.run()
 

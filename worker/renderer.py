@@ -5,7 +5,9 @@ built, so tasks of the same k on the same worker skip the preprocessing (paper Â
 """
 from __future__ import annotations
 
+import contextlib
 import threading
+import time
 from collections import OrderedDict
 
 import numpy as np
@@ -43,8 +45,33 @@ def clamp_distance2(params: Params, diagonal: float) -> float:
     return frac * diagonal * diagonal
 
 
+class _StageTimer:
+    """Adds a stage's wall time to ``times[name]`` (Renderer.stage_times, benchmarks only)."""
+
+    __slots__ = ("times", "name", "t0")
+
+    def __init__(self, times: dict, name: str):
+        self.times, self.name = times, name
+
+    def __enter__(self):
+        self.t0 = time.perf_counter()
+
+    def __exit__(self, *exc):
+        self.times[self.name] = self.times.get(self.name, 0.0) + time.perf_counter() - self.t0
+
+
+_NO_STAGE = contextlib.nullcontext()
+
+
 class Renderer:
     """Owns the scene's geometry and light sampler, and caches per-set preprocessing."""
+
+    # Profiler hook (``igi bench rays``): a dict to add each render_tile stage's seconds to;
+    # None (the default) makes every stage a shared no-op context.
+    stage_times: dict | None = None
+
+    def _stage(self, name: str):
+        return _NO_STAGE if self.stage_times is None else _StageTimer(self.stage_times, name)
 
     def __init__(self, scene: Scene, scene_version: int = 0, max_cached_sets: int = 128,
                  use_plan: bool = True):
@@ -161,28 +188,35 @@ class Renderer:
         n = params.interleave
         xs, ys = tile.pixels(n, spec.width, spec.height)
         p = len(xs)
-        o, d = camera_rays(np.asarray(spec.camera_to_world).reshape(4, 4), spec.fov_x, spec.width,
-                           spec.height, xs, ys, spec.jitter)
-        rng = make_rng(spec.seed, tile.k, tile.sx0, tile.sy0)
-        eye = trace_eye(self.scene, self.geom, self.lights, o, d, params.max_depth,
-                        params.specular_depth, rng, params.filter_glossy_alpha)
+        with self._stage("eye paths"):
+            o, d = camera_rays(np.asarray(spec.camera_to_world).reshape(4, 4), spec.fov_x, spec.width,
+                               spec.height, xs, ys, spec.jitter)
+            rng = make_rng(spec.seed, tile.k, tile.sx0, tile.sy0)
+            eye = trace_eye(self.scene, self.geom, self.lights, o, d, params.max_depth,
+                            params.specular_depth, rng, params.filter_glossy_alpha)
         index = accumulation_index(spec)
         view = View(tuple(np.asarray(spec.camera_to_world, np.float64).ravel()), spec.fov_x, spec.width,
                     spec.height)
-        vpls = self.vpl_set(spec.seed, tile.k, params, roulette=index > 0 and params.consistent, view=view)
+        with self._stage("VPL set"):
+            vpls = self.vpl_set(spec.seed, tile.k, params, roulette=index > 0 and params.consistent, view=view)
         clamp_d2 = clamp_distance2(params, self.geom.diagonal)
-        albedo, irr = gather_vpls(self.geom, eye.end, vpls, clamp_d2, params.max_depth,
-                                  force_general=self.plan is None)
+        with self._stage("VPL gather"):
+            albedo, irr = gather_vpls(self.geom, eye.end, vpls, clamp_d2, params.max_depth,
+                                      force_general=self.plan is None)
         end = eye.end
         if index > 0 and params.consistent:
             # Accumulating: give back what the clamp took (not while the view moves).
-            irr = irr + clamp_compensation(self.scene, self.geom, self.lights, end, albedo, vpls,
-                                           clamp_d2, params.max_depth, rng)
-        irr = irr + bsdf_direct(self.scene, self.geom, self.lights, end, albedo, vpls.direct_count,
-                                params.max_depth, rng)
-        photons = self.photon_set(spec.seed, tile.k, params, index)
+            with self._stage("compensation"):
+                irr = irr + clamp_compensation(self.scene, self.geom, self.lights, end, albedo, vpls,
+                                               clamp_d2, params.max_depth, rng)
+        with self._stage("BSDF direct"):
+            irr = irr + bsdf_direct(self.scene, self.geom, self.lights, end, albedo, vpls.direct_count,
+                                    params.max_depth, rng)
+        with self._stage("photon set"):
+            photons = self.photon_set(spec.seed, tile.k, params, index)
         if len(photons):
-            irr = irr + gather_photons(end, photons, albedo, params.max_depth)
+            with self._stage("photon gather"):
+                irr = irr + gather_photons(end, photons, albedo, params.max_depth)
         refl = np.zeros((p, 3))
         irr_buf = np.zeros((p, 3))
         unf = eye.unfiltered

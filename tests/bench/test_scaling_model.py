@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common.codec import decode, encode, oct_decode, oct_decode_planes
+from common.codec import decode, encode, oct_decode
+from tests.support.oracle_codec import oct_decode_planes
 from common.frame import TileBuffers
 from common.interleave import extract
 from common.params import make_params, params_to_dict

@@ -1,0 +1,104 @@
+"""The numpy wire decode that common.kernels.wire_decode replaced (codec version 1, as
+written before issue 16): a test oracle, bit for bit the reference of the compiled decode."""
+from __future__ import annotations
+
+import numpy as np
+
+from common.codec import _SNORM, _ZERO_NORMAL, _sections
+from common.frame import TileBuffers
+
+# float16 -> float32 by table: numpy's cast is slow for subnormal inputs, a gather is not.
+_F16_TO_F32 = np.arange(1 << 16, dtype=np.uint32).astype(np.uint16).view(np.float16).astype(np.float32)
+
+
+def oct_decode(q: np.ndarray) -> np.ndarray:
+    """(P, 2) int16 octahedral snorm16 -> (P, 3) float32 unit normals (zero for the reserved code)."""
+    q = np.asarray(q).reshape(-1, 2)
+    out = np.empty((3, len(q)), np.float32)
+    oct_decode_planes(q[:, 0], q[:, 1], out)
+    return np.ascontiguousarray(out.T)
+
+
+def oct_decode_planes(qx: np.ndarray, qy: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Planar octahedral decode: int16 codes ``qx``, ``qy`` (any equal shape S) -> (3, *S)
+    float32 unit normals, written to ``out`` when given (zero for the reserved code).
+
+    The same float32 operations in the same order as the original per-pixel formulation
+    (p = max(q/32767, -1); z = 1 - |px| - |py|; fold when z < 0; v / sqrt(v.v)), so the
+    result is bit-identical to it; planar arrays just make every step one contiguous ufunc call.
+    """
+    qx, qy = np.asarray(qx), np.asarray(qy)
+    if out is None:
+        out = np.empty((3,) + qx.shape, np.float32)
+    s = np.float32(1.0 / _SNORM)
+    m1 = np.float32(-1.0)
+    px = np.maximum(qx.astype(np.float32) * s, m1)
+    py = np.maximum(qy.astype(np.float32) * s, m1)
+    ax, ay = np.abs(px), np.abs(py)
+    z = np.subtract(np.float32(1.0), ax, out=out[2])
+    z -= ay
+    # Branch-free, bit-exact selects on the float bits (np.where and np.copysign are several
+    # times slower on this data).
+    sign = np.uint32(0x80000000)
+    lower = np.less(z, np.float32(0.0)).view(np.uint8).astype(np.uint32)
+    mask = np.negative(lower, out=lower)  # 0xffffffff where folded, 0 elsewhere
+    # (1 - |p_other|) * sign(p) with sign(0) = +1: p is never -0 here (q/32767 of an int), and
+    # 1 - |p| >= +0, so OR-ing p's sign bit into it is the same product, bit for bit.
+    ux = np.subtract(np.float32(1.0), ay, out=ay).view(np.uint32)
+    ux |= px.view(np.uint32) & sign
+    uy = np.subtract(np.float32(1.0), ax, out=ax).view(np.uint32)
+    uy |= py.view(np.uint32) & sign
+    vx, vy = out[0], out[1]
+    for v, u, p in ((vx, ux, px), (vy, uy, py)):  # v = lower ? u : p, as bits
+        pb = p.view(np.uint32)
+        vb = v.view(np.uint32)
+        np.bitwise_xor(u, pb, out=vb)
+        vb &= mask
+        vb ^= pb
+    ux = ux.view(np.float32)
+    # |v|^2 = (vx vx + vy vy) + z z, summed in this order (as einsum does for 3 terms)
+    n2 = np.multiply(vx, vx, out=px)
+    n2 += np.multiply(vy, vy, out=py)
+    n2 += np.multiply(z, z, out=ux)
+    inv = np.divide(np.float32(1.0), np.sqrt(n2, out=n2), out=n2)
+    out *= inv
+    zero = np.equal(qx, _ZERO_NORMAL)
+    zero &= np.equal(qy, _ZERO_NORMAL)
+    if zero.any():
+        out[:, zero] = 0.0
+    return out
+
+
+def _unshuffle(raw: memoryview, dtype: np.dtype, count: int) -> np.ndarray:
+    size = np.dtype(dtype).itemsize
+    planes = np.frombuffer(raw, dtype=np.uint8, count=count * size).reshape(size, count)
+    out = np.empty((count, size), np.uint8)
+    for i in range(size):  # one strided copy per byte plane: ~5x faster than a transpose copy
+        out[:, i] = planes[i]
+    return out.view(dtype).reshape(count)
+
+
+
+def f16_to_f32(codes: np.ndarray) -> np.ndarray:
+    """float16 bit patterns (uint16, any shape) -> float32, by table (exact, no slow path for
+    subnormals). Indices are widened to intp first: take() with narrow indices is ~3x slower."""
+    return _F16_TO_F32.take(np.asarray(codes).astype(np.intp))
+
+
+def decode_raw(p: int, raw: np.ndarray) -> TileBuffers:
+    """TileBuffers of a payload from :func:`decompress`."""
+    out = {}
+    pos = 0
+    raw_mv = memoryview(raw)
+    for name, dtype, n in _sections(p):
+        size = n * dtype.itemsize
+        out[name] = _unshuffle(raw_mv[pos:pos + size], dtype, n)
+        pos += size
+    f32 = lambda h: f16_to_f32(h.view(np.uint16)).reshape(p, 3)
+    return TileBuffers(
+        reflectance=f32(out["reflectance"]),
+        irradiance=f32(out["irradiance"]),
+        unfiltered=f32(out["unfiltered"]),
+        depth=out["depth"].astype(np.float32),
+        normal=oct_decode(out["normal"].reshape(p, 2)),
+    )

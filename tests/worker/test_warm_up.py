@@ -1,0 +1,48 @@
+"""A worker loads every compiled kernel before it says HELLO (worker.kernels.warm): after
+warm_up, every kernel dispatcher of common.kernels and worker.kernels has a compiled
+signature, so no first call inside a frame compiles or loads anything."""
+from __future__ import annotations
+
+from worker.kernels.warm import kernel_dispatchers, warm_up
+
+
+def test_after_warm_up_every_kernel_has_a_compiled_signature():
+    res = warm_up()
+    kernels = kernel_dispatchers()
+    assert res["kernels"] == len(kernels) > 0
+    assert res["cold"] == []
+    for name, disp in kernels.items():
+        assert disp.signatures, name
+
+
+def test_the_worker_warms_up_before_it_connects():
+    import inspect
+
+    from worker import node
+
+    src = inspect.getsource(node.run_from_args)
+    assert src.index("warm_up_before_hello(log)") < src.index("node.run()")
+
+
+def test_a_failing_warm_up_is_logged_not_fatal(monkeypatch, caplog):
+    import logging
+
+    from worker.kernels import warm
+
+    def boom(*a, **k):
+        raise RuntimeError("no scene today")
+
+    monkeypatch.setattr(warm, "warm_up", boom)
+    with caplog.at_level(logging.INFO):
+        warm.warm_up_before_hello(logging.getLogger("igi.worker"))
+    assert "warm-up failed" in caplog.text
+
+
+def test_warm_up_logs_its_duration(caplog):
+    import logging
+
+    from worker.kernels import warm
+
+    with caplog.at_level(logging.INFO):
+        warm.warm_up_before_hello(logging.getLogger("igi.worker"))
+    assert "kernels ready in" in caplog.text

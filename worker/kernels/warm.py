@@ -1,0 +1,163 @@
+"""Load (or compile) every compiled kernel before a worker says HELLO (issue 16).
+
+numba compiles a kernel on its first call, or loads it from its on-disk cache (``cache=True``,
+``__pycache__`` beside the module); either way the first call of each kernel in a process
+costs up to seconds. :func:`warm_up` pays that before the node connects, so it does not land
+inside the first frame a user waits for: it renders a tiny built-in scene (every pass on:
+diffuse, glossy and mirror surfaces, an area and a spot light, caustic photons) through the
+real ``Renderer``, so the kernels are loaded for exactly the argument types the product
+passes, then encodes and decodes a tile (common.codec) and finally calls any public kernel
+of ``common.kernels`` / ``worker.kernels`` that still has no compiled signature on tiny inputs.
+"""
+from __future__ import annotations
+
+import importlib
+import pkgutil
+import time
+
+import numpy as np
+
+KERNEL_PACKAGES = ("common.kernels", "worker.kernels")
+
+
+def kernel_dispatchers() -> dict[str, object]:
+    """``module.name`` -> numba dispatcher, for every compiled kernel of :data:`KERNEL_PACKAGES`
+    (private helpers included)."""
+    from numba.core.registry import CPUDispatcher
+
+    out = {}
+    for pkg_name in KERNEL_PACKAGES:
+        pkg = importlib.import_module(pkg_name)
+        for info in pkgutil.iter_modules(pkg.__path__):
+            if info.name == "warm":
+                continue
+            mod = importlib.import_module(f"{pkg_name}.{info.name}")
+            for name, obj in vars(mod).items():
+                if isinstance(obj, CPUDispatcher) and obj.__module__ == mod.__name__:
+                    out[f"{mod.__name__}.{name}"] = obj
+    return out
+
+
+def _tiny_scene():
+    from common.camera import look_at
+    from common.scene import (AREA, CONDUCTOR, DIFFUSE, ROUGHCONDUCTOR, SPOT, Camera, Emitter, Material, Mesh,
+                              Scene, Texture)
+
+    def quad(c, e1, e2):
+        c, e1, e2 = (np.asarray(a, float) for a in (c, e1, e2))
+        return np.array([c, c + e1, c + e1 + e2, c + e2]), np.array([[0, 1, 2], [0, 2, 3]], np.int32)
+
+    mats = [Material("wall", DIFFUSE, diffuse=Texture.constant(0.6)),
+            Material("glossy", ROUGHCONDUCTOR, alpha=0.3),
+            Material("mirror", CONDUCTOR),
+            Material("light", DIFFUSE, diffuse=Texture.constant(0.0))]
+    meshes = []
+    # an open box seen from the front: floor (glossy), back wall, ceiling, two side walls
+    for name, (v, f), m in (("floor", quad([0, 0, 0], [0, 0, 2], [2, 0, 0]), 1),
+                            ("back", quad([0, 0, 0], [2, 0, 0], [0, 2, 0]), 0),
+                            ("ceiling", quad([0, 2, 0], [2, 0, 0], [0, 0, 2]), 0),
+                            ("left", quad([0, 0, 0], [0, 2, 0], [0, 0, 2]), 0),
+                            ("right", quad([2, 0, 0], [0, 0, 2], [0, 2, 0]), 0),
+                            ("mirror", quad([0.6, 0.3, 0.5], [0.8, 0, 0], [0, 0.8, 0.3]), 2)):
+        meshes.append(Mesh(name, v, f, m))
+    lv, lf = quad([0.8, 1.99, 0.8], [0.4, 0, 0], [0, 0, 0.4])
+    meshes.append(Mesh("light", lv, lf, 3, emitter=0))
+    emitters = [Emitter(AREA, radiance=np.full(3, 10.0), mesh=len(meshes) - 1),
+                Emitter(SPOT, intensity=np.full(3, 5.0), position=np.array([1.0, 1.8, 1.5]),
+                        direction=np.array([0.0, -1.0, -0.5]), cutoff_angle=30.0, beam_width=20.0)]
+    cam = Camera(look_at([1.0, 1.0, 3.5], [1.0, 0.9, 0.0], [0, 1, 0]), fov=60, width=12, height=9)
+    return Scene(meshes, mats, emitters, cam, source="warm-up")
+
+
+def _render_tiny() -> None:
+    from common.camera import resolve_camera
+    from common.codec import decode, encode
+    from common.frame import FrameSpec
+    from common.interleave import make_tiles
+    from common.params import make_params, params_to_dict
+    from worker.renderer import Renderer
+
+    scene = _tiny_scene()
+    cam, fov_x, w, h = resolve_camera(scene, None, None, None)
+    pd = params_to_dict(make_params(photons=2000, interleave=2))
+    r = Renderer(scene)
+    for index, jitter in ((0, (0.5, 0.5)), (1, (0.25, 0.75))):  # the first and an accumulating frame
+        params = dict(pd, consistent=True, accumulate=True)
+        spec = FrameSpec(frame=index, seed=index, camera_to_world=tuple(np.asarray(cam, float).ravel()),
+                         fov_x=float(fov_x), width=w, height=h, params=params, scene_version=0, jitter=jitter)
+        for t in make_tiles(w, h, 2, 3, 3):
+            buf = r.render_tile(spec, t)
+            decode(encode(buf), len(buf))
+
+
+def _empty_args(disp) -> list:
+    """Arguments of the types of ``disp``'s first compiled signature (empty arrays, zeros)."""
+    from numba.core import types
+
+    out = []
+    for t in disp.signatures[0]:
+        if isinstance(t, types.Array):
+            out.append(np.zeros((0,) * t.ndim, np.dtype(str(t.dtype))))
+        elif isinstance(t, types.Boolean):
+            out.append(False)
+        elif isinstance(t, types.Integer):
+            out.append(0)
+        else:
+            out.append(0.0)
+    return out
+
+
+def _direct_calls() -> dict:
+    """Tiny calls of the kernels the render does not register: the worker never decodes,
+    and helpers that are loaded from the cache inside their caller keep no signature."""
+    from common.kernels import wire_decode
+    from worker.kernels import photon_query, vpl_gather
+
+    z = np.zeros(0, np.uint8)
+    out1 = np.zeros(0, np.float32)
+    return {
+        "worker.kernels.vpl_gather.spot_falloff": lambda: vpl_gather.spot_falloff(0.9, 30.0, 20.0),
+        "common.kernels.wire_decode.oct_decode_one": lambda: wire_decode.oct_decode_one(0, 0),
+        "common.kernels.wire_decode.f16_to_f32": lambda: wire_decode.f16_to_f32(z, z, out1.view(np.uint32), out1),
+        "common.kernels.wire_decode._u32": lambda: wire_decode._u32(z, z, z, z, out1.view(np.uint32)),
+        "common.kernels.wire_decode._oct": lambda: wire_decode._oct(z.view(np.uint16), z.view(np.uint16), out1, out1,
+                                                                   out1),
+        "common.kernels.wire_decode.oct_decode_into": lambda: wire_decode.oct_decode_into(
+            np.zeros(1, np.int16), np.zeros(1, np.int16), np.zeros((3, 1), np.float32)),
+        "worker.kernels.photon_query._cell": lambda: photon_query._cell(0.5, 2.0),
+        "worker.kernels.photon_query._find": lambda: photon_query._find(np.zeros(1, np.int64), 0),
+        # _visit: query's arguments (empty arrays of its types) plus the output arrays
+        "worker.kernels.photon_query._visit": lambda: photon_query._visit(
+            *_empty_args(photon_query.query), np.zeros(0, np.int64), np.zeros(0, np.int64), False),
+    }
+
+
+def warm_up(render: bool = True) -> dict:
+    """Load or compile every kernel; returns {"seconds": s, "kernels": count, "cold": names
+    still without a compiled signature (should be empty)}."""
+    t0 = time.perf_counter()
+    if render:
+        _render_tiny()
+    kernels = kernel_dispatchers()
+    calls = _direct_calls()
+    for name, disp in kernels.items():
+        if not disp.signatures and name in calls:
+            try:
+                calls[name]()
+            except IndexError:  # _empty_args of a kernel the render did not reach
+                pass
+    cold = sorted(name for name, disp in kernels.items() if not disp.signatures)
+    return {"seconds": time.perf_counter() - t0, "kernels": len(kernels), "cold": cold}
+
+
+def warm_up_before_hello(log) -> None:
+    """The worker's start (worker.node): :func:`warm_up`, its duration logged at INFO. A
+    failure here must not keep a worker from serving (its kernels then load on first use):
+    it is logged as a warning."""
+    try:
+        res = warm_up()
+    except Exception as e:  # noqa: BLE001 - any failure only costs the first frame's latency
+        log.warning("kernel warm-up failed (%s: %s); kernels load on first use", type(e).__name__, e)
+        return
+    log.info("kernels ready in %.2f s (%d compiled kernels, loaded from numba's cache or compiled)",
+             res["seconds"], res["kernels"])
