@@ -220,8 +220,9 @@ class Renderer:
         refl = np.zeros((p, 3))
         irr_buf = np.zeros((p, 3))
         unf = eye.unfiltered
-        # Lambertian and rough end points go through the discontinuity buffer; the highlights
-        # of smooth glossy ones would be smeared by it, so their radiance stays unfiltered.
+        # Lambertian, rough and split-off diffuse-layer end points go through the discontinuity
+        # buffer; smooth glossy ones reached after a mirror/glass chain (not split) would have
+        # their highlights smeared by it, so their radiance stays unfiltered.
         kind = end.sp.kind
         filterable = (kind == DIFFUSE) | (kind == PLASTIC) | (kind == ROUGHPLASTIC_DIFFUSE) | (
             np.isin(kind, GLOSSY_KINDS) & (end.sp.alpha >= params.filter_glossy_alpha))
