@@ -107,7 +107,12 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
                           np.ones((len(nd), 3)), np.ones(len(nd), np.int32), np.ones(len(nd), bool),
                           hits.t[v][nd])]
     di = np.nonzero(delta)[0]
-    c_pix, c_pos, c_ng, c_dir, c_thr, c_main, c_dist = [], [], [], [], [], [], []
+    branches: list[tuple] = []  # (pixel, origin, ng, direction, throughput, main, distance) per batch
+    t_hit = hits.t[v]
+
+    def branch(g: np.ndarray, wo_local: np.ndarray, weight: np.ndarray, main: np.ndarray) -> None:
+        branches.append((idx[g], pos[g], ng[g], to_world(wo_local, ns[g]), weight, main, t_hit[g]))
+
     if len(lobe):
         # The glossy lobe: one sampled ray, its radiance unfiltered (the pixel's main end
         # point, if any, is the plastic's diffuse layer).
@@ -115,14 +120,7 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
         glossy.kind = np.where(glossy.kind == ROUGHPLASTIC_DIFFUSE, ROUGHPLASTIC, glossy.kind).astype(sp.kind.dtype)
         wo, weight = bsdf.sample_lobe(glossy, wi[lobe], rng.random((len(lobe), 2)))
         sel = np.nonzero(np.any(weight > 0, axis=1))[0]
-        g = lobe[sel]
-        c_pix.append(idx[g])
-        c_pos.append(pos[g])
-        c_ng.append(ng[g])
-        c_dir.append(to_world(wo[sel], ns[g]))
-        c_thr.append(weight[sel])
-        c_main.append(np.zeros(len(sel), bool))
-        c_dist.append(hits.t[v][g])
+        branch(lobe[sel], wo[sel], weight[sel], np.zeros(len(sel), bool))
     if len(di) and specular_depth > 0 and _allowed(2, max_depth):
         sp_d = sp.subset(di)
         comps = bsdf.specular_components(sp_d, wi[di], mode="radiance")
@@ -130,21 +128,11 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
         best = np.argmax(lum, axis=1)
         for ci, (wo, weight, ok) in enumerate(comps):
             sel = np.nonzero(ok & np.any(weight > 0, axis=1))[0]
-            if len(sel) == 0:
-                continue
-            g = di[sel]
-            c_pix.append(idx[g])
-            c_pos.append(pos[g])
-            c_ng.append(ng[g])
-            c_dir.append(to_world(wo[sel], ns[g]))
-            c_thr.append(weight[sel])
-            c_main.append(best[sel] == ci)
-            c_dist.append(hits.t[v][g])
-    if c_pix:
-        ends.extend(_follow_chains(scene, geom, lights, np.concatenate(c_pix), np.concatenate(c_pos),
-                                   np.concatenate(c_ng), np.concatenate(c_dir), np.concatenate(c_thr),
-                                   np.concatenate(c_main), np.concatenate(c_dist), unf, env,
-                                   max_depth, specular_depth, rng))
+            if len(sel):
+                branch(di[sel], wo[sel], weight[sel], best[sel] == ci)
+    if branches:
+        cat = [np.concatenate(col) for col in zip(*branches)]
+        ends.extend(_follow_chains(scene, geom, lights, *cat, unf, env, max_depth, specular_depth, rng))
     end = _concat_ends(ends)
     m = end.main
     depth[end.pixel[m]] = end.distance[m]
