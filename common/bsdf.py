@@ -266,6 +266,18 @@ def _rough_tables(sp, with_reflectance=False):
     return res + ((np.stack(refl),) if with_reflectance else ())
 
 
+def coat_transmittance(sp: SurfacePoints) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rough plastics' coat transmittance tables t(cos θ) for a compiled evaluation:
+    ``(tables (G, R) float64, row (n,) int64, t_avg (n,))`` with t_avg the cosine-weighted mean
+    (as :func:`albedo` uses), so the diffuse layer per unit albedo is cos/π · t(cos)/t_avg."""
+    tabs, rows, _ = _rough_tables(sp)
+    tabs = np.ascontiguousarray(tabs, dtype=np.float64)
+    rows = np.zeros(len(sp), np.int64) if rows is None else np.asarray(rows, np.int64)
+    mu = np.linspace(0.0, 1.0, tabs.shape[1])
+    t_avg = 2.0 * np.mean(tabs * mu, axis=1)
+    return tabs, rows, t_avg[rows]
+
+
 def _cos_hemisphere_pdf(w):
     return INV_PI * w[:, 2]
 

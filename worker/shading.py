@@ -312,9 +312,19 @@ def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, c
     # so one offset origin per end point serves all its shadow rays.
     off = (geom.offset_scale(pos).astype(f32) * side).astype(f32)
     kind = end.sp.kind[sl]
-    lam = (kind == DIFFUSE) & (end.sp.twosided[sl] | (wz > 0))
+    front = end.sp.twosided[sl] | (wz > 0)
+    lam = (kind == DIFFUSE) & front
     row = np.where(lam, vg.ROW_LAMBERT,
                    np.where((kind != DIFFUSE) & (kind != NULL), vg.ROW_GLOSSY, vg.ROW_NONE)).astype(np.int8)
+    tables, row_tab, inv_tavg = np.ones((1, 2)), np.zeros(n, np.int64), np.ones(n)
+    layer = np.nonzero((kind == ROUGHPLASTIC_DIFFUSE) & front)[0]
+    row[kind == ROUGHPLASTIC_DIFFUSE] = vg.ROW_NONE  # one-sided from behind, like Lambert
+    if len(layer):
+        # The diffuse layer is Lambertian up to a scalar t(cos)/t_avg: no per-pair BSDF call.
+        row[layer] = vg.ROW_LAYER
+        tables, rt, t_avg = bsdf.coat_transmittance(end.sp.subset(sl.start + layer))
+        row_tab[layer] = rt
+        inv_tavg[layer] = 1.0 / np.maximum(t_avg, 1e-12)
     cap = n * m
     pi = np.empty(cap, np.int64)
     pj = np.empty(cap, np.int64)
@@ -327,7 +337,7 @@ def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, c
                         cols.pos, cols.normal, cols.directional, cols.min_d2, cols.cos_y_factor,
                         cols.side, cols.spot_cutoff, cols.spot_beam, cols.depth, cols.mis,
                         cols.light_pdf, cols.area, cols.direct_count, max_depth, f32(2 * geom.eps),
-                        pi, pj, w, pl, o, d, t)
+                        tables, row_tab, inv_tavg, pi, pj, w, pl, o, d, t)
     pi, pj, w, pl, o, d, t = pi[:k], pj[:k], w[:k], pl[:k], o[:k], d[:k], t[:k]
     blocked = geom.occluded_local(o, d, t) if k else np.zeros(0, bool)
     factor = _bsdf_factors(end, sl, vpls, cols, row, pi, pj, pl, d, blocked, albedo)

@@ -24,6 +24,9 @@ INV_PI = 1.0 / math.pi
 ROW_NONE = 0  # absorbs (NULL) or a back-facing one-sided Lambertian surface
 ROW_LAMBERT = 1  # Lambertian: weight carries cos/π, colour is per unit albedo
 ROW_GLOSSY = 2  # any other BSDF: weight is the emitter factor only, BSDF applied per pair
+# A rough plastic's diffuse layer alone (ROUGHPLASTIC_DIFFUSE): Lambertian up to the coat's
+# transmittance t(cos θ_o) toward the light, so per unit albedo cos/π · t(cos)/t_avg (a scalar).
+ROW_LAYER = 3
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -43,9 +46,21 @@ def spot_falloff(cos_theta: float, cutoff_deg: float, beam_deg: float) -> float:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _lerp_table(tables, g, x):
+    """common.microfacet.lerp_gather for one point: table row g sampled at linspace(0, 1, R)."""
+    size = tables.shape[1]
+    xs = x * (size - 1)
+    idx = min(max(int(max(xs, 0.0)), 0), size - 2)
+    w1 = xs - idx
+    v0 = tables[g, idx]
+    return v0 + (tables[g, idx + 1] - v0) * w1
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def pair_weights(x, ns, ng, off, side, row, seg,
                  vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam,
                  vdepth, mis, light_pdf, area, direct_count, max_depth, eps2,
+                 tables, row_tab, inv_tavg,
                  out_i, out_j, out_w, out_pl, out_o, out_d, out_t):
     """Fill the live pairs of rows x (n, 3) × VPL columns; returns how many were written.
 
@@ -53,7 +68,8 @@ def pair_weights(x, ns, ng, off, side, row, seg,
     length along ng, signed to the eye's side (``side``); row: ROW_* per end point; seg: eye
     segments. Per column: vpos/vnormal float32 (m, 3), directional/cos_factor/mis/area bool,
     min_d2/vside/light_pdf float32, spot_cutoff/spot_beam degrees (cutoff < 0: not a spot),
-    vdepth int. out_pl: the MIS light pdf of glossy-row pairs (0 elsewhere) — their BSDF pdf
+    vdepth int. ROW_LAYER rows read their coat-transmittance table ``tables[row_tab[i]]`` and
+    1/t_avg ``inv_tavg[i]``. out_pl: the MIS light pdf of glossy-row pairs (0 elsewhere) — their BSDF pdf
     is the caller's, so their MIS weight is applied by the caller.
     """
     n = x.shape[0]
@@ -96,11 +112,14 @@ def pair_weights(x, ns, ng, off, side, row, seg,
                 if area[j]:
                     pl = pl * dd / max(cos_y, np.float32(1e-7))
                 pl = pl * np.float32(direct_count)
-            if r == ROW_LAMBERT:
-                recv = max(cos_x, np.float32(0.0)) * np.float32(INV_PI)
+            if r == ROW_LAMBERT or r == ROW_LAYER:
+                recv = max(cos_x, np.float32(0.0)) * np.float32(INV_PI)  # also the cosine pdf
                 w = em * recv
                 if mis[j]:
                     w *= pl * pl / max(pl * pl + recv * recv, f1e30)
+                if r == ROW_LAYER:
+                    w = np.float32(w * _lerp_table(tables, row_tab[i], min(float(max(cos_x, 0.0)), 1.0))
+                                   * inv_tavg[i])
                 pl = np.float32(0.0)
             else:
                 w = em
