@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .geometry import Geometry
+from .kernels import bounding_spheres
 from .scene import AREA, CONSTANT, DIRECTIONAL, POINT, SPOT, Scene
 
 # Kinds of point-light records (VPLs and emitter samples), see worker/vpl.py.
@@ -160,12 +161,10 @@ class LightSampler:
             return np.zeros(len(o), bool)
         if len(r) > 64:
             return np.ones(len(o), bool)
-        oc = c[None, :, :] - o[:, None, :]
-        tca = np.einsum("nek,nk->ne", oc, d)
-        d2 = np.einsum("nek,nek->ne", oc, oc) - tca * tca
-        inside = np.einsum("nek,nek->ne", oc, oc) <= r[None, :] ** 2
-        hit = inside | ((tca > 0) & (d2 <= r[None, :] ** 2))
-        return hit.any(axis=1)
+        out = np.empty(len(o), bool)
+        bounding_spheres.any_hit(np.ascontiguousarray(o, np.float64), np.ascontiguousarray(d, np.float64),
+                                 np.ascontiguousarray(c, np.float64), np.ascontiguousarray(r * r, np.float64), out)
+        return out
 
     @property
     def has_light(self) -> bool:
