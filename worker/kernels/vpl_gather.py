@@ -46,17 +46,6 @@ def spot_falloff(cos_theta: float, cutoff_deg: float, beam_deg: float) -> float:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _lerp_table(tables, g, x):
-    """common.microfacet.lerp_gather for one point: table row g sampled at linspace(0, 1, R)."""
-    size = tables.shape[1]
-    xs = x * (size - 1)
-    idx = min(max(int(max(xs, 0.0)), 0), size - 2)
-    w1 = xs - idx
-    v0 = tables[g, idx]
-    return v0 + (tables[g, idx + 1] - v0) * w1
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def pair_weights(x, ns, ng, off, side, row, seg,
                  vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam,
                  vdepth, mis, light_pdf, area, direct_count, max_depth, eps2,
@@ -74,6 +63,7 @@ def pair_weights(x, ns, ng, off, side, row, seg,
     """
     n = x.shape[0]
     m = vpos.shape[0]
+    n_tab = tables.shape[1]
     k = 0
     f1e30 = np.float32(1e-30)
     for i in range(n):
@@ -118,8 +108,12 @@ def pair_weights(x, ns, ng, off, side, row, seg,
                 if mis[j]:
                     w *= pl * pl / max(pl * pl + recv * recv, f1e30)
                 if r == ROW_LAYER:
-                    w = np.float32(w * _lerp_table(tables, row_tab[i], min(float(max(cos_x, 0.0)), 1.0))
-                                   * inv_tavg[i])
+                    # common.microfacet.lerp_gather of the coat transmittance at cos θ_x
+                    g = row_tab[i]
+                    xs = min(float(max(cos_x, 0.0)), 1.0) * (n_tab - 1)
+                    idx = min(int(xs), n_tab - 2)
+                    t_o = tables[g, idx] + (tables[g, idx + 1] - tables[g, idx]) * (xs - idx)
+                    w = np.float32(w * t_o * inv_tavg[i])
                 pl = np.float32(0.0)
             else:
                 w = em
