@@ -117,13 +117,20 @@ def build_photon_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: i
             flux = e.intensity[None, :] * (fall / pdf)[:, None]
             o = pos
         flux /= n
-        parts.append(_trace_photons(scene, geom, o, d, flux, u, max_bounces))
-    parts = [p for p in parts if p is not None and len(p[0])]
-    if not parts:
+        parts.append((o, d, flux, u))
+    # All lights' photons in one trace (one Embree batch per bounce, not one per light), then
+    # put back in light order: the same photons, in the same order, as tracing light by light.
+    traced = None
+    if parts:
+        light = np.concatenate([np.full(len(p[0]), i) for i, p in enumerate(parts)])
+        traced = _trace_photons(scene, geom, *(np.concatenate([p[i] for p in parts]) for i in range(4)),
+                                max_bounces)
+    if traced is None or not len(traced[0]):
         out = _empty(radius)
         out.shot = shot
         return out
-    pos, pw, di, nr, dp = (np.concatenate([p[i] for p in parts]) for i in range(5))
+    order = np.argsort(light[traced[5]], kind="stable")
+    pos, pw, di, nr, dp = (a[order] for a in traced[:5])
     grid = HashGrid(pos, radius)
     return PhotonSet(pos, pw, di, nr, dp, radius, grid, shot)
 
@@ -131,7 +138,7 @@ def build_photon_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: i
 def _trace_photons(scene, geom, o, d, flux, u, max_bounces):
     alive = np.nonzero(np.any(flux > 0, axis=1))[0]
     bounced = np.zeros(len(o), bool)
-    out_p, out_w, out_d, out_n, out_dp = [], [], [], [], []
+    out_p, out_w, out_d, out_n, out_dp, out_src = [], [], [], [], [], []
     o = o.copy()
     d = d.copy()
     flux = flux.copy()
@@ -154,6 +161,7 @@ def _trace_photons(scene, geom, o, d, flux, u, max_bounces):
             out_d.append(-d[alive[s]])
             out_n.append(ns[s])
             out_dp.append(np.full(len(s), b + 1, np.int32))
+            out_src.append(alive[s])
         # Only mirror/glass bounces continue: anything else is a caustic's end or not a caustic.
         si = np.nonzero(spec)[0]
         if b == max_bounces or len(si) == 0:
@@ -173,7 +181,7 @@ def _trace_photons(scene, geom, o, d, flux, u, max_bounces):
     if not out_p:
         return None
     return (np.concatenate(out_p), np.concatenate(out_w), np.concatenate(out_d),
-            np.concatenate(out_n), np.concatenate(out_dp))
+            np.concatenate(out_n), np.concatenate(out_dp), np.concatenate(out_src))
 
 
 def gather_photons(end, photons: PhotonSet, albedo: np.ndarray, max_depth: int) -> np.ndarray:

@@ -137,3 +137,22 @@ def test_invalid_block_arguments_raise():
         s.block(-1, 4, 64)
     with pytest.raises(ValueError):
         rng(1, -3)
+
+
+@pytest.mark.parametrize("start", [1, 2, 3, 4, 5, 63, 64, 65, 4096, 4097, 123457, 475136])
+def test_direct_seek_draws_what_fast_forward_draws(start):
+    """Blocks far into the stream are reached by setting the engine's state directly (O(bits),
+    not scipy's O(n) walk); the points drawn must be exactly fast_forward's."""
+    import warnings
+
+    from common import sobol_stream as ss
+
+    assert ss._direct_seek_works()
+    a = ss._draw(ss._sobol(7, 99, 4), start, 33)
+    e = ss._sobol(7, 99, 4)
+    e.reset()
+    e.fast_forward(start)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        b = e.random(33)
+    np.testing.assert_array_equal(a, b)
