@@ -7,7 +7,8 @@
 - ``master/scene_state.py`` — the scene, its content-hashed blob, the edits on top of it and
   their folding into a new blob every :data:`FOLD_EDITS` edits (issue 20);
 - ``master/frame_loop.py`` — one frame: tasks, the scheduler's assignments
-  (``master/scheduler.py``), results, re-queueing, timeouts, completion;
+  (``master/scheduler.py``), results, re-queueing, timeouts, completion (what a frame and a
+  task hold, and how a frame ends: ``master/frames.py``);
 - ``master/stream.py`` — the viewer's stream: pipeline, finisher thread, accumulation,
   publishing, view changes;
 - ``master/mailbox.py`` and ``master/meters.py`` — closures for the loop thread; what is
@@ -55,7 +56,8 @@ from common.scene import Scene
 from . import scene_state
 from .accumulation import Accumulator, accumulation_key, sequence_spec
 from .frame_assembly import DEFAULT_TASK_PIXELS
-from .frame_loop import MAX_TASK_FAILURES, FrameCancelled, FrameFailed, FrameLoop, FrameResult, params_dict
+from .frame_loop import MAX_TASK_FAILURES, FrameLoop
+from .frames import FrameCancelled, FrameFailed, FrameResult, params_dict
 from .links import Links
 from .mailbox import Mailbox
 from .meters import LATENCY_WINDOW

@@ -17,28 +17,25 @@ Everything here runs on the broker's loop thread (``master/broker.py``), except
   :data:`MAX_TASK_FAILURES` times fails its frame. Task timeouts follow the measured task
   times (``scheduler.task_timeout``).
 
-Worker links (sockets, liveness, the fault ledger) are ``master/links.py``'s; the stream of
-frames for the viewer is ``master/stream.py``'s.
+What a frame and a task hold is in ``master/frames.py``; worker links (sockets, liveness, the
+fault ledger) are ``master/links.py``'s; the stream of frames for the viewer is
+``master/stream.py``'s.
 """
 from __future__ import annotations
 
 import collections
 import concurrent.futures as cf
-import dataclasses
 import logging
 import threading
 import time
-from dataclasses import dataclass
-from typing import Any, Callable
-
-import numpy as np
+from typing import Callable
 
 from common import protocol as P
-from common.frame import FrameSpec, Tile, accumulation_index
-from common.params import make_params, params_to_dict
+from common.frame import FrameSpec
 
 from . import scheduler
 from .frame_assembly import FrameAssembler, task_tiles, tile_pixel_count
+from .frames import Frame, FrameCancelled, FrameFailed, FrameResult, Task
 from .links import Links, Worker
 from .meters import Meters
 from .scene_state import SceneState
@@ -46,87 +43,6 @@ from .scene_state import SceneState
 log = logging.getLogger("igi.master")
 
 MAX_TASK_FAILURES = 3  # a task that fails this often fails its frame
-
-
-class FrameCancelled(Exception):
-    """The frame was dropped before completion (scene edit, new camera in streaming, stop)."""
-
-
-class FrameFailed(RuntimeError):
-    """A task of the frame failed on the workers repeatedly."""
-
-
-@dataclass
-class FrameResult:
-    """A completed frame: its spec and the assembled full-frame buffers (not yet filtered)."""
-
-    spec: FrameSpec
-    assembler: FrameAssembler
-    bytes: int  # wire bytes of the accepted RESULT payloads
-    tasks: int
-    started: float  # time.monotonic() at submission
-    finished: float
-
-    @property
-    def buffers(self) -> dict[str, np.ndarray]:
-        return self.assembler.buffers
-
-    def image(self) -> np.ndarray:
-        """Filtered + composed image (discontinuity buffer), computed in the caller's thread."""
-        return self.assembler.image(self.spec.params, accumulation_index(self.spec))
-
-
-@dataclass
-class Task:
-    frame: int
-    task: int
-    tile: Tile
-    set_key: tuple
-    epoch: int = 0
-    worker: bytes | None = None
-    sent: float = 0.0
-    failures: int = 0
-    avoid: frozenset = frozenset()  # workers this task failed or timed out on (issue 20)
-    trusted_only: bool = False  # lost by a worker that never delivered: to trusted workers first
-    pending: Any = None  # its scheduler.PendingTask (rebuilt when ``avoid`` changes)
-
-    def as_pending(self, key) -> scheduler.PendingTask:
-        if self.pending is None:
-            self.pending = scheduler.PendingTask(key, self.set_key, self.avoid, self.trusted_only)
-        return self.pending
-
-    def avoid_worker(self, ident: bytes) -> None:
-        self.avoid = self.avoid | {ident}
-        self.pending = None
-
-    def lost_by(self, ident: bytes, trusted: bool) -> None:
-        """The worker ``ident`` gave this task back without a result (left, timed out, failed)."""
-        self.avoid_worker(ident)
-        if not trusted:
-            self.trusted_only = True
-
-
-@dataclass
-class Frame:
-    spec: FrameSpec
-    assembler: FrameAssembler
-    future: cf.Future
-    tasks: dict  # task id -> Task (open tasks only)
-    total: int
-    started: float
-    bytes: int = 0
-    stream_gen: int | None = None  # generation of the stream view, None for one-shot frames
-
-
-def params_dict(params) -> dict:
-    """The full parameter dict of ``params``: a Params, a dict of overrides or None (defaults)."""
-    if params is None:
-        return params_to_dict(make_params())
-    if isinstance(params, dict):
-        return params_to_dict(make_params(**params))
-    if dataclasses.is_dataclass(params):
-        return params_to_dict(params)
-    raise TypeError("params must be a Params, a dict of overrides or None")
 
 
 class FrameLoop:

@@ -11,7 +11,7 @@ import socket
 import threading
 from typing import Any, Callable
 
-from .frame_loop import FrameCancelled
+from .frames import FrameCancelled
 
 
 class Mailbox:

@@ -28,7 +28,8 @@ from common.frame import FrameSpec
 from common.params import make_params, params_to_dict
 
 from .accumulation import Accumulator, accumulation_key, sequence_spec
-from .frame_loop import FrameCancelled, FrameLoop, FrameResult, params_dict
+from .frame_loop import FrameLoop
+from .frames import FrameCancelled, FrameResult, params_dict
 from .scene_state import SceneState
 
 log = logging.getLogger("igi.master")
