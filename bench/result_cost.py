@@ -2,8 +2,8 @@
 
 Drives a real :class:`master.broker.Broker` (not started: no sockets, its sends are no-ops)
 with ``workers`` registered fake workers and ``pipeline`` open 640x480 frames, and feeds it
-RESULT frames exactly as the loop would (``_on_message``: protocol decode + validation,
-bookkeeping, the tile's validate + lz4 + store, then one ``_dispatch`` round of the
+RESULT frames exactly as the loop would (``Links.on_message``: protocol decode + validation,
+bookkeeping, the tile's validate + lz4 + store, then one ``FrameLoop.dispatch`` round of the
 set-aware scheduler over the whole queue). Two cases: RESULTs that carry no set list (what a
 worker sends now, unless its list changed) and RESULTs that list 64 cached sets (what every
 RESULT carried before). ZeroMQ's own receive is not included (see scaling_model's
@@ -46,6 +46,7 @@ def measure(width: int = 640, height: int = 480, workers: int = 16, results: int
 
     from master import broker as B
     from master.frame_assembly import tile_pixel_count
+    from master.links import Worker
 
     out = {}
     for case, listed in (("no_sets", None), (f"sets_{sets}", sets)):
@@ -53,37 +54,38 @@ def measure(width: int = 640, height: int = 480, workers: int = 16, results: int
         best_dispatch = float("inf")
         for _ in range(max(1, reps)):
             br = B.Broker(_quad_scene(width, height), bind="tcp://127.0.0.1:0")
-            br._send = lambda w, frame, expire_on_fail=True: True  # no sockets
+            links, loop = br._links, br._frame_loop
+            links.send = lambda w, frame, expire_on_fail=True: True  # no sockets
             now = time.monotonic()
             ws = []
             for i in range(workers):
                 ident = f"bench{i}".encode()
-                w = B._Worker(ident=ident, name=f"bench{i}", host="h", pid=1, threads=1, credit=3,
-                              scenes=set(), last_seen=now, joined=now)
-                w.scene_state = (br._scene_hash, br.scene_version)
-                br._workers[ident] = w
+                w = Worker(ident=ident, name=f"bench{i}", host="h", pid=1, threads=1, credit=3,
+                           scenes=set(), last_seen=now, joined=now)
+                w.scene_state = (br.scene_hash, br.scene_version)
+                links.workers[ident] = w
                 ws.append(w)
                 for _ in range(20):
-                    br._faults.delivered(ident)  # full credit
+                    links.faults.delivered(ident)  # full credit
             payloads = {}
             frames_open = [0]
 
             def open_frames():
-                while len(br._frames) < br.pipeline:
+                while len(loop.frames) < br.pipeline:
                     br.submit_frame(br.frame_spec(frames_open[0], {"photons": 0}))
                     frames_open[0] += 1
             open_frames()
             set_list = [[s, k] for s in range(max(1, (listed or 0) // 9 + 1)) for k in range(9)][:listed or 0]
             handled = 0
             cpu = 0.0
-            dispatch_before = len(br._dispatch_times)
+            dispatch_before = len(loop.meters.dispatch_times)
             while handled < results:
                 progressed = False
                 for w in ws:
                     if not w.inflight:
                         continue
                     key, epoch = next(iter(w.inflight.items()))
-                    f = br._frames[key[0]]
+                    f = loop.frames[key[0]]
                     t = f.tasks[key[1]]
                     n = f.assembler.n
                     count = tile_pixel_count(t.tile, n, width, height)
@@ -98,8 +100,8 @@ def measure(width: int = 640, height: int = 480, workers: int = 16, results: int
                         body["sets"] = set_list
                     msg = P.encode(P.RESULT, body, check=False)
                     c0 = time.thread_time()
-                    br._on_message([w.ident, msg])
-                    br._dispatch()
+                    links.on_message([w.ident, msg])
+                    loop.dispatch()
                     cpu += time.thread_time() - c0
                     handled += 1
                     progressed = True
@@ -107,10 +109,10 @@ def measure(width: int = 640, height: int = 480, workers: int = 16, results: int
                     if handled >= results:
                         break
                 if not progressed:
-                    br._dispatch()
+                    loop.dispatch()
                     open_frames()
             best = min(best, cpu / handled)
-            d = list(br._dispatch_times)[dispatch_before:]
+            d = list(loop.meters.dispatch_times)[dispatch_before:]
             if d:
                 best_dispatch = min(best_dispatch, float(np.median(d)))
         out[case] = {"per_result_us": best * 1e6, "dispatch_us_median": best_dispatch * 1e6}

@@ -9,8 +9,8 @@ writing them, and appends the count to the next line of that kind written after 
 
 Every message is counted (:attr:`counts`, totals per kind, for stats and tests) whether it was
 written or not; :meth:`flush` writes the pending suppressed counts (e.g. at shutdown). Used by the
-master (``master/broker.py``) and the worker node (``worker/node.py``). Thread-safe; the clock
-is injectable for tests.
+master (``master/links.py``, ``master/frame_loop.py``) and the worker node (``worker/node.py``).
+Thread-safe; the clock is injectable for tests.
 """
 from __future__ import annotations
 
