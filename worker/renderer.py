@@ -211,7 +211,7 @@ class Renderer:
                                                clamp_d2, params.max_depth, rng)
         with self._stage("BSDF direct"):
             irr = irr + bsdf_direct(self.scene, self.geom, self.lights, end, albedo, vpls.direct_count,
-                                    params.max_depth, rng)
+                                    params.max_depth, rng, vpls.env_guide)
         with self._stage("photon set"):
             photons = self.photon_set(spec.seed, tile.k, params, index)
         if len(photons):

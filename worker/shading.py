@@ -378,9 +378,10 @@ def _bsdf_factors(end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns, ro
 
 def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints,
                 albedo: np.ndarray, direct_count: int, max_depth: int,
-                rng: np.random.Generator) -> np.ndarray:
+                rng: np.random.Generator, env_guide=None) -> np.ndarray:
     """Emission reached by one BSDF-sampled ray per end point, MIS-weighted against the
-    emitter samples (per unit albedo, so it joins the filtered irradiance)."""
+    emitter samples (per unit albedo, so it joins the filtered irradiance). ``env_guide``: the
+    set's environment-direction pdf (worker.env_guide), when its samples were guided."""
     e = len(end)
     out = np.zeros((e, 3))
     if e == 0 or not lights.has_light:
@@ -413,7 +414,8 @@ def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoin
     env = lights.environment()
     if np.any(env > 0) and (~v).any():
         le[~v] = env
-        pl[~v] = lights.environment_pdf()
+        pl[~v] = (env_guide.pmf * env_guide.pdf(d[~v]) if env_guide is not None
+                  else lights.environment_pdf())
     pl *= direct_count
     w_mis = np.where(delta, 1.0, pdf_b ** 2 / np.maximum(pdf_b ** 2 + pl ** 2, 1e-300))
     contrib = weight * le * w_mis[:, None] / np.maximum(albedo[ok], 1e-6)
@@ -465,7 +467,8 @@ def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: 
     y = EndPoints(y.pixel[keep], y.position[keep], y.ns[keep], y.ng[keep], y.wi[keep],
                   y.sp.subset(keep), y.throughput[keep], y.segments[keep], y.main[keep], y.distance[keep])
     a_y, irr_y = gather_vpls(geom, y, vpls, clamp_d2, max_depth)
-    irr_y = irr_y + bsdf_direct(scene, geom, lights, y, a_y, vpls.direct_count, max_depth, rng)
+    irr_y = irr_y + bsdf_direct(scene, geom, lights, y, a_y, vpls.direct_count, max_depth, rng,
+                                vpls.env_guide)
     l_y = a_y * irr_y  # radiance leaving y toward x
     t = hits.t[sel][keep]
     share = np.clip(1.0 - t * t / clamp_d2, 0.0, 1.0)

@@ -40,6 +40,7 @@ class VPLSet:
     diffuse_only: bool = True  # every surface VPL is Lambertian: the fast path applies
     light_pdf: np.ndarray | None = None  # (M,) emitter samples' pdf (lights.PointSamples.pdf), 0 elsewhere
     direct_count: int = 0  # emitter samples per set (the MIS sample count)
+    env_guide: object = None  # worker.env_guide.EnvGuide: the environment samples' direction pdf
 
     def __len__(self) -> int:
         return len(self.kind)
@@ -176,7 +177,7 @@ def subset_vpls(vpls: VPLSet, rows: np.ndarray, power_scale: np.ndarray | None =
     lp = vpls.light_pdf[rows] if vpls.light_pdf is not None else None
     return VPLSet(vpls.kind[rows], vpls.position[rows], vpls.normal[rows], vpls.ng[rows], power,
                   vpls.depth[rows], vpls.wi_local[rows], surface,
-                  bool(surface is None or np.all(surface.kind == 0)), lp, vpls.direct_count)
+                  bool(surface is None or np.all(surface.kind == 0)), lp, vpls.direct_count, vpls.env_guide)
 
 
 def concat_surface(sps: list) -> "bsdf.SurfacePoints":
@@ -203,4 +204,5 @@ def _concat(parts: list[VPLSet]) -> VPLSet:
         all(p.diffuse_only for p in parts),
         np.concatenate([p.light_pdf if p.light_pdf is not None else np.zeros(len(p)) for p in parts]),
         max(p.direct_count for p in parts),
+        next((p.env_guide for p in parts if p.env_guide is not None), None),
     )

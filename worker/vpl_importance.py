@@ -27,6 +27,7 @@ from common.lights import VPL_SURFACE, LightSampler
 from common.scene import Scene
 from common.sobol_stream import rng as make_rng
 
+from .env_guide import ENV_SAMPLES, build_guide, guide_environment_samples, only_environment
 from .shading import contribution_per_vpl, trace_eye
 from .vpl import VPLSet, build_vpl_set, subset_vpls
 
@@ -115,13 +116,20 @@ def build_importance_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler,
                              roulette: bool = False, camera_points: int = CAMERA_POINTS,
                              glossy_split_alpha: float = 0.0) -> tuple[VPLSet, ImportanceStats]:
     """P_k with its indirect VPLs importance-sampled for ``view`` (see the module docstring)."""
+    if direct_vpls > 0 and only_environment(scene, lights):
+        direct_vpls = max(direct_vpls, ENV_SAMPLES)
     cand = build_vpl_set(scene, geom, lights, seed, k, direct_vpls, indirect_vpls * oversample,
                          max_length, roulette=roulette)
     surf = np.nonzero(cand.kind == VPL_SURFACE)[0]
-    if len(surf) == 0:
-        return cand, ImportanceStats(0, 0, 0.0)
     end = camera_end_points(scene, geom, lights, view, seed, k, camera_points, max_depth, specular_depth,
                             glossy_split_alpha)
+    # The sky seen through openings: environment samples drawn where camera points see it.
+    guide = build_guide(scene, geom, lights, end, make_rng(seed, k, "env guide rays"))
+    if guide is not None:
+        guide_environment_samples(cand, lights, guide, direct_vpls, make_rng(seed, k, "env guide samples"))
+        cand.env_guide = guide
+    if len(surf) == 0:
+        return cand, ImportanceStats(0, 0, 0.0)
     phi = contribution_per_vpl(geom, end, subset_vpls(cand, surf), clamp_d2, max_depth)
     target = len(surf) / oversample
     p = acceptance(phi, target, MIX)
