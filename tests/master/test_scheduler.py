@@ -267,3 +267,31 @@ def test_tasks_lost_by_an_untrusted_worker_go_to_trusted_workers():
     assert not led.trusted("w")
     led.delivered("w")
     assert led.trusted("w")
+
+
+def test_a_set_held_by_an_untrusted_worker_does_not_starve():
+    """A silent peer that holds set 1 and all its credit (issue 20): a busy trusted worker takes
+    set 1's tasks instead of waiting for that holder to free a slot (which never happens)."""
+    t = PendingTask(0, (0, 0, 1))
+    held = frozenset({(0, 0, 1)})
+    rogue = WorkerView("rogue", 2, 2, held, trusted=False)
+    good = WorkerView("good", 3, 2, frozenset({(0, 0, 2)}), trusted=True)
+    assert assign([t], [rogue, good]) == [(0, "good")]
+    # a trusted holder is still waited for by a busy worker (no second copy of its set)
+    assert assign([t], [WorkerView("owner", 2, 2, held, trusted=True), good]) == []
+    # an untrusted worker keeps deferring to any holder
+    assert assign([t], [rogue, WorkerView("new", 2, 1, trusted=False), good]) == [(0, "good")]
+
+
+def test_a_worker_in_a_fault_streak_is_not_trusted():
+    led = FaultLedger()
+    led.delivered("w")
+    assert led.trusted("w")
+    led.timed_out("w")
+    assert not led.trusted("w")
+    led.answered("w")
+    assert led.trusted("w")
+    led.failed("w", "bad result")
+    assert not led.trusted("w")
+    led.delivered("w")
+    assert led.trusted("w")
