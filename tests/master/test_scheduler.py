@@ -295,3 +295,17 @@ def test_a_worker_in_a_fault_streak_is_not_trusted():
     assert not led.trusted("w")
     led.delivered("w")
     assert led.trusted("w")
+
+
+def test_a_given_back_task_goes_before_own_and_fresh_sets():
+    """The stall issue 20's serve-rogue case found: a task a silent rogue gave back (timed out)
+    holds up its frame; a busy good worker that holds sets of newer frames, with fresh unheld
+    sets queued too, must take the given-back task first or no frame is ever published."""
+    rogue_set, own, fresh = (0, 13, 5), (0, 25, 3), (0, 26, 0)
+    lost = PendingTask("13/5", rogue_set, avoid=frozenset({"rogue"}), trusted_only=True)
+    queue = [lost, PendingTask("25/3", own), PendingTask("26/0", fresh)]
+    rogue = WorkerView("rogue", 2, 2, frozenset({rogue_set}), trusted=False)
+    good = WorkerView("good", 3, 2, frozenset({own}), trusted=True)
+    assert assign(queue, [rogue, good], limit=1) == [("13/5", "good")]
+    # with no given-back task the good worker keeps to its own set first (set affinity)
+    assert assign(queue[1:], [rogue, good], limit=1) == [("25/3", "good")]
