@@ -26,12 +26,21 @@ Two parts, both also run (smaller) by the tests:
   raw ZMTP frame header announcing 1 TiB) to each. Counts: messages tried, dropped (and their
   log lines), refused, whether each side still renders afterwards (crashes = 0).
 
+- **Hostile cases** (issue 20, ``bench/stress_hostile.py``): rogue workers (silent with huge
+  credit, wrong-sized results) against a render and against ``igi serve``'s stream, 5,000 moves
+  then a late worker, absurd sizes and cameras through the viewer, a DNS-rebinding-shaped Host,
+  scene files reaching outside ``--scene-root``. Each case: pass/fail and a figure.
+
     igi bench stress [--mutations 2000] [--wire-messages 1000] [--seed 0] [--timeout 20]
-                     [--skip-stress] [--skip-fuzz] [-o PREFIX]
+                     [--skip-stress] [--skip-fuzz] [--cases NAMES] [-o PREFIX]
+
+``--cases`` picks parts by name (``stress``, ``fuzz``, ``wire``, ``hostile`` or single hostile
+cases such as ``scene-root,host-rebinding``); without it everything runs.
 
 Writes ``PREFIX.json`` (default ``artifacts/bench-stress.json``) with counts: cases, finite,
 files tried, outcomes, errors by type, crashes, hangs, max load time, max child RSS, messages
-tried, dropped, refused.
+tried, dropped, refused; ``hostile``: {cases: [{name, passed, figure, unit, seconds, detail}],
+passed, failed}.
 """
 from __future__ import annotations
 
@@ -1224,6 +1233,34 @@ def run_wire_fuzz(messages: int = 1000, seed: int = 0) -> dict:
 
 # -------------------------------------------------------------------------------------- CLI
 
+HOSTILE_CASES = ("rogue-silent", "rogue-wrong", "serve-rogue", "moves-5000", "viewer-validation",
+                 "host-rebinding", "scene-root")  # bench/stress_hostile.py
+
+
+def select_cases(spec: str | None) -> tuple[set[str], list[str]]:
+    """``--cases`` -> (parts to run among stress/fuzz/wire, hostile case names in order); None =
+    everything. UsageError for an unknown name."""
+    from master.errors import UsageError
+
+    if spec is None:
+        return {"stress", "fuzz", "wire"}, list(HOSTILE_CASES)
+    parts, hostile = set(), []
+    for name in (n.strip() for n in spec.split(",") if n.strip()):
+        if name in ("stress", "fuzz", "wire"):
+            parts.add(name)
+        elif name == "hostile":
+            hostile += [c for c in HOSTILE_CASES if c not in hostile]
+        elif name in HOSTILE_CASES:
+            if name not in hostile:
+                hostile.append(name)
+        else:
+            raise UsageError(f"--cases: unknown case '{name}' (known: stress, fuzz, wire, hostile, "
+                             + ", ".join(HOSTILE_CASES) + ")")
+    if not parts and not hostile:
+        raise UsageError("--cases: name at least one case")
+    return parts, hostile
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mutations", type=int, default=2000, help="mutated scene files to load (default 2000)")
     p.add_argument("--seed", type=int, default=0, help="seed of the mutation sequence (default 0)")
@@ -1236,6 +1273,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--wire-messages", type=int, default=1000,
                    help="mutated messages to the master and to a worker (x20 to the bare decoder; 0: none)")
     p.add_argument("--keep-failures", default=None, help="directory to write every failing mutant into")
+    p.add_argument("--cases", default=None, metavar="NAMES",
+                   help="run only these comma-separated cases (no stress scenes, fuzzing or wire fuzzing "
+                        "unless named: stress, fuzz, wire); issue 20's hostile cases: "
+                        "hostile (all of them), " + ", ".join(HOSTILE_CASES))
     p.add_argument("-o", "--out", default=DEFAULT_OUT, help=f"output prefix: writes PREFIX.json (default {DEFAULT_OUT})")
 
 
@@ -1250,13 +1291,15 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--size is WxH") from None
     if args.mutations < 0 or width < 1 or height < 1 or args.timeout <= 0:
         raise UsageError("--mutations >= 0, --size >= 1x1 and --timeout > 0 are required")
-    if not SHARED_SCENES.exists():
+    parts, hostile = select_cases(getattr(args, "cases", None))
+    if (parts & {"stress", "fuzz"}) and not SHARED_SCENES.exists():
         raise UsageError(f"the shared scenes are needed: {SHARED_SCENES} not found")
     t0 = time.perf_counter()
     result = {"benchmark": "stress", "machine": machine_info(),
               "settings": {"mutations": args.mutations, "seed": args.seed, "timeout_s": args.timeout,
-                           "render_every": args.render_every, "size": f"{width}x{height}"}}
-    if not args.skip_stress:
+                           "render_every": args.render_every, "size": f"{width}x{height}",
+                           "cases": sorted(parts) + hostile}}
+    if not args.skip_stress and "stress" in parts:
         def show(rec):
             extra = f", relMSE {rec['relmse']:.2e} (bound {rec['bound']:g})" if "relmse" in rec else ""
             print(f"  {rec['name']}: {'finite' if rec.get('finite') else 'NOT FINITE'}{extra}"
@@ -1264,7 +1307,7 @@ def run(args: argparse.Namespace) -> int:
 
         print("igi bench stress: stress scenes …", file=sys.stderr, flush=True)
         result["stress"] = run_stress(width, height, progress=show)
-    if not args.skip_fuzz:
+    if not args.skip_fuzz and "fuzz" in parts:
         print(f"igi bench stress: fuzzing {args.mutations} scene files …", file=sys.stderr, flush=True)
         step = max(1, args.mutations // 20)
 
@@ -1275,7 +1318,7 @@ def run(args: argparse.Namespace) -> int:
         result["fuzz"] = run_fuzz(args.mutations, args.seed, args.timeout, args.render_every,
                                   keep_failures=Path(args.keep_failures) if args.keep_failures else None,
                                   progress=tick)
-    if args.wire_messages > 0:
+    if args.wire_messages > 0 and "wire" in parts:
         import logging
 
         print(f"igi bench stress: wire fuzzing, {args.wire_messages} messages per side …", file=sys.stderr, flush=True)
@@ -1293,20 +1336,36 @@ def run(args: argparse.Namespace) -> int:
         wire["crashes"] = sum(int(wire[k].get("crashes", 0)) for k in ("decode", "master", "worker"))
         wire["messages_tried"] = sum(int(wire[k]["messages_tried"]) for k in ("decode", "master", "worker"))
         result["wire"] = wire
+    if hostile:
+        from .stress_hostile import run_hostile
+
+        def shown(rec):
+            print(f"  {rec['name']}: {'pass' if rec['passed'] else 'FAIL'}, {rec['unit']} {rec['figure']} "
+                  f"({rec['seconds']:.1f} s){' ' + rec['detail']['error'] if 'error' in rec['detail'] else ''}",
+                  file=sys.stderr, flush=True)
+
+        print(f"igi bench stress: hostile cases (issue 20): {', '.join(hostile)} …", file=sys.stderr, flush=True)
+        result["hostile"] = run_hostile(hostile, progress=shown)
     result["seconds"] = time.perf_counter() - t0
     out = Path(args.out if args.out.endswith(".json") else args.out + ".json")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=2, default=float))
     f = result.get("fuzz", {})
     s = result.get("stress", {})
-    print(f"igi bench stress: stress {s.get('finite', '-')}/{s.get('cases', '-')} finite, "
-          f"{s.get('within_bound', '-')}/{s.get('compared', '-')} within bound; fuzz {f.get('files_tried', '-')} files, "
-          f"crashes {f.get('crashes', '-')}, hangs {f.get('hangs', '-')}, accepted with problems "
-          f"{f.get('accepted_with_problems', '-')}, "
-          f"max load {f.get('max_load_seconds', 0):.2f} s -> {out}", file=sys.stderr)
+    if s or f:
+        print(f"igi bench stress: stress {s.get('finite', '-')}/{s.get('cases', '-')} finite, "
+              f"{s.get('within_bound', '-')}/{s.get('compared', '-')} within bound; fuzz {f.get('files_tried', '-')} files, "
+              f"crashes {f.get('crashes', '-')}, hangs {f.get('hangs', '-')}, accepted with problems "
+              f"{f.get('accepted_with_problems', '-')}, "
+              f"max load {f.get('max_load_seconds', 0):.2f} s -> {out}", file=sys.stderr)
     wr = result.get("wire", {})
     if wr:
         print(f"igi bench stress: wire {wr['messages_tried']} messages, crashes {wr['crashes']}", file=sys.stderr)
-    failed = bool(s.get("failed")) or bool(wr.get("crashes")) or any(
+    hs = result.get("hostile", {})
+    if hs:
+        print(f"igi bench stress: hostile {hs['passed']}/{len(hs['cases'])} passed"
+              + (f" (failed: {', '.join(c['name'] for c in hs['cases'] if not c['passed'])})" if hs["failed"] else ""),
+              file=sys.stderr)
+    failed = bool(s.get("failed")) or bool(wr.get("crashes")) or bool(hs.get("failed")) or any(
         f.get(k) for k in ("crashes", "hangs", "nonfinite_images", "unclear_messages"))
     return 1 if failed else 0

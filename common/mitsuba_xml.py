@@ -29,7 +29,8 @@ computes are computed after ``to_world`` (in world space), as Mitsuba does. ``fl
 reverses the winding and negates the shading normals.
 
 Errors are :class:`~common.scene.SceneError` with ``file:line: problem``; the XML parser is
-``defusedxml`` (entity declarations and external references are refused).
+``defusedxml`` (entity declarations and external references are refused). Every file the scene
+names must lie inside the scene root (default: the scene file's folder; :mod:`common.scene_root`).
 """
 from __future__ import annotations
 
@@ -47,6 +48,7 @@ from .obj_mtl import drop_nonfinite, load_obj_mesh, recompute_vertex_normals, re
 from .scene import (AREA, CONDUCTOR, CONSTANT, DIELECTRIC, DIFFUSE, DIRECTIONAL, NULL, PLASTIC, POINT,
                     ROUGHCONDUCTOR, ROUGHPLASTIC, SPOT, THINDIELECTRIC, Camera, Emitter, Material, Mesh, Scene,
                     SceneError, Texture)
+from .scene_root import SceneRoot, SceneRootError
 
 log = logging.getLogger("igi.scene")
 
@@ -357,10 +359,11 @@ def _camel_to_snake(s: str) -> str:
 
 
 class _Loader:
-    def __init__(self, path: Path, defaults: dict[str, str] | None):
+    def __init__(self, path: Path, defaults: dict[str, str] | None, root: SceneRoot):
         self.path = path
         self.display = str(path)
         self.base = path.parent
+        self.root = root
         self.user_defaults = {k: str(v) for k, v in (defaults or {}).items()}
         self.params: dict[str, str] = {}
         self.ids: dict[str, Node] = {}
@@ -482,15 +485,19 @@ class _Loader:
         return target
 
     def resolve(self, filename: str, node: Node) -> Path:
+        """The file ``filename`` (absolute, or relative to a search folder: the scene's, then each
+        ``<path>``), resolved; :class:`SceneRootError` when it leads outside the scene root, which
+        is checked before whether it exists (a refused path tells nothing about the file)."""
         p = Path(filename.replace("\\", "/"))
-        if p.is_absolute():
-            if p.is_file():
-                return p
-        else:
-            for d in self.search:
-                q = d / p
-                if q.is_file():
-                    return q
+        outside = None
+        for q in ([p] if p.is_absolute() else [d / p for d in self.search]):
+            if not self.root.contains(q):
+                outside = outside or q
+                continue
+            if q.is_file():
+                return self.root.check(q, node.where, filename)
+        if outside is not None:
+            raise self.root.error(outside, node.where, filename)
         raise SceneError(f"{filename}: file not found (referenced at {node.where})")
 
     # -- values --------------------------------------------------------------------------------
@@ -878,6 +885,8 @@ class _Loader:
                     h = img.shape[0]
                     w = np.sin((np.arange(h) + 0.5) / h * np.pi)  # lat-long solid-angle weights
                     rad = (img.mean(axis=1) * w[:, None]).sum(axis=0) / w.sum()
+                except SceneRootError:
+                    raise
                 except SceneError as err:
                     self.warn(node, f"envmap file unusable ({err})", "using radiance 1")
             rad = rad * scale
@@ -1014,13 +1023,18 @@ def _fmt(v) -> str:
     return "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
 
 
-def load_mitsuba(path: str | Path, defaults: dict[str, str] | None = None) -> Scene:
-    """Load a Mitsuba 3 scene XML file (see the module docstring for the supported subset)."""
+def load_mitsuba(path: str | Path, defaults: dict[str, str] | None = None,
+                 root: str | Path | None = None) -> Scene:
+    """Load a Mitsuba 3 scene XML file (see the module docstring for the supported subset).
+
+    Every file the scene names (``<include>``, meshes, bitmaps, envmaps) must lie inside ``root``
+    (default: the scene file's folder) after symlinks and ``..``; :class:`SceneRootError` names
+    the one that does not (:mod:`common.scene_root`)."""
     path = Path(path)
     if not path.is_file():
         raise SceneError(f"{path}: file not found")
     try:
-        return _Loader(path, defaults).run()
+        return _Loader(path, defaults, SceneRoot.for_scene(path, root)).run()
     except SceneError:
         raise
     except RecursionError:

@@ -39,6 +39,7 @@ import numpy as np
 
 from .scene import (AREA, CONDUCTOR, DIELECTRIC, DIFFUSE, ROUGHPLASTIC, Camera, Emitter, Material, Mesh,
                     Scene, SceneError, Texture)
+from .scene_root import SceneRoot
 
 log = logging.getLogger("igi.scene")
 
@@ -139,6 +140,7 @@ class ObjData:
     face_group: np.ndarray | None = None  # (nf,) index into groups (usemtl names), slow path only
     groups: list[str] = field(default_factory=list)
     mtllibs: list[str] = field(default_factory=list)
+    mtllib_lines: list[int] = field(default_factory=list)  # the line of each mtllib (slow parser)
     short_faces: int = 0  # faces with fewer than 3 corners (no triangle)
 
 
@@ -275,6 +277,7 @@ def _parse_slow(text: str, display: str) -> ObjData:
     group_index: dict[str, int] = {}
     current = -1
     mtllibs: list[str] = []
+    mtllib_lines: list[int] = []
     short = 0
 
     def num(tok: str, lineno: int, what: str) -> float:
@@ -348,6 +351,7 @@ def _parse_slow(text: str, display: str) -> ObjData:
             rest = ln[len(kw):].strip()
             if rest:
                 mtllibs.append(rest)
+                mtllib_lines.append(lineno)
         # o, g, s, l, p, cstype, ... are ignored, as Mitsuba's obj shape does.
     return ObjData(
         positions=np.array(P, dtype=np.float64).reshape(-1, 3),
@@ -358,6 +362,7 @@ def _parse_slow(text: str, display: str) -> ObjData:
         face_group=np.array(fgroup, dtype=np.int64),
         groups=groups,
         mtllibs=mtllibs,
+        mtllib_lines=mtllib_lines,
         short_faces=short,
     )
 
@@ -472,6 +477,7 @@ class MtlMaterial:
     values: dict[str, list[float]] = field(default_factory=dict)
     illum: int | None = None
     map_kd: str | None = None
+    map_kd_line: int = 0
     map_kd_scale: tuple[float, float] = (1.0, 1.0)
     map_kd_offset: tuple[float, float] = (0.0, 0.0)
 
@@ -537,6 +543,7 @@ def parse_mtl(path, display: str | None = None, warnings: list[str] | None = Non
             if i >= len(args):
                 raise SceneError(f"{display}:{lineno}: map_Kd needs a file name")
             cur.map_kd = " ".join(args[i:])
+            cur.map_kd_line = lineno
             cur.map_kd_scale = (scale_uv[0], scale_uv[1])
             cur.map_kd_offset = (offset_uv[0], offset_uv[1])
         # other statements (map_Ks, bump, ...) are ignored
@@ -565,7 +572,8 @@ MCGUIRE_LIGHT_RADIANCE = (17.0, 12.0, 4.0)
 
 
 def mtl_to_material(m: MtlMaterial, base_dir: Path, display: str, warnings: list[str] | None,
-                    texture_cache: dict | None = None) -> tuple[Material, np.ndarray | None]:
+                    texture_cache: dict | None = None,
+                    root: SceneRoot | None = None) -> tuple[Material, np.ndarray | None]:
     """Map one MTL material to a :class:`Material` and an emitted radiance (or None).
 
     Mapping (as the shared scenes' README "Conversion notes"):
@@ -580,6 +588,9 @@ def mtl_to_material(m: MtlMaterial, base_dir: Path, display: str, warnings: list
     - ``Ke > 0`` -> area emitter with radiance ``Ke``; an MTL that gives ``Pe`` (a non-standard
       light power) uses McGuire's standard ``17 12 4`` instead, with a warning.
     ``Tf`` (transmission filter) is otherwise ignored.
+
+    A ``map_Kd`` outside ``root`` (when given) raises :class:`SceneRootError`; one that cannot be
+    read is a warning (the material keeps ``Kd``).
     """
     vals = m.values
     kd = _rgb(vals.get("Kd"), 0.5)
@@ -604,6 +615,8 @@ def mtl_to_material(m: MtlMaterial, base_dir: Path, display: str, warnings: list
         from .image_io import read_image
 
         tex_path = (base_dir / m.map_kd.replace("\\", "/"))
+        if root is not None:
+            tex_path = root.check(tex_path, f"{display}:{m.map_kd_line or m.line}", m.map_kd, "map_Kd texture")
         key = str(tex_path.resolve())
         if texture_cache is not None and key in texture_cache:
             img = texture_cache[key]
@@ -648,22 +661,25 @@ def default_obj_camera(lo: np.ndarray, hi: np.ndarray) -> Camera:
                   near_clip=max(dist * 1e-3, 1e-4))
 
 
-def load_obj_scene(path) -> Scene:
+def load_obj_scene(path, root: str | Path | None = None) -> Scene:
     """Load an OBJ (+ its MTL libraries) as a whole scene; see :func:`mtl_to_material` for the
-    material mapping and :func:`default_obj_camera` for the camera. One mesh per ``usemtl`` name."""
+    material mapping and :func:`default_obj_camera` for the camera. One mesh per ``usemtl`` name.
+
+    The MTL libraries and their textures must lie inside ``root`` (default: the OBJ's folder)
+    after symlinks and ``..``: :class:`SceneRootError` names the line that leads outside."""
     path = Path(path)
     display = str(path)
     if not path.is_file():
         raise SceneError(f"{display}: file not found")
     try:
-        return _load_obj_scene(path, display)
+        return _load_obj_scene(path, display, SceneRoot.for_scene(path, root))
     except SceneError:
         raise
     except (ValueError, IndexError, KeyError, TypeError, OverflowError) as e:
         raise SceneError(f"{display}: cannot load scene ({type(e).__name__}: {e})") from e
 
 
-def _load_obj_scene(path: Path, display: str) -> Scene:
+def _load_obj_scene(path: Path, display: str, root: SceneRoot) -> Scene:
     warnings: list[str] = []
     data = parse_obj(path, display, need_groups=True)
     if data.short_faces:
@@ -671,8 +687,8 @@ def _load_obj_scene(path: Path, display: str) -> Scene:
     base = path.parent
     mtl: dict[str, MtlMaterial] = {}
     mtl_display: dict[str, str] = {}
-    for lib in data.mtllibs:
-        lib_path = base / lib.replace("\\", "/")
+    for lib, line in zip(data.mtllibs, data.mtllib_lines):
+        lib_path = root.check(base / lib.replace("\\", "/"), f"{display}:{line}", lib, "material library")
         if not lib_path.is_file():
             _warn(warnings, f"{display}: material library '{lib}' not found; using diffuse 0.5")
             continue
@@ -703,7 +719,7 @@ def _load_obj_scene(path: Path, display: str) -> Scene:
             continue
         if gname not in mat_index:
             if gname in mtl:
-                mat, radiance = mtl_to_material(mtl[gname], base, mtl_display[gname], warnings, cache)
+                mat, radiance = mtl_to_material(mtl[gname], base, mtl_display[gname], warnings, cache, root)
             else:
                 if gname:
                     _warn(warnings, f"{display}: material '{gname}' not found in the MTL library; using diffuse 0.5")

@@ -21,6 +21,9 @@ Viewer hook: ``igi serve`` (and ``igi master`` with a scene) calls
 ``master.viewer.start(broker, host, port, args)`` when that module exists; it returns an object
 with ``stop()``. Without it the master streams frames and logs stats only.
 
+``--scene-root DIR`` (render, serve, master; default: the scene file's folder) confines every
+file a scene names to DIR (common/scene_root.py): a path that leads outside is refused.
+
 Bad input (missing scene file, a scene that does not load, a bad parameter, an address that
 cannot be bound) gives one line ``igi: error: ...`` on stderr and exit status 2.
 """
@@ -46,8 +49,10 @@ log = logging.getLogger("igi")
 
 # ---------------------------------------------------------------------------- helpers
 
-def load_scene_file(path: str | None):
-    """Load a scene file, or a bundled scene by name (``igi scenes``); an existing path wins."""
+def load_scene_file(path: str | None, root: str | None = None):
+    """Load a scene file, or a bundled scene by name (``igi scenes``); an existing path wins.
+    ``root`` (``--scene-root``; None = the scene file's folder) confines the files the scene may
+    name (:mod:`common.scene_root`)."""
     from common import bundled
     from common.scene import SceneError
 
@@ -63,7 +68,7 @@ def load_scene_file(path: str | None):
     from common.loader import load_scene
 
     try:
-        return load_scene(p)
+        return load_scene(p, root=root)
     except SceneError as e:
         raise UsageError(f"cannot load scene {path}: {e}") from None
     except OSError as e:
@@ -182,7 +187,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         raise UsageError("--threads must be >= 1")
     params = params_from(args)
     check_sizes(args.width, args.height, args.frames)  # before loading: fail fast
-    scene = load_scene_file(args.scene)
+    scene = load_scene_file(args.scene, args.scene_root)
     check_sizes(args.width, args.height, args.frames, scene, params)
     if args.plan:
         from common.camera import resolve_camera
@@ -386,7 +391,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     if args.workers < 0:
         raise UsageError("--workers must be >= 0")
     check_sizes(args.width, args.height)
-    scene = load_scene_file(args.scene)
+    scene = load_scene_file(args.scene, args.scene_root)
     check_sizes(args.width, args.height, None, scene, params_from(args))
     from common.bundled import resolve
 
@@ -405,7 +410,7 @@ def cmd_scenes(args: argparse.Namespace) -> int:
 
 
 def cmd_master(args: argparse.Namespace) -> int:
-    scene = load_scene_file(args.scene) if args.scene else None
+    scene = load_scene_file(args.scene, args.scene_root) if args.scene else None
     if args.scene:
         from common.bundled import resolve
 
@@ -456,6 +461,10 @@ def _add_render_params(p: argparse.ArgumentParser) -> None:
     p.add_argument("--memory-budget", default=None, metavar="SIZE",
                    help="memory the render may plan for (e.g. 4G; default $IGI_MEMORY_BUDGET or 8G): "
                         "bounds resolution, VPL and photon counts")
+    p.add_argument("--scene-root", default=None, metavar="DIR",
+                   help="the folder the scene may read from (default: the scene file's folder): every "
+                        "mesh, texture, include and MTL library it names must resolve, after symlinks "
+                        "and '..', inside DIR")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -12,8 +12,10 @@ Policy (docs/architecture.md, docs/scaling.md; set-aware since issue 19):
    :data:`common.protocol.CREDIT_PER_THREAD` per render thread, bounded by what it delivers:
    :meth:`FaultLedger.credit`) never gets more than ``credit`` tasks in flight.
 2. Set-aware: a free worker takes the first queued task of a VPL/photon set it *holds* (key
-   ``(scene_version, seed, k)``: cached, or being built for a task in flight), else the first
-   queued task of the set the *fewest* workers hold (ties: the set queued first). So the sets
+   ``(scene_version, seed, k)``: cached, or being built for a task in flight) or that another
+   worker gave back (failed, timed out, left: it holds up a frame, so it counts as held by
+   everyone), else the first queued task of the set the *fewest* workers able to take it hold
+   (ties: the set queued first). So the sets
    of a new frame are spread over the workers once — one owner per k, the owner then gets the
    set's tasks — and a set is built a second time only when no unheld set waits (its owner is
    slow, busy or gone: the least-loaded free worker helps). A worker given a set within one
@@ -29,7 +31,10 @@ Policy (docs/architecture.md, docs/scaling.md; set-aware since issue 19):
    never delivered a result (``PendingTask.trusted_only``: a peer cycling through identities
    cannot keep the front of the queue) goes only to workers that have delivered
    (``WorkerView.trusted``) while any is there; quarantined workers are simply not passed in
-   (the broker leaves them out: see :class:`FaultLedger`).
+   (the broker leaves them out: see :class:`FaultLedger`). A trusted worker does not wait for
+   an untrusted holder of a set (rule 3's "another worker holds it" counts trusted holders
+   only): otherwise a silent peer that holds a set and all its credit starves that set's
+   tasks in every later frame while the trusted workers stay busy, and the stream stops.
 5. Re-queued tasks (of an expired, disconnected or departing worker) are put at the FRONT of
    the queue in their original order (:func:`requeue_front`); among tasks of one set the
    queue order is kept.
@@ -86,6 +91,7 @@ def assign(pending: Sequence[PendingTask], workers: Iterable[WorkerView],
     for pos, t in enumerate(pending):
         by_set.setdefault(t.set_key, []).append(pos)
     holders: dict = {}  # set key -> workers holding it (computed when first needed)
+    lost_sets = {t.set_key for t in pending if t.avoid}  # sets of tasks another worker gave back
 
     def holders_of(key) -> set:
         h = holders.get(key)
@@ -117,9 +123,9 @@ def assign(pending: Sequence[PendingTask], workers: Iterable[WorkerView],
         held = state[wid][2]
         best = None
         for key in by_set:
-            if key in held:
+            if key in held or key in lost_sets:
                 pos = first_for(key, wid)
-                if pos is not None and (best is None or pos < best):
+                if pos is not None and (key in held or pending[pos].avoid) and (best is None or pos < best):
                     best = pos
         if best is not None:
             return (0, 0, best)
@@ -130,9 +136,13 @@ def assign(pending: Sequence[PendingTask], workers: Iterable[WorkerView],
                 continue
             h = holders_of(key)
             able = h - pending[pos].avoid  # holders that may take this task
+            if wid not in untrusted:
+                # a set held only by workers that never delivered (or are in a fault streak) is
+                # not waited for: a silent peer holding credit must not starve its sets
+                able -= untrusted
             if able and state[wid][1] >= share_below:
                 continue  # another worker builds/holds it; help only when (nearly) idle
-            cands.append((2 if able else 1, len(h), pos))
+            cands.append((2 if able else 1, len(able), pos))
         return min(cands) if cands else None
 
     while len(out) < cap:
@@ -245,9 +255,9 @@ class FaultLedger:
         return max(0, min(int(advertised), self.initial_credit + window))
 
     def trusted(self, wid) -> bool:
-        """Has ``wid`` delivered a result?"""
+        """Has ``wid`` delivered a result, with no failure or timeout since its last one?"""
         r = self.records.get(wid)
-        return r is not None and r.delivered > 0
+        return r is not None and r.delivered > 0 and r.consecutive == 0
 
     def quarantined(self, wid) -> str | None:
         r = self.records.get(wid)

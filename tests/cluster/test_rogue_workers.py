@@ -2,14 +2,12 @@
 worker that advertises credit 4,096, heartbeats and never answers, or one that answers every task
 with a wrong-sized RESULT, cannot stop a render from finishing with the image a render without
 it gives (bit-identical: see test_cluster.py). The rogue is a separate process
-(tests/support/rogue_peer.py); it registers before the good worker so it is offered work first. No
+(bench/rogue_peer.py); it registers before the good worker so it is offered work first. No
 wall-clock thresholds in the asserts: only generous timeouts against hangs.
 """
 from __future__ import annotations
 
-import json
 import logging
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -17,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.rogue_peer import rogue_report, start_rogue
 from bench.stress_scenes import mini_cornell
 from tests.support.cluster_helpers import env, start_worker, stop_procs, wait_until
 from tests.support.paths import ROOT, SHARED
@@ -26,18 +25,6 @@ from master.inprocess import render_local
 W, H = 64, 48
 PARAMS = {"photons": 0}
 CORNELL = SHARED / "scenes" / "cornell-box" / "scene.xml"
-
-
-def start_rogue(endpoint: str, mode: str, report: Path) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, str(ROOT / "tests" / "support" / "rogue_peer.py"), endpoint, mode, str(report)],
-                            env=env(), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-
-
-def rogue_report(path: Path) -> dict:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return {}
 
 
 @pytest.fixture

@@ -267,3 +267,45 @@ def test_tasks_lost_by_an_untrusted_worker_go_to_trusted_workers():
     assert not led.trusted("w")
     led.delivered("w")
     assert led.trusted("w")
+
+
+def test_a_set_held_by_an_untrusted_worker_does_not_starve():
+    """A silent peer that holds set 1 and all its credit (issue 20): a busy trusted worker takes
+    set 1's tasks instead of waiting for that holder to free a slot (which never happens)."""
+    t = PendingTask(0, (0, 0, 1))
+    held = frozenset({(0, 0, 1)})
+    rogue = WorkerView("rogue", 2, 2, held, trusted=False)
+    good = WorkerView("good", 3, 2, frozenset({(0, 0, 2)}), trusted=True)
+    assert assign([t], [rogue, good]) == [(0, "good")]
+    # a trusted holder is still waited for by a busy worker (no second copy of its set)
+    assert assign([t], [WorkerView("owner", 2, 2, held, trusted=True), good]) == []
+    # an untrusted worker keeps deferring to any holder
+    assert assign([t], [rogue, WorkerView("new", 2, 1, trusted=False), good]) == [(0, "good")]
+
+
+def test_a_worker_in_a_fault_streak_is_not_trusted():
+    led = FaultLedger()
+    led.delivered("w")
+    assert led.trusted("w")
+    led.timed_out("w")
+    assert not led.trusted("w")
+    led.answered("w")
+    assert led.trusted("w")
+    led.failed("w", "bad result")
+    assert not led.trusted("w")
+    led.delivered("w")
+    assert led.trusted("w")
+
+
+def test_a_given_back_task_goes_before_own_and_fresh_sets():
+    """The stall issue 20's serve-rogue case found: a task a silent rogue gave back (timed out)
+    holds up its frame; a busy good worker that holds sets of newer frames, with fresh unheld
+    sets queued too, must take the given-back task first or no frame is ever published."""
+    rogue_set, own, fresh = (0, 13, 5), (0, 25, 3), (0, 26, 0)
+    lost = PendingTask("13/5", rogue_set, avoid=frozenset({"rogue"}), trusted_only=True)
+    queue = [lost, PendingTask("25/3", own), PendingTask("26/0", fresh)]
+    rogue = WorkerView("rogue", 2, 2, frozenset({rogue_set}), trusted=False)
+    good = WorkerView("good", 3, 2, frozenset({own}), trusted=True)
+    assert assign(queue, [rogue, good], limit=1) == [("13/5", "good")]
+    # with no given-back task the good worker keeps to its own set first (set affinity)
+    assert assign(queue[1:], [rogue, good], limit=1) == [("25/3", "good")]

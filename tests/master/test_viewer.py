@@ -256,18 +256,9 @@ async def _hostile_session(url: str):
             init = await next_text("init")
             h = await frame_after(0)
             cam = init["view"]["camera"]
-            bad = [
-                ("{not json", "not valid JSON"),
-                ("[" * 100_000, "nested deeper"),
-                ('"just a string"', "JSON object"),
-                (json.dumps({"type": "resolution", "width": 100_000, "height": 100_000}), "16384"),
-                (json.dumps({"type": "resolution", "width": 8192, "height": 8192}), "memory budget"),
-                (json.dumps({"type": "resolution", "width": "x", "height": 5}), "integer"),
-                (json.dumps({"type": "camera", "to_world": [1e308] * 16}), "beyond the limit"),
-                (json.dumps({"type": "camera", "to_world": [0.0] * 15 + [1.0]}), "forward direction is zero"),
-                (json.dumps({"type": "camera", "to_world": cam, "fov_x": 180}), "fov"),
-                (json.dumps({"type": "params", "values": {"photons": 1e12}}), "photons"),
-            ]
+            from bench.stress_hostile import HOSTILE_MESSAGES  # the same list igi bench stress sends
+
+            bad = list(HOSTILE_MESSAGES) + [(json.dumps({"type": "camera", "to_world": cam, "fov_x": 180}), "fov")]
             for text, needle in bad:
                 await ws.send_str(text)
                 reply = await next_text()

@@ -1,7 +1,10 @@
-"""A misbehaving registered worker, as a process (issue 20 tests): raw ZeroMQ DEALER that
-speaks just enough protocol to register.
+"""A misbehaving registered worker, as a process (issue 20: ``igi bench stress`` and the tests):
+raw ZeroMQ DEALER that speaks just enough protocol to register.
 
-    python tests/support/rogue_peer.py ENDPOINT MODE REPORT [PID_TO_FIND]
+    python -m bench.rogue_peer ENDPOINT MODE REPORT
+
+:func:`start_rogue` starts one (the checkout on PYTHONPATH) and :func:`rogue_report` reads its
+report.
 
 MODE ``silent``: HELLO with credit 4,096, heartbeats, never answers a task. MODE ``wrong``:
 answers every TASK at once with a RESULT of the wrong size (one pixel too many, junk data).
@@ -17,11 +20,30 @@ import sys
 import time
 from pathlib import Path
 
+import subprocess
+
 import zmq
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+from common import protocol as P
 
-from common import protocol as P  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
+
+
+def start_rogue(endpoint: str, mode: str, report: str | Path) -> subprocess.Popen:
+    """A rogue worker process (``mode`` ``silent`` or ``wrong``) against ``endpoint`` (or
+    ``find:PID``), writing what it got to ``report``."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO), env.get("PYTHONPATH", "")) if p)
+    return subprocess.Popen([sys.executable, "-m", "bench.rogue_peer", endpoint, mode, str(report)], cwd=REPO,
+                            env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+
+
+def rogue_report(path: str | Path) -> dict:
+    """The rogue's report so far (``{}`` before it wrote one)."""
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return {}
 
 
 def listening_ports(pid: int) -> list[int]:
