@@ -68,6 +68,7 @@ __all__ = ["Broker", "DEFAULT_BIND", "FOLD_EDITS", "LATENCY_WINDOW", "MAX_TASK_F
            "FrameFailed", "FrameResult", "StreamFrame"]
 
 log = logging.getLogger("igi.master")
+EXPIRY_CHECK = 0.1  # seconds between checks for tasks past their timeout
 
 DEFAULT_BIND = "tcp://127.0.0.1:5555"
 # the order of the figures of Broker.stats()
@@ -170,8 +171,10 @@ class Broker:
         self._links.register(poller)
         poller.register(self._mailbox.fileno(), zmq.POLLIN)
         self._next_tick = time.monotonic() + self.heartbeat
+        self._next_expiry = time.monotonic() + EXPIRY_CHECK
         while self._running:
-            timeout_ms = max(0, int((self._next_tick - time.monotonic()) * 1000))
+            wake = min(self._next_tick, self._next_expiry)
+            timeout_ms = max(0, int((wake - time.monotonic()) * 1000))
             try:
                 events = dict(poller.poll(timeout_ms))
             except zmq.ZMQError as e:  # pragma: no cover - interrupted
@@ -191,6 +194,12 @@ class Broker:
         if self._links.receive(events):
             self._frame_loop.dispatch()
         now = time.monotonic()
+        if now >= self._next_expiry:
+            # Lost tasks are found within EXPIRY_CHECK of their deadline, not at the next
+            # heartbeat tick: a silent worker stalls a stream for ~ the task timeout only.
+            self._next_expiry = now + EXPIRY_CHECK
+            if self._frame_loop.expire_tasks(now):
+                self._frame_loop.dispatch()
         if now >= self._next_tick:
             self._next_tick = now + self.heartbeat
             self._tick(now)

@@ -336,10 +336,11 @@ class FrameLoop:
         self.counters["tasks_requeued"] += 1
 
     # ------------------------------------------------------------------ lost tasks
-    def expire_tasks(self, now: float) -> None:
+    def expire_tasks(self, now: float) -> bool:
         """A task unanswered for the task timeout (a wedged worker, results it cannot get
         through) goes back to the front of the queue. Its slot stays taken on that worker until
-        something comes back, so a worker that never answers runs out of credit."""
+        something comes back, so a worker that never answers runs out of credit. True when
+        some task was re-queued."""
         lost = []
         timeout = self.current_task_timeout()
         for f in self.frames.values():
@@ -348,6 +349,7 @@ class FrameLoop:
                     self._expire_task(t, now, timeout)
                     lost.append((t.frame, t.task))
         self.requeue_front(lost)
+        return bool(lost)
 
     def _expire_task(self, t: Task, now: float, timeout: float) -> None:
         faults = self.links.faults

@@ -201,7 +201,7 @@ def credit_for(threads: int, per_thread: int | None = None) -> int:
 INITIAL_CREDIT = 2  # slots a new worker gets before it has delivered anything
 QUARANTINE_AFTER = 3  # consecutive failures/timeouts that quarantine a worker
 TIMEOUT_FACTOR = 8.0  # task timeout = max(factor * median recent task time, floor), <= cap
-TIMEOUT_FLOOR = 2.0  # seconds
+TIMEOUT_FLOOR = 1.5  # seconds: a silent worker may stall a stream ~this long (issue 20: <= 2 s)
 TIMEOUT_WINDOW = 64  # recent task times considered
 
 
