@@ -57,7 +57,7 @@ def _env() -> dict:
     return e
 
 
-def _stop(procs) -> None:
+def stop_processes(procs) -> None:
     for p in procs:
         if p.poll() is None:
             p.send_signal(signal.SIGTERM)
@@ -146,7 +146,7 @@ def case_rogue_render(mode: str) -> dict:
             return _case(f"rogue-{mode}", False, None, "tasks offered to the rogue", t0,
                          error=f"{type(e).__name__}: {e}")
         finally:
-            _stop(procs)
+            stop_processes(procs)
         got = rogue_report(report)
     same = bool(np.array_equal(image, reference))
     offered = int(got.get("tasks", 0))
@@ -223,7 +223,7 @@ def serve_with_rogue(scene: str = "cornell-box", width: int = W, height: int = H
         finally:
             sub.close()
             ctx.term()
-            _stop(procs)
+            stop_processes(procs)
         serve_log = log_path.read_text()
     intervals = np.diff(before)
     median = float(statistics.median(intervals)) if len(intervals) else float("nan")
@@ -301,7 +301,7 @@ def case_moves(moves: int = 5000) -> dict:
             return _case("moves-5000", False, None, "seconds from the late worker's start to its first frame", t0,
                          error=f"{type(e).__name__}: {e}")
         finally:
-            _stop(procs)
+            stop_processes(procs)
     mismatch = sum("scene_mismatch" in ln for ln in lines.lines)
     ok = version == moves and len(frames) == 3 and all(v == moves for v in frames) and mismatch == 0 \
         and done.get("late", 0) > 0
@@ -405,7 +405,7 @@ def case_viewer_validation() -> dict:
             v.stop()
         if broker is not None:
             broker.stop()
-        _stop(procs)
+        stop_processes(procs)
     ok = r["answered"] == len(HOSTILE_MESSAGES) and r["frame_after"] and r["size_after"] == [W, H]
     return _case("viewer-validation", ok, r["answered"], "hostile messages answered with an error", t0,
                  sent=len(HOSTILE_MESSAGES), **r)

@@ -18,7 +18,7 @@ from common.frame import FrameSpec, Tile, TileBuffers, accumulation_index
 from common.geometry import Geometry
 from common.lights import LightSampler
 from common.params import Params, make_params
-from common.render_plan import RenderPlan, analyze
+from common.render_plan import analyze
 from common.scene import DIFFUSE, GLOSSY_KINDS, PLASTIC, ROUGHPLASTIC_DIFFUSE, Scene
 from common.sobol_stream import rng as make_rng
 

@@ -3,7 +3,6 @@ into any of them? Used to skip BSDF-sampled direct-light rays that provably miss
 emitter (common.lights.LightSampler.may_reach_emitter)."""
 from __future__ import annotations
 
-import numpy as np
 from numba import njit
 
 

@@ -39,7 +39,6 @@ def _filter_row(irr, i0, nrm, depth, y, lo, hi, t, nt, acc, cnt, dlo, dhi) -> No
     H, W = depth.shape
     one = np.float32(1.0)
     zero = np.float32(0.0)
-    inf = np.float32(np.inf)
     d0 = depth[y]
     c0, c1, c2 = nrm[0, y], nrm[1, y], nrm[2, y]
     a0, a1, a2 = acc[0], acc[1], acc[2]

@@ -3,7 +3,6 @@ worker processes on loopback."""
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -14,6 +13,7 @@ import zmq
 from common import protocol as P
 from common.frame import Tile, TileBuffers
 
+from bench.stress_hostile import stop_processes
 from tests.support.paths import ROOT
 
 
@@ -34,18 +34,8 @@ def start_worker(endpoint: str, name: str, heartbeat: float = 1.0, threads: int 
 
 
 def stop_procs(procs) -> None:
-    for p in procs:
-        if p.poll() is None:
-            p.send_signal(signal.SIGTERM)
-    for p in procs:
-        try:
-            p.wait(10)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
-        for s in (p.stdout, p.stderr):
-            if s:
-                s.close()
+    """SIGTERM, wait, then SIGKILL what is left; close their pipes (bench.stress_hostile's)."""
+    stop_processes(procs)
 
 
 def wait_until(pred, timeout: float = 30.0, step: float = 0.05) -> bool:

@@ -277,7 +277,6 @@ class OracleFrameAssembler:
         if tile in self._tiles:
             return self.complete
         count = self._check(tile, None)
-        from common.codec import decompress
 
         p, raw = decompress(data, count)
         if self._buffers is not None:

@@ -8,7 +8,9 @@ from __future__ import annotations
 import numpy as np
 
 from common import bsdf
+from common.geometry import Geometry
 from common.lights import VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE, spot_falloff, to_local
+from worker.vpl import VPLSet
 from common.scene import DIFFUSE, NULL
 
 
