@@ -1,0 +1,108 @@
+"""Mitsuba shapes (``obj``, ``ply``, ``rectangle``, ``cube``, ``sphere``, ``disk``) ->
+:class:`common.scene.Mesh`, with their BSDF and area emitter. A plain function of the loader at
+work (:class:`common.mitsuba_xml._Loader`)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from . import shapes as shp
+from . import transform as tf
+from .mitsuba_bsdfs import material_index
+from .mitsuba_doc import Node, Props
+from .obj_mtl import drop_nonfinite, load_obj_mesh, recompute_vertex_normals, remove_degenerate
+from .scene import AREA, Emitter, Mesh
+
+
+def load_shape(loader, node: Node) -> None:
+    p = Props(loader, node)
+    kind = p.type
+    if kind not in ("obj", "ply", "rectangle", "cube", "sphere", "disk"):
+        loader.warn(node, f"unsupported shape '{kind}'", "skipped")
+        return
+    M = p.transform("to_world")
+    name = node.attrib.get("id", "")
+    face_normals = False
+    flip = p.bool("flip_normals", False)
+    if kind in ("obj", "ply", "rectangle", "cube"):  # meshes in Mitsuba 3.9.1
+        face_normals = p.bool("face_normals", False)
+    if kind in ("obj", "ply"):
+        fn = p.string("filename")
+        if fn is None:
+            raise loader.error(node, f"<shape type='{kind}'> needs a 'filename'")
+        path = loader.resolve(fn, node)
+        if kind == "obj":
+            v, f, n, uv = load_obj_mesh(path, fn, loader.warnings, flip_tex_coords=p.bool("flip_tex_coords", True))
+        else:
+            from .ply import load_ply_mesh
+
+            v, f, n, uv = load_ply_mesh(path, fn, loader.warnings)
+        name = name or Path(fn).stem
+    else:
+        if kind == "rectangle":
+            v, f, n, uv = shp.rectangle()
+        elif kind == "cube":
+            v, f, n, uv = shp.cube()
+        elif kind == "disk":
+            v, f, n, uv = shp.disk()
+        else:
+            c = p.vec3("center", (0.0, 0.0, 0.0))
+            r = p.float("radius", 1.0)
+            v, f, n, uv = shp.sphere()
+            M = M @ tf.translate(c) @ tf.scale(r)
+        name = name or f"{kind}@{node.line}"
+    if abs(np.linalg.det(M[:3, :3])) < 1e-300:
+        raise loader.error(p.named.get("to_world", node), f"to_world of {node.describe()} is singular")
+    V = tf.transform_points(M, v)
+    if face_normals:
+        N = None
+    elif n is not None:
+        N = tf.transform_normals(M, n)
+    else:
+        N = recompute_vertex_normals(V, f)
+    f = drop_nonfinite(name, V, f, N, uv, loader.warnings)
+    f, _ = remove_degenerate(name, V, f, loader.warnings)
+    if flip:
+        f, N = shp.flip_normals(f, N)
+    # BSDF and emitter (nested or referenced)
+    bsdf_node = None
+    emitter_node = None
+    others = list(p.children)
+    if p.has("bsdf"):
+        others.append(p.get("bsdf"))
+    for c in others:
+        t = loader.deref(c)
+        if t.tag == "bsdf":
+            if bsdf_node is not None:
+                loader.warn(c, f"{node.describe()} has more than one BSDF", "using the first")
+                continue
+            bsdf_node = t
+        elif t.tag == "emitter":
+            if emitter_node is not None:
+                loader.warn(c, f"{node.describe()} has more than one emitter", "using the first")
+                continue
+            emitter_node = t
+        else:
+            loader.warn(c, f"{t.describe()} inside {node.describe()} is not supported", "ignored")
+    for k in ("interior", "exterior"):
+        if p.has(k):
+            loader.warn(p.get(k), f"medium '{k}' is not supported", "ignored")
+    p.finish()
+    if len(f) == 0:
+        loader.warn(node, f"{node.describe()} has no triangles", "skipped")
+        return
+    mat = material_index(loader, bsdf_node)
+    mesh = Mesh(name=name, vertices=V, faces=np.ascontiguousarray(f, dtype=np.int32), material=mat,
+                normals=N, uvs=uv)
+    loader.meshes.append(mesh)
+    if emitter_node is not None:
+        ep = Props(loader, emitter_node)
+        if ep.type != "area":
+            loader.warn(emitter_node, f"emitter '{ep.type}' attached to a shape is not supported", "ignored")
+        else:
+            e = Emitter(kind=AREA, radiance=ep.rgb("radiance", 1.0), mesh=len(loader.meshes) - 1,
+                        name=emitter_node.attrib.get("id", name))
+            ep.finish()
+            loader.emitters.append(e)
+            mesh.emitter = len(loader.emitters) - 1
