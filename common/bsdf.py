@@ -273,9 +273,13 @@ def coat_transmittance(sp: SurfacePoints) -> tuple[np.ndarray, np.ndarray, np.nd
     tabs, rows, _ = _rough_tables(sp)
     tabs = np.ascontiguousarray(tabs, dtype=np.float64)
     rows = np.zeros(len(sp), np.int64) if rows is None else np.asarray(rows, np.int64)
+    return tabs, rows, _cosine_mean(tabs)[rows]
+
+
+def _cosine_mean(tabs):
+    """Cosine-weighted mean over the hemisphere of tables sampled at linspace(0, 1, R): 2∫t(μ)μdμ."""
     mu = np.linspace(0.0, 1.0, tabs.shape[1])
-    t_avg = 2.0 * np.mean(tabs * mu, axis=1)
-    return tabs, rows, t_avg[rows]
+    return 2.0 * np.mean(tabs * mu, axis=1)
 
 
 def _cos_hemisphere_pdf(w):
@@ -350,6 +354,15 @@ def _pdf_plastic(sp, wi, wo):
     return np.where(ok, _cos_hemisphere_pdf(wo) * pd, 0.0)
 
 
+def _layer_term(sp, co, t_i, tabs, rows, fdr_int):
+    """A rough plastic's diffuse-layer value × cos θ_o, given the coat transmittance t_i toward
+    the incident side (no masking of invalid directions)."""
+    t_o = mf.lerp_gather(tabs, rows, np.clip(co, 0, 1))
+    diff = _plastic_diffuse_coef(sp, fdr_int)
+    s = INV_PI / (sp.eta * sp.eta) * co * t_i * t_o
+    return diff * s[:, None]
+
+
 def _roughplastic_diffuse(sp, wi, wo):
     """The diffuse-layer term of a rough plastic alone (ROUGHPLASTIC_DIFFUSE), with its cos θ_o."""
     ci, co = wi[:, 2], wo[:, 2]
@@ -358,10 +371,7 @@ def _roughplastic_diffuse(sp, wi, wo):
     dt = ci.dtype
     tabs = tabs.astype(dt, copy=False)
     t_i = mf.lerp_gather(tabs, rows, np.clip(ci, 0, 1))
-    t_o = mf.lerp_gather(tabs, rows, np.clip(co, 0, 1))
-    diff = _plastic_diffuse_coef(sp, fdr_int.astype(dt, copy=False))
-    s = INV_PI / (sp.eta * sp.eta) * co * t_i * t_o
-    return np.where(ok[:, None], _finite(diff * s[:, None]), 0.0)
+    return np.where(ok[:, None], _finite(_layer_term(sp, co, t_i, tabs, rows, fdr_int.astype(dt, copy=False))), 0.0)
 
 
 def _roughplastic_parts(sp, wi, wo, want_eval=True, want_pdf=True):
@@ -394,10 +404,7 @@ def _roughplastic_parts(sp, wi, wo, want_eval=True, want_pdf=True):
             F = fresnel_dielectric(np.sum(wi * h, axis=-1), eta)[0]
             g = g1i * mf.smith_g1(wo, h, sp.alpha, sp.beckmann)
             spec = F * d * g / (4.0 * ci)
-        t_o = mf.lerp_gather(tabs, rows, np.clip(co, 0, 1))
-        diff = _plastic_diffuse_coef(sp, fdr_int)
-        s = INV_PI / (eta * eta) * co * t_i * t_o
-        val = sp.specular * spec[:, None] + diff * s[:, None]
+        val = sp.specular * spec[:, None] + _layer_term(sp, co, t_i, tabs, rows, fdr_int)
         val = np.where(ok[:, None], _finite(val), 0.0)
     return val, pdf
 
@@ -721,8 +728,7 @@ def albedo(sp: SurfacePoints, wi: np.ndarray) -> np.ndarray:
             tabs, rows, fdr_int, refl = _rough_tables(s, with_reflectance=True)
             t_i = mf.lerp_gather(tabs.astype(dt), rows, c)
             r_i = mf.lerp_gather(refl.astype(dt), rows, c)
-            mu = np.linspace(0.0, 1.0, tabs.shape[1])
-            t_avg = (2.0 * np.mean(tabs * mu, axis=1)).astype(dt)  # cosine-weighted mean of t_o
+            t_avg = _cosine_mean(tabs).astype(dt)  # cosine-weighted mean of t_o
             t_avg = t_avg[0] if rows is None else t_avg[rows]
             diff = _plastic_diffuse_coef(s, fdr_int.astype(dt))
             dscale = t_i * t_avg / (s.eta * s.eta)

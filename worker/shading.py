@@ -13,7 +13,7 @@ specular bounces is s + 2 + d segments.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -93,9 +93,10 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
         smooth = np.isin(sp.kind, (ROUGHCONDUCTOR, ROUGHPLASTIC)) & (sp.alpha < glossy_split_alpha)
         if smooth.any():
             lobe = np.nonzero(smooth)[0]
-            sp = sp.subset(slice(None))  # a copy: the split changes kinds
-            sp.kind = sp.kind.copy()
-            sp.kind[lobe[sp.kind[lobe] == ROUGHPLASTIC]] = ROUGHPLASTIC_DIFFUSE
+            lobe_sp = sp.subset(lobe)  # the whole BSDF, for sampling the lobe below
+            kind = sp.kind.copy()
+            kind[lobe[kind[lobe] == ROUGHPLASTIC]] = ROUGHPLASTIC_DIFFUSE
+            sp = replace(sp, kind=kind)
             nd_mask = nd_mask & ~(smooth & (sp.kind == ROUGHCONDUCTOR))
     if nd_mask.all():  # the common case: no copies of the per-hit arrays
         n_all = len(idx)
@@ -116,9 +117,7 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
     if len(lobe):
         # The glossy lobe: one sampled ray, its radiance unfiltered (the pixel's main end
         # point, if any, is the plastic's diffuse layer).
-        glossy = sp.subset(lobe)
-        glossy.kind = np.where(glossy.kind == ROUGHPLASTIC_DIFFUSE, ROUGHPLASTIC, glossy.kind).astype(sp.kind.dtype)
-        wo, weight = bsdf.sample_lobe(glossy, wi[lobe], rng.random((len(lobe), 2)))
+        wo, weight = bsdf.sample_lobe(lobe_sp, wi[lobe], rng.random((len(lobe), 2)))
         sel = np.nonzero(np.any(weight > 0, axis=1))[0]
         branch(lobe[sel], wo[sel], weight[sel], np.zeros(len(sel), bool))
     if len(di) and specular_depth > 0 and _allowed(2, max_depth):
@@ -215,11 +214,17 @@ def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
     if e == 0 or m == 0:
         return albedo, irr
     cols = _VPLColumns(vpls, geom, clamp_d2, force_general)
+    for sl in _chunks(e, m):
+        pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, albedo[sl])
+        vg.accumulate(sl.stop - sl.start, pi, pj, w, blocked, cols.color, factor, irr[sl])
+    return albedo, irr
+
+
+def _chunks(e: int, m: int):
+    """Slices of the e end points, PAIR_CHUNK (end point, VPL) pairs at a time."""
     chunk = max(1, PAIR_CHUNK // m)
     for s in range(0, e, chunk):
-        sl = slice(s, min(e, s + chunk))
-        irr[sl] = _gather_chunk(geom, end, sl, vpls, cols, max_depth, albedo[sl])
-    return albedo, irr
+        yield slice(s, min(e, s + chunk))
 
 
 def contribution_per_vpl(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
@@ -232,9 +237,7 @@ def contribution_per_vpl(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2:
         return out
     albedo = bsdf.albedo(end.sp, end.wi).astype(np.float64)
     cols = _VPLColumns(vpls, geom, clamp_d2)
-    chunk = max(1, PAIR_CHUNK // m)
-    for s in range(0, e, chunk):
-        sl = slice(s, min(e, s + chunk))
+    for sl in _chunks(e, m):
         pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, albedo[sl])
         rgb = cols.color[pj] * (albedo[sl][pi] * end.throughput[sl][pi])
         if len(factor):
@@ -286,14 +289,6 @@ class _VPLColumns:
         self.min_d2 = np.where(surface, f32(clamp_d2), f32(1e-30)).astype(f32)
         self.depth = vpls.depth.astype(np.int64)
         self.direct_count = int(vpls.direct_count)
-
-
-def _gather_chunk(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,
-                  max_depth: int, albedo: np.ndarray) -> np.ndarray:
-    pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, albedo)
-    out = np.zeros((sl.stop - sl.start, 3))
-    vg.accumulate(len(out), pi, pj, w, blocked, cols.color, factor, out)
-    return out
 
 
 def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,

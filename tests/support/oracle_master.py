@@ -12,26 +12,12 @@ import numpy as np
 from common.codec import decompress
 from common.frame import Tile, TileBuffers
 from common.interleave import scatter, sub_image_size, tile_slices
+from master.discontinuity_buffer import resolve_window, window_offsets  # unchanged helpers
 
 from tests.support.oracle_codec import decode_raw, f16_to_f32, oct_decode_planes
 
 # Pixels per row strip: ~16 float32 work arrays of this length stay within L2.
 _STRIP_PIXELS = 8192
-
-
-def resolve_window(filter_window: int, interleave: int) -> int:
-    """The window the filter uses: the parameter, or the interleave size when it is -1."""
-    w = interleave if filter_window == -1 else filter_window
-    if w < 1:
-        raise ValueError(f"filter window must be >= 1 (or -1 for the interleave size), got {filter_window}")
-    return int(w)
-
-
-def window_offsets(window: int) -> range:
-    """Offsets along one axis: -(w//2) .. w//2 for odd w, -(w//2) .. w//2 - 1 for even w."""
-    if window < 1:
-        raise ValueError(f"window must be >= 1, got {window}")
-    return range(-(window // 2), window - window // 2)
 
 
 def filter_irradiance(irradiance: np.ndarray, depth: np.ndarray, normal: np.ndarray,
