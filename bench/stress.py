@@ -102,6 +102,8 @@ def make_corpus(dest: Path, shared: Path = SHARED_SCENES) -> list[Entry]:
 
     def copy(name: str) -> Path:
         d = dest / name
+        if not (shared / name).is_dir():
+            raise FileNotFoundError(f"seed scene {shared / name} not found (the shared scenes)")
         if not d.exists():
             _copy_tree(shared / name, d)
         return d
