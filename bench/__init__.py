@@ -25,21 +25,21 @@ class Bench:
 
 
 BENCHES: dict[str, Bench] = {b.name: b for b in [
-    Bench("accuracy", "bench.accuracy",
+    Bench("accuracy", "igi.bench.accuracy",
           "relMSE vs the Mitsuba references as frames accumulate (paper vs consistent), JSON + markdown"),
-    Bench("compare", "bench.compare",
+    Bench("compare", "igi.bench.compare",
           "igi vs Mitsuba 3 path tracer at equal wall time (budgets), bias vs noise, flicker"),
-    Bench("plan", "bench.plan",
+    Bench("plan", "igi.bench.plan",
           "wall time with the render plan vs every pass forced on, at equal error; camera-only cost"),
-    Bench("quality", "bench.quality",
+    Bench("quality", "igi.bench.quality",
           "error vs wall time against the references over parameter sweeps (relMSE, RMSE, FLIP); Pareto front"),
-    Bench("rays", "bench.rays",
+    Bench("rays", "igi.bench.rays",
           "primary + shadow ray throughput of the whole pipeline against raw embreex on the same rays"),
-    Bench("scaling", "bench.scaling",
+    Bench("scaling", "igi.bench.scaling",
           "frames/s against worker count, bytes per frame, master merge+filter Mpixel/s, task latency"),
-    Bench("stress", "bench.stress",
+    Bench("stress", "igi.bench.stress",
           "stress scenes (finite images, transformed = untransformed) + scene-file fuzzing, JSON counts"),
-    Bench("viewer-latency", "bench.viewer_latency",
+    Bench("viewer-latency", "igi.bench.viewer_latency",
           "input-to-frame latency of a streaming master (and through the viewer's WebSocket with --ws)"),
 ]}
 

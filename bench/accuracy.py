@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from common.image_io import read_image, write_png
-from common.loader import load_scene
-from common.metrics import block_average, relmse
+from igi.common.image_io import read_image, write_png
+from igi.common.loader import load_scene
+from igi.common.metrics import block_average, relmse
 
 from .paths import SHARED
 from .report import machine_info, md_table
@@ -42,8 +42,8 @@ def caustic_mask(name: str, block: int) -> np.ndarray | None:
 
 def measure(scenes: list[str], frames: list[int], scale: float = 0.5, variants: list[str] | None = None,
         out: str | None = None, images: str | None = None, **overrides) -> dict:
-    from master.inprocess import render_local
-    from worker.renderer import Renderer
+    from igi.master.inprocess import render_local
+    from igi.worker.renderer import Renderer
 
     block = int(round(1 / scale))
     variants = variants or list(VARIANTS)

@@ -91,7 +91,7 @@ _MITSUBA: dict | None = None  # the probed set-up, once per process
 PROBE_CODE = r"""
 import sys
 sys.path.insert(0, sys.argv[4])
-from bench.compare import _probe
+from igi.bench.compare import _probe
 _probe(sys.argv[1], sys.argv[2], int(sys.argv[3]))
 """
 
@@ -100,7 +100,7 @@ def _probe(variant: str, scene_path: str, max_depth: int) -> None:
     """Subprocess body: render a tiny image of the scene as MitsubaPT would, print its mean."""
     import mitsuba as mi
 
-    from common.loader import load_scene
+    from igi.common.loader import load_scene
 
     mi.set_variant(variant)
     cam = load_scene(scene_path).camera
@@ -288,8 +288,8 @@ def igi_budget_run(setup: bq.SceneSetup, params, budgets: list[float], converged
                    clock: str = "wall") -> dict:
     """Accumulate frames until the largest budget is spent and ``converged_frames`` are done;
     score the running mean after every frame."""
-    from master.inprocess import render_local
-    from worker.renderer import Renderer
+    from igi.master.inprocess import render_local
+    from igi.worker.renderer import Renderer
 
     warm_up(setup, params)
     t0 = time.perf_counter()
@@ -351,10 +351,10 @@ def igi_frame_bias(setup: bq.SceneSetup, params, frames: int) -> dict | None:
         return None
     from dataclasses import replace
 
-    from master.inprocess import render_local
-    from worker.renderer import Renderer
+    from igi.master.inprocess import render_local
+    from igi.worker.renderer import Renderer
 
-    from common.metrics import block_average, relmse
+    from igi.common.metrics import block_average, relmse
 
     renderer = Renderer(setup.scene)
     total = None
@@ -434,7 +434,7 @@ def igi_frames(setup, renderer, params, cameras, seeds) -> tuple[list[np.ndarray
     """One frame (accumulation off) per (camera, seed); returns the frames, mean wall and CPU time."""
     from dataclasses import replace
 
-    from master.inprocess import render_local
+    from igi.master.inprocess import render_local
 
     imgs, total, total_cpu = [], 0.0, 0.0
     for cam, seed in zip(cameras, seeds):
@@ -451,7 +451,7 @@ def igi_frames(setup, renderer, params, cameras, seeds) -> tuple[list[np.ndarray
 
 def flicker(setup: bq.SceneSetup, params, frames: int, step_deg: float, pt: MitsubaPT | None,
             path_ref_spp: int, clock: str = "wall") -> dict:
-    from worker.renderer import Renderer
+    from igi.worker.renderer import Renderer
 
     ref_mean = float(np.mean(setup.ref))
     base = np.asarray(setup.scene.camera.to_world, np.float64).reshape(4, 4)
@@ -764,7 +764,7 @@ def markdown(results: dict) -> str:
 # ---------------------------------------------------------------------------- CLI
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from common.params import add_arguments as add_params
+    from igi.common.params import add_arguments as add_params
 
     p.add_argument("scenes", nargs="+", metavar="SCENE",
                    help="scene names (folders of ../shared/scenes) or scene files")
@@ -805,7 +805,7 @@ def run_compare(args: argparse.Namespace) -> dict:
         raise bq.BenchError("--mitsuba-threads must be >= 1")
     params = bq.base_params(args)
     refdir = Path(args.references) if args.references else None
-    from common.params import params_to_dict
+    from igi.common.params import params_to_dict
 
     setups = [bq.SceneSetup(a, args.direct_only, args.width, args.height, args.scale, refdir, not args.no_flip)
               for a in args.scenes]
@@ -837,7 +837,7 @@ def run_compare(args: argparse.Namespace) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from master.errors import UsageError
+    from igi.master.errors import UsageError
 
     try:
         results = run_compare(args)

@@ -13,9 +13,9 @@ import json
 import time
 from pathlib import Path
 
-from common.image_io import read_image
-from common.loader import load_scene
-from common.metrics import block_average, relmse
+from igi.common.image_io import read_image
+from igi.common.loader import load_scene
+from igi.common.metrics import block_average, relmse
 
 from .paths import SHARED
 from .report import machine_info
@@ -28,8 +28,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="artifacts/bench_plan.json")
 
 def measure(names: list[str], frames: int, scale: float) -> dict:
-    from master.inprocess import render_local
-    from worker.renderer import Renderer
+    from igi.master.inprocess import render_local
+    from igi.worker.renderer import Renderer
 
     block = int(round(1 / scale))
     rows = []

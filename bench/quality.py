@@ -105,7 +105,7 @@ def reference_info(name: str, direct_only: bool = False, refdir: Path | None = N
 
 
 def load_reference(name: str, direct_only: bool = False, refdir: Path | None = None) -> tuple[Path, np.ndarray]:
-    from common.image_io import read_image
+    from igi.common.image_io import read_image
 
     path = reference_path(name, direct_only, refdir)
     if not path.exists():
@@ -146,7 +146,7 @@ def downscale_factor(ref_w: int, ref_h: int, width: int | None = None, height: i
 
 def reduced_reference(ref: np.ndarray, k: int) -> np.ndarray:
     """The reference as a k× smaller render of the same camera sees it: k×k box averages."""
-    from common.metrics import block_average
+    from igi.common.metrics import block_average
 
     if k == 1:
         return np.asarray(ref, np.float32)
@@ -180,19 +180,19 @@ class Evaluator:
     """Scores an image against the (possibly reduced) reference."""
 
     def __init__(self, ref: np.ndarray, use_flip: bool = True):
-        from common.metrics import block_average
+        from igi.common.metrics import block_average
 
         self.ref = np.asarray(ref, np.float32)
         self.ref_blocks = block_average(self.ref, BLOCK)
         self.use_flip = use_flip and flip_available()
 
     def relmse(self, img: np.ndarray) -> float:
-        from common.metrics import relmse
+        from igi.common.metrics import relmse
 
         return relmse(img, self.ref)
 
     def __call__(self, img: np.ndarray, flip: bool = True) -> dict:
-        from common.metrics import block_average, flip as flip_metric, relmse, rmse
+        from igi.common.metrics import block_average, flip as flip_metric, relmse, rmse
 
         img = np.asarray(img, np.float32)
         out = {"relmse": relmse(img, self.ref), "rmse": rmse(img, self.ref),
@@ -214,12 +214,12 @@ class SceneSetup:
 
     def __init__(self, arg: str, direct_only: bool = False, width: int | None = None, height: int | None = None,
                  scale: float | None = None, refdir: Path | None = None, use_flip: bool = True):
-        from common.loader import load_scene
+        from igi.common.loader import load_scene
 
         self.name, self.path = resolve_scene(arg)
         self.ref_path, ref = load_reference(self.name, direct_only, refdir)
         self.info = reference_info(self.name, direct_only, refdir)
-        from common.scene import SceneError
+        from igi.common.scene import SceneError
 
         t0 = time.perf_counter()
         try:
@@ -236,7 +236,7 @@ class SceneSetup:
         self.width, self.height = self.ref_w // self.k, self.ref_h // self.k
         self.ref = reduced_reference(ref, self.k)
         centre = pixel_centre_reference(ref, self.k)
-        from common.metrics import relmse
+        from igi.common.metrics import relmse
 
         self.pixel_centre_relmse = None if centre is None else relmse(centre, self.ref)
         self.pixel_centre_flip = (None if centre is None or not self.evaluator_flip(use_flip)
@@ -256,7 +256,7 @@ class SceneSetup:
         return use_flip and flip_available()
 
     def _flip(self, img):
-        from common.metrics import flip
+        from igi.common.metrics import flip
 
         return flip(img, self.ref)
 
@@ -288,7 +288,7 @@ class SceneSetup:
 
 def parse_value(name: str, text: str):
     """One sweep value of parameter ``name``: a literal, or ``xF`` = F × the declared default."""
-    from common.params import PARAM_BY_NAME
+    from igi.common.params import PARAM_BY_NAME
 
     p = PARAM_BY_NAME[name]
     text = text.strip()
@@ -314,7 +314,7 @@ def parse_value(name: str, text: str):
 
 
 def parse_sweeps(items) -> list[tuple[str, list]]:
-    from common.params import PARAM_BY_NAME
+    from igi.common.params import PARAM_BY_NAME
 
     out = []
     for item in items:
@@ -337,7 +337,7 @@ def _label(overrides: dict) -> str:
 def make_configs(base, sweeps: list[tuple[str, list]], grid: bool = False) -> list[dict]:
     """The configurations: the base parameters first, then one per sweep value (or the grid).
     Each is {"label", "overrides", "params"}; invalid values raise BenchError."""
-    from common.params import make_params, params_to_dict
+    from igi.common.params import make_params, params_to_dict
 
     bd = params_to_dict(base)
 
@@ -369,7 +369,7 @@ def make_configs(base, sweeps: list[tuple[str, list]], grid: bool = False) -> li
 def default_sweeps(scene) -> list[str]:
     """DEFAULT_SWEEPS, less photons when the scene has no caustic paths (photons would not run)."""
     try:
-        from worker.renderer import Renderer
+        from igi.worker.renderer import Renderer
 
         caustics = Renderer(scene).plan.caustics
     except Exception:  # pragma: no cover - a plan failure only costs a useless sweep
@@ -430,8 +430,8 @@ def warm_up(setup: "SceneSetup", params) -> float:
     see its cached VPL/photon sets."""
     from dataclasses import replace
 
-    from master.inprocess import render_local
-    from worker.renderer import Renderer
+    from igi.master.inprocess import render_local
+    from igi.worker.renderer import Renderer
 
     t0 = time.perf_counter()
     render_local(setup.scene, replace(params, seed=(int(params.seed) + 99991) % 2**31), frames=1,
@@ -442,8 +442,8 @@ def warm_up(setup: "SceneSetup", params) -> float:
 def render_config(setup: SceneSetup, params, frames: list[int], save_dir: Path | None = None,
                   label: str = "") -> dict:
     """Render one configuration up to max(frames); score the running mean at each count."""
-    from master.inprocess import render_local
-    from worker.renderer import Renderer
+    from igi.master.inprocess import render_local
+    from igi.worker.renderer import Renderer
 
     t0 = time.perf_counter()
     renderer = Renderer(setup.scene)
@@ -462,7 +462,7 @@ def render_config(setup: SceneSetup, params, frames: list[int], save_dir: Path |
             pt = {"frames": n, "time_s": t, "cpu_s": cpu, **setup.evaluator(img)}
             points.append(pt)
             if save_dir is not None:
-                from common.image_io import write_exr
+                from igi.common.image_io import write_exr
 
                 save_dir.mkdir(parents=True, exist_ok=True)
                 safe = "".join(c if c.isalnum() or c in "-_.=" else "_" for c in label) or "base"
@@ -612,7 +612,7 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from common.params import add_arguments as add_params
+    from igi.common.params import add_arguments as add_params
 
     p.add_argument("scenes", nargs="+", metavar="SCENE",
                    help="scene names (folders of ../shared/scenes) or scene files")
@@ -629,8 +629,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def base_params(args: argparse.Namespace):
-    from master.cli import params_from
-    from master.errors import UsageError
+    from igi.master.cli import params_from
+    from igi.master.errors import UsageError
 
     try:
         return params_from(args)
@@ -653,7 +653,7 @@ def run_quality(args: argparse.Namespace) -> dict:
                      "base_params": None, "sweeps": None, "block": BLOCK, "flip": None},
         "scenes": {},
     }
-    from common.params import params_to_dict
+    from igi.common.params import params_to_dict
 
     results["settings"]["base_params"] = params_to_dict(base)
     for arg in args.scenes:
@@ -706,7 +706,7 @@ def _json_default(o):
 
 
 def run(args: argparse.Namespace) -> int:
-    from master.errors import UsageError
+    from igi.master.errors import UsageError
 
     try:
         results = run_quality(args)

@@ -30,8 +30,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from common.loader import load_scene
-from common.params import make_params
+from igi.common.loader import load_scene
+from igi.common.params import make_params
 
 from .report import git_commit, machine_info, md_table
 
@@ -97,7 +97,7 @@ class _StageBook(dict):
 
 def _frame(r, spec, tiles) -> dict:
     """Render one frame's tiles with the hooks on; seconds per stage (Embree split out)."""
-    from common.codec import encode
+    from igi.common.codec import encode
 
     book = _StageBook(r.geom.counters)
     r.stage_times = book
@@ -131,12 +131,12 @@ def _scaled(d: dict, f: float) -> dict:
 
 def measure(scene_path: str, width: int | None = None, height: int | None = None, frames: int = 2,
             out: str | None = None, **param_overrides) -> dict:
-    from master.accumulation import sequence_spec
-    from master.frame_assembly import task_tiles
-    from common.camera import resolve_camera
-    from common.params import params_to_dict
-    from worker.kernels.warm import warm_up
-    from worker.renderer import Renderer
+    from igi.master.accumulation import sequence_spec
+    from igi.master.frame_assembly import task_tiles
+    from igi.common.camera import resolve_camera
+    from igi.common.params import params_to_dict
+    from igi.worker.kernels.warm import warm_up
+    from igi.worker.renderer import Renderer
 
     warm_up()  # kernels loaded here, so the first frame measures rendering only
     t0 = time.perf_counter()
@@ -202,17 +202,17 @@ def _sum_frames(frames: list[dict]) -> dict:
 _STARTUP_SCRIPT = r"""
 import json, time
 t0 = time.perf_counter()
-import worker.renderer, worker.node  # the worker's imports (numba, embreex, the kernel modules)
+import igi.worker.renderer, igi.worker.node  # the worker's imports (numba, embreex, the kernel modules)
 t1 = time.perf_counter()
-from worker.kernels.warm import warm_up
+from igi.worker.kernels.warm import warm_up
 a = warm_up()
 b = warm_up()
 import numpy as np
-from common.codec import encode
-from common.frame import TileBuffers
-from master.frame_assembly import FrameAssembler, task_tiles
+from igi.common.codec import encode
+from igi.common.frame import TileBuffers
+from igi.master.frame_assembly import FrameAssembler, task_tiles
 def master_frame():  # the master's kernels: wire decode, filter + compose, accumulation sums
-    from master.accumulation import Accumulator
+    from igi.master.accumulation import Accumulator
     t = time.perf_counter()
     asm = FrameAssembler(8, 6, 3)
     for tile in task_tiles(8, 6, 3):

@@ -9,7 +9,7 @@ worker sends now, unless its list changed) and RESULTs that list 64 cached sets 
 RESULT carried before). ZeroMQ's own receive is not included (see scaling_model's
 ``_zmq_message_cost``).
 
-    python -m bench.result_cost            # JSON on stdout
+    python -m igi.bench.result_cost            # JSON on stdout
 
 CPU time of this thread (``time.thread_time``), best of ``reps``; on a loaded machine the
 figures are upper bounds.
@@ -24,8 +24,8 @@ import numpy as np
 
 
 def _quad_scene(width: int, height: int):
-    from common.camera import look_at
-    from common.scene import AREA, DIFFUSE, NULL, Camera, Emitter, Material, Mesh, Scene, Texture
+    from igi.common.camera import look_at
+    from igi.common.scene import AREA, DIFFUSE, NULL, Camera, Emitter, Material, Mesh, Scene, Texture
 
     v = np.array([[0, 0, 0], [2, 0, 0], [2, 2, 0], [0, 2, 0]], float)
     f = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
@@ -40,13 +40,13 @@ def _quad_scene(width: int, height: int):
 def measure(width: int = 640, height: int = 480, workers: int = 16, results: int = 600,
             sets: int = 64, reps: int = 3) -> dict:
     """Per-RESULT CPU µs on the loop thread: {"no_sets": ..., "sets_64": ..., "dispatch": ...}."""
-    from common import protocol as P
-    from common.codec import encode
-    from common.frame import TileBuffers
+    from igi.common import protocol as P
+    from igi.common.codec import encode
+    from igi.common.frame import TileBuffers
 
-    from master import broker as B
-    from master.frame_assembly import tile_pixel_count
-    from master.links import Worker
+    from igi.master import broker as B
+    from igi.master.frame_assembly import tile_pixel_count
+    from igi.master.links import Worker
 
     out = {}
     for case, listed in (("no_sets", None), (f"sets_{sets}", sets)):

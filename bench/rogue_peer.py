@@ -1,7 +1,7 @@
 """A misbehaving registered worker, as a process (issue 20: ``igi bench stress`` and the tests):
 raw ZeroMQ DEALER that speaks just enough protocol to register.
 
-    python -m bench.rogue_peer ENDPOINT MODE REPORT
+    python -m igi.bench.rogue_peer ENDPOINT MODE REPORT
 
 :func:`start_rogue` starts one (the checkout on PYTHONPATH) and :func:`rogue_report` reads its
 report.
@@ -24,7 +24,7 @@ import subprocess
 
 import zmq
 
-from common import protocol as P
+from igi.common import protocol as P
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -34,7 +34,7 @@ def start_rogue(endpoint: str, mode: str, report: str | Path) -> subprocess.Pope
     ``find:PID``), writing what it got to ``report``."""
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO), env.get("PYTHONPATH", "")) if p)
-    return subprocess.Popen([sys.executable, "-m", "bench.rogue_peer", endpoint, mode, str(report)], cwd=REPO,
+    return subprocess.Popen([sys.executable, "-m", "igi.bench.rogue_peer", endpoint, mode, str(report)], cwd=REPO,
                             env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
 
 

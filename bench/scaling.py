@@ -45,7 +45,7 @@ DEFAULT_SCENE = shared_scene("cornell-box-sphere")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from common.params import add_arguments as add_params
+    from igi.common.params import add_arguments as add_params
 
     p.add_argument("scene", nargs="?", default=str(DEFAULT_SCENE), help="scene (default: cornell-box-sphere)")
     p.add_argument("--workers", default=None,
@@ -87,10 +87,10 @@ def merge_filter_rate(result, reps: int) -> dict:
     ``FrameAssembler.add_wire`` (validate, decompress, store), then ``image()`` (float
     conversion, discontinuity filter, compose in parallel stripes). Wall clock with the
     master's threads (``merge_filter_mpixel_s``) and CPU time on one thread."""
-    from common.codec import encode
-    from common.interleave import extract
+    from igi.common.codec import encode
+    from igi.common.interleave import extract
 
-    from master.frame_assembly import task_tiles
+    from igi.master.frame_assembly import task_tiles
     from .scaling_model import measure_master
 
     spec = result.spec
@@ -128,8 +128,8 @@ def _proc_cpu_s(pid: int, tid: int | None = None) -> float:
 
 def run_point(scene, params, width: int, height: int, workers: int, frames: int, warmup: int,
               task_pixels: int | None, latency_inputs: int = 0) -> tuple[dict, object]:
-    from master.broker import Broker
-    from master.local_workers import LocalWorkers, wait_workers
+    from igi.master.broker import Broker
+    from igi.master.local_workers import LocalWorkers, wait_workers
 
     kw = {} if task_pixels is None else {"task_pixels": task_pixels}
     load_before = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
@@ -229,8 +229,8 @@ def plot(results: dict, path: Path) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
-    from master.cli import load_scene_file, params_from
-    from master.errors import UsageError
+    from igi.master.cli import load_scene_file, params_from
+    from igi.master.errors import UsageError
 
     params = params_from(args)
     scene = load_scene_file(args.scene)
@@ -242,7 +242,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--sizes is WxH[,WxH…] and --workers N[,N…]") from None
     if not counts or min(counts) < 1 or args.frames < 1:
         raise UsageError("worker counts and --frames must be >= 1")
-    from common.params import params_to_dict
+    from igi.common.params import params_to_dict
 
     results = {"machine": machine_info(), "scene": str(args.scene),
                "settings": {"params": params_to_dict(params), "frames": args.frames, "warmup": args.warmup,
@@ -286,13 +286,13 @@ def run_model(args, scene, params, results: dict, lasts: dict) -> dict:
     """Calibrate the scaling model in this run, check it against the real points, predict."""
     from dataclasses import replace
 
-    from common.codec import encode
-    from common.interleave import extract
-    from common.params import params_to_dict
+    from igi.common.codec import encode
+    from igi.common.interleave import extract
+    from igi.common.params import params_to_dict
 
-    from master import parallel
+    from igi.master import parallel
     from . import scaling_model as sm
-    from master.frame_assembly import DEFAULT_TASK_PIXELS, task_tiles
+    from igi.master.frame_assembly import DEFAULT_TASK_PIXELS, task_tiles
 
     say = lambda s: print(s, file=sys.stderr, flush=True)
     n = int(params.interleave)
@@ -426,15 +426,16 @@ def _costs_dict(c) -> dict:
 def _baseline(rev, costs, lasts, src_key, n, pdict, tp, workers, kw, sizes) -> dict:
     """The master path of git revision ``rev`` (per-tile decode + scatter, serial filter),
     timed in this process on the same frames, and the model's predictions with it."""
+    import importlib
     import subprocess
     import types
     from dataclasses import replace
 
-    from common import codec
-    from common.interleave import extract
+    from igi.common import codec
+    from igi.common.interleave import extract
 
     from . import scaling_model as sm
-    from master.frame_assembly import task_tiles
+    from igi.master.frame_assembly import task_tiles
 
     root = REPO_ROOT
 
@@ -447,10 +448,14 @@ def _baseline(rev, costs, lasts, src_key, n, pdict, tp, workers, kw, sizes) -> d
         return mod
 
     out = {"rev": rev, "sizes": {}}
-    old_codec = load("common/codec.py", "common.codec")
-    old_db = load("master/discontinuity_buffer.py", "master.discontinuity_buffer")
-    saved = {k: sys.modules[k] for k in ("common.codec", "master.discontinuity_buffer")}
+    # the old revision's files import the top-level names the packages had before `igi.*`
+    names = ("common", "master", "worker", "common.codec", "master.discontinuity_buffer")
+    saved = {k: sys.modules.get(k) for k in names}
     try:
+        for top in ("common", "master", "worker"):
+            sys.modules[top] = importlib.import_module(f"igi.{top}")
+        old_codec = load("common/codec.py", "common.codec")
+        old_db = load("master/discontinuity_buffer.py", "master.discontinuity_buffer")
         sys.modules["common.codec"], sys.modules["master.discontinuity_buffer"] = old_codec, old_db
         old_fa = load("master/frame_assembly.py", "master.frame_assembly")
         for w, h in sizes:
@@ -479,7 +484,11 @@ def _baseline(rev, costs, lasts, src_key, n, pdict, tp, workers, kw, sizes) -> d
                                  "master_capacity_mpixel_s": sm.master_capacity(c, sm.Config(workers=1, width=w, height=h, **kw)),
                                  "predictions": [r.as_dict() for r in rows]}
     finally:
-        sys.modules.update(saved)
+        for k, m in saved.items():
+            if m is None:
+                sys.modules.pop(k, None)
+            else:
+                sys.modules[k] = m
     return out
 
 
@@ -685,7 +694,7 @@ def _findings(model: dict) -> str:
                    f"{mv[256]['fps']:.1f} fps at 256 workers ({mv[256]['bottleneck']}). Smaller tasks or a deeper "
                    f"pipeline move that limit; the master's per-RESULT cost then matters more.")
     out.append("- Workers list their cached sets in a RESULT only when the list changed (issue 19), so the "
-               "loop thread no longer validates ~64 entries per RESULT; `python -m bench.result_cost` measures "
+               "loop thread no longer validates ~64 entries per RESULT; `python -m igi.bench.result_cost` measures "
                "the loop thread's cost per RESULT with and without the list.")
     out.append("")
     return "\n".join(out)

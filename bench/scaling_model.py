@@ -43,7 +43,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from typing import Callable
 
-from master import scheduler
+from igi.master import scheduler
 
 GBIT = 1e9
 
@@ -257,7 +257,7 @@ RESOURCES = ("workers", "master loop", "master finish", "master link", "worker l
 
 
 def _tiles(cfg: Config):
-    from master.frame_assembly import task_tiles, tile_pixel_count
+    from igi.master.frame_assembly import task_tiles, tile_pixel_count
 
     tiles = task_tiles(cfg.width, cfg.height, cfg.interleave, cfg.task_pixels)
     out = []
@@ -537,15 +537,15 @@ def calibrate(scene, params=None, width: int = 640, height: int = 480, sample: i
 
     Returns {"costs": Costs, "detail": {...}} (detail: the raw figures, for the report).
     """
-    from common import protocol as P
-    from common.codec import encode
-    from common.params import make_params, params_to_dict
+    from igi.common import protocol as P
+    from igi.common.codec import encode
+    from igi.common.params import make_params, params_to_dict
 
-    from master.accumulation import sequence_spec
-    from master.frame_assembly import DEFAULT_TASK_PIXELS, task_tiles, tile_pixel_count
-    from common.camera import resolve_camera
+    from igi.master.accumulation import sequence_spec
+    from igi.master.frame_assembly import DEFAULT_TASK_PIXELS, task_tiles, tile_pixel_count
+    from igi.common.camera import resolve_camera
 
-    from worker.renderer import Renderer
+    from igi.worker.renderer import Renderer
 
     if params is None:
         params = make_params()
@@ -643,10 +643,10 @@ def synthetic_wire(buffers: dict, width: int, height: int, n: int, task_pixels: 
     resampling): for timing the master at resolutions not rendered here."""
     import numpy as np
 
-    from common.codec import encode
-    from common.interleave import extract
+    from igi.common.codec import encode
+    from igi.common.interleave import extract
 
-    from master.frame_assembly import task_tiles
+    from igi.master.frame_assembly import task_tiles
 
     H0, W0 = buffers["depth"].shape
     ys = (np.arange(height) * H0 // height)
@@ -663,11 +663,11 @@ def measure_master(width: int, height: int, n: int, wire: list, pdict: dict, tas
     the configured threads (``merge_filter_mpixel_s``, the benchmark's historical figure)."""
     import numpy as np
 
-    from common import protocol as P
+    from igi.common import protocol as P
 
-    from master import parallel
-    from master.accumulation import Accumulator
-    from master.frame_assembly import FrameAssembler
+    from igi.master import parallel
+    from igi.master.accumulation import Accumulator
+    from igi.master.frame_assembly import FrameAssembler
 
     cpu = time.process_time
     px_frame = width * height
@@ -731,7 +731,7 @@ def measure_master(width: int, height: int, n: int, wire: list, pdict: dict, tas
 
 
 def _tile_px(t, n, w, h) -> int:
-    from master.frame_assembly import tile_pixel_count
+    from igi.master.frame_assembly import tile_pixel_count
 
     return tile_pixel_count(t, n, w, h)
 

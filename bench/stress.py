@@ -460,7 +460,7 @@ def scene_problems(scene) -> list[str]:
 def _render_tiny(scene) -> "tuple[bool, str]":
     import numpy as np
 
-    from master.inprocess import render_local
+    from igi.master.inprocess import render_local
 
     # one VPL/photon set (interleave 1): 5-10x cheaper than the default 3x3 sets, same code paths
     img = render_local(scene, {"photons": 50, "indirect_vpls": 8, "interleave": 1}, 1, width=12, height=12)
@@ -483,8 +483,8 @@ def _child_main(mem_limit_mb: int | None) -> None:
     warnings.simplefilter("ignore")
     answers = os.fdopen(os.dup(sys.stdout.fileno()), "w")
     sys.stdout = sys.stderr
-    from common.loader import load_scene
-    from common.scene import SceneError
+    from igi.common.loader import load_scene
+    from igi.common.scene import SceneError
 
     for line in sys.stdin:
         req = json.loads(line)
@@ -735,7 +735,7 @@ def run_stress(width: int = 48, height: int = 48, names: list[str] | None = None
     """Render every stress case (or ``names``); finite images, relMSE against the references."""
     import numpy as np
 
-    from common.metrics import relmse
+    from igi.common.metrics import relmse
 
     from . import stress_scenes as ss
     refs: dict = {}
@@ -794,8 +794,8 @@ def _fuzz_scene(width: int = 24, height: int = 18):
 def wire_templates(direction: str, scene_blob: bytes | None = None) -> list[bytes]:
     """Valid frames of every message kind a peer sends in ``direction`` ("to_master" or
     "to_worker"); the mutants are derived from them."""
-    from common import protocol as P
-    from common.params import make_params, params_to_dict
+    from igi.common import protocol as P
+    from igi.common.params import make_params, params_to_dict
 
     h = "ab" * 32
     if direction == "to_master":
@@ -873,7 +873,7 @@ def wire_mutant(templates: list[bytes], seed: int, index: int) -> tuple[str, lis
 
 def expected_rejection(frames: list[bytes], max_size: int) -> str | None:
     """How the receiving side must treat the message: None (valid), "drop" or "refuse"."""
-    from common import protocol as P
+    from igi.common import protocol as P
 
     if len(frames) != 1:
         return "drop"
@@ -973,9 +973,9 @@ def fuzz_master(messages: int = 500, seed: int = 0, oversize: bool = True) -> di
 
     import zmq
 
-    from common import protocol as P
-    from master.broker import Broker
-    from worker.node import WorkerNode
+    from igi.common import protocol as P
+    from igi.master.broker import Broker
+    from igi.worker.node import WorkerNode
 
     ctx = zmq.Context()
     broker = Broker(_fuzz_scene(), bind="tcp://127.0.0.1:*", heartbeat=0.5, context=ctx).start()
@@ -1066,9 +1066,9 @@ def fuzz_worker(messages: int = 500, seed: int = 0, oversize: bool = True) -> di
 
     import zmq
 
-    from common import protocol as P
-    from common.scene_codec import encode_scene, scene_hash
-    from worker.node import WorkerNode
+    from igi.common import protocol as P
+    from igi.common.scene_codec import encode_scene, scene_hash
+    from igi.worker.node import WorkerNode
 
     scene = _fuzz_scene()
     blob = encode_scene(scene)
@@ -1166,8 +1166,8 @@ def fuzz_worker(messages: int = 500, seed: int = 0, oversize: bool = True) -> di
                 lst.close()
                 rctx.term()
         # still alive: a valid scene, frame and task give a RESULT
-        from common.frame import FrameSpec
-        from common.params import make_params, params_to_dict
+        from igi.common.frame import FrameSpec
+        from igi.common.params import make_params, params_to_dict
 
         cam = scene.camera
         spec = FrameSpec(frame=10**6, seed=0, camera_to_world=tuple(float(x) for x in cam.to_world.ravel()),
@@ -1205,7 +1205,7 @@ def fuzz_worker(messages: int = 500, seed: int = 0, oversize: bool = True) -> di
 
 def fuzz_decode(messages: int = 20000, seed: int = 0) -> dict:
     """The pure decoder on many mutants: a Message or a ProtocolError, never anything else."""
-    from common import protocol as P
+    from igi.common import protocol as P
 
     out: Counter = Counter()
     examples = []
@@ -1242,7 +1242,7 @@ HOSTILE_CASES = ("rogue-silent", "rogue-wrong", "serve-rogue", "moves-5000", "vi
 def select_cases(spec: str | None) -> tuple[set[str], list[str]]:
     """``--cases`` -> (parts to run among stress/fuzz/wire, hostile case names in order); None =
     everything. UsageError for an unknown name."""
-    from master.errors import UsageError
+    from igi.master.errors import UsageError
 
     if spec is None:
         return {"stress", "fuzz", "wire"}, list(HOSTILE_CASES)
@@ -1283,7 +1283,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from master.errors import UsageError
+    from igi.master.errors import UsageError
     from .report import machine_info
 
     try:

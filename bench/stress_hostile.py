@@ -103,7 +103,7 @@ class _Lines(logging.Handler):
 
 
 def _good_worker(endpoint: str, name: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "worker.node", "--connect", endpoint, "--threads", "1",
+    return subprocess.Popen([sys.executable, "-m", "igi.worker.node", "--connect", endpoint, "--threads", "1",
                              "--name", name, "--heartbeat", "0.5", "--parent-pid", str(os.getpid()), "--quiet",
                              "--exit-with-master"], cwd=REPO, env=_env(), stdin=subprocess.DEVNULL,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -118,8 +118,8 @@ def _case(name: str, passed: bool, figure, unit: str, t0: float, **detail) -> di
 
 def case_rogue_render(mode: str) -> dict:
     """A render with a rogue (``silent`` or ``wrong``) and a good worker equals a clean render."""
-    from master.broker import Broker
-    from master.inprocess import render_local
+    from igi.master.broker import Broker
+    from igi.master.inprocess import render_local
 
     from .stress_scenes import mini_cornell
 
@@ -168,7 +168,7 @@ def serve_with_rogue(scene: str = "cornell-box", width: int = W, height: int = H
     import zmq
 
     http, bind, pub = free_port(), free_port(), free_port()
-    cmd = [sys.executable, "-m", "master.cli"] + (["-v"] if verbose else []) + ["serve", scene, "--workers", "1", "--width", str(width),
+    cmd = [sys.executable, "-m", "igi.master.cli"] + (["-v"] if verbose else []) + ["serve", scene, "--workers", "1", "--width", str(width),
            "--height", str(height), "--http", f"127.0.0.1:{http}", "--bind", f"tcp://127.0.0.1:{bind}",
            "--pub", f"tcp://127.0.0.1:{pub}", "--stats-interval", "0", "--photons", "0"]
     procs: list[subprocess.Popen] = []
@@ -266,8 +266,8 @@ def case_serve_rogue() -> dict:
 def case_moves(moves: int = 5000) -> dict:
     """``moves`` viewer moves on a streaming master without workers, then a worker joins and
     renders the edited scene."""
-    from master.broker import Broker
-    from master.viewer import move_edit
+    from igi.master.broker import Broker
+    from igi.master.viewer import move_edit
 
     from .stress_scenes import mini_cornell
 
@@ -314,8 +314,8 @@ def case_moves(moves: int = 5000) -> dict:
 # ----------------------------------------------------------------------------- viewer
 
 def _viewer_setup(with_worker: bool):
-    from master.broker import Broker
-    from master import viewer
+    from igi.master.broker import Broker
+    from igi.master import viewer
 
     from .stress_scenes import mini_cornell
 
@@ -516,8 +516,8 @@ def scene_root_escapes(tmp: Path) -> list[tuple[str, Path, str]]:
 
 
 def case_scene_root() -> dict:
-    from common.loader import load_scene
-    from common.scene_root import SceneRootError
+    from igi.common.loader import load_scene
+    from igi.common.scene_root import SceneRootError
 
     t0 = time.perf_counter()
     results, refused = {}, 0

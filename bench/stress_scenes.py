@@ -23,7 +23,7 @@ from typing import Callable
 
 import numpy as np
 
-from common.scene import (AREA, CONSTANT, DIELECTRIC, DIFFUSE, PLASTIC, POINT, ROUGHPLASTIC, SPOT,
+from igi.common.scene import (AREA, CONSTANT, DIELECTRIC, DIFFUSE, PLASTIC, POINT, ROUGHPLASTIC, SPOT,
                           THINDIELECTRIC, Emitter, Material, Scene, Texture)
 
 from .paths import SHARED_SCENES
@@ -41,7 +41,7 @@ def scene_path(name: str) -> Path:
 
 def load_shared(name: str) -> Scene:
     """A shared scene (loaded once per process; callers get a deep copy)."""
-    from common.loader import load_scene
+    from igi.common.loader import load_scene
 
     if name not in _CACHE:
         _CACHE[name] = load_scene(scene_path(name))
@@ -249,7 +249,7 @@ def with_ior(scene: Scene, int_ior: float, ext_ior: float = 1.0, plastics: bool 
 def grazing_camera(scene: Scene, height: float = 1e-3) -> Scene:
     """Camera just above the floor (``height`` of the scene's size), looking along it: the
     floor is seen at angles down to ~1e-3 rad from the tangent plane."""
-    from common.camera import look_at
+    from igi.common.camera import look_at
 
     out = _copy(scene, "grazing camera")
     lo, hi = out.bounds()
@@ -375,13 +375,13 @@ def _nonfinite_in_memory(tmp: Path) -> Scene:
 
 
 def _nonfinite_file_xml(tmp: Path) -> Scene:
-    from common.loader import load_scene
+    from igi.common.loader import load_scene
 
     return load_scene(nonfinite_obj_files(tmp)[0][0])
 
 
 def _nonfinite_file_obj(tmp: Path) -> Scene:
-    from common.loader import load_scene
+    from igi.common.loader import load_scene
 
     return load_scene(nonfinite_obj_files(tmp)[1][0])
 
@@ -431,7 +431,7 @@ CASE_BY_NAME = {c.name: c for c in CASES}
 def render(scene: Scene, frames: int = 1, params: dict | None = None, width: int = 48,
            height: int = 48, renderer=None) -> np.ndarray:
     """A small image over the distributed path (tiles, wire codec, filter, accumulation)."""
-    from master.inprocess import render_local
+    from igi.master.inprocess import render_local
 
     return render_local(scene, dict(params or {}), frames, width=width, height=height, renderer=renderer)
 
@@ -440,9 +440,9 @@ def render(scene: Scene, frames: int = 1, params: dict | None = None, width: int
 
 def eye_end_points(renderer, width: int = 24, height: int = 24, max_depth: int = -1):
     """End points of one eye ray per pixel centre of a width x height image (worker.shading)."""
-    from common.camera import camera_rays
-    from common.sobol_stream import rng
-    from worker.shading import trace_eye
+    from igi.common.camera import camera_rays
+    from igi.common.sobol_stream import rng
+    from igi.worker.shading import trace_eye
 
     cam = renderer.scene.camera
     ys, xs = np.mgrid[0:height, 0:width]
@@ -454,8 +454,8 @@ def vpls_at(end, rows: np.ndarray, kinds=("surface", "area", "point", "spot")):
     """A VPL set with VPLs of the given kinds placed exactly on the end points ``rows`` (same
     position bit for bit, the end point's own normals and BSDF for surface VPLs). Area VPLs
     carry an area pdf so the MIS weights are computed for them too."""
-    from common.lights import VPL_AREA, VPL_POINT, VPL_SPOT, VPL_SURFACE
-    from worker.vpl import VPLSet
+    from igi.common.lights import VPL_AREA, VPL_POINT, VPL_SPOT, VPL_SURFACE
+    from igi.worker.vpl import VPLSet
 
     rows = np.asarray(rows, np.int64)
     m = len(rows)
@@ -482,7 +482,7 @@ def vpls_at(end, rows: np.ndarray, kinds=("surface", "area", "point", "spot")):
 
 def merge_vpl_sets(a, b):
     """Concatenation of two VPL sets (surface rows of both keep their BSDFs)."""
-    from worker.vpl import _concat
+    from igi.worker.vpl import _concat
 
     return _concat([a, b])
 
@@ -494,8 +494,8 @@ def lattice_photons(radius: float = 0.25, half: int = 6):
     the cell borders (cell size 2r), cell centres and quarter points of the hashed grid, plus
     the query positions: the same lattice and lattice points shifted by exactly r (photons at
     distance exactly r count). ``radius`` should be dyadic so everything is exact."""
-    from worker.caustics import PhotonSet
-    from worker.hash_grid import HashGrid
+    from igi.worker.caustics import PhotonSet
+    from igi.worker.hash_grid import HashGrid
 
     g = np.arange(-half, half + 1) * (radius / 2)
     gx, gz = np.meshgrid(g, g, indexing="ij")
@@ -520,8 +520,8 @@ def _quad(c, e1, e2):
 def mini_cornell(width: int = 64, height: int = 48) -> Scene:
     """A 2x2x2 box open towards the camera: white floor/ceiling/back, red left, green right,
     a white block, and a small area light under the ceiling facing down."""
-    from common.camera import look_at
-    from common.scene import NULL, Camera, Mesh
+    from igi.common.camera import look_at
+    from igi.common.scene import NULL, Camera, Mesh
 
     mats = [Material("white", DIFFUSE, diffuse=Texture.constant(0.7)),
             Material("red", DIFFUSE, diffuse=Texture.constant([0.7, 0.1, 0.1])),

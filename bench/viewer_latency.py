@@ -12,7 +12,7 @@ each is a real change that restarts the frame.
 ``igi bench scaling`` reports :func:`stream_latency` per point; standalone:
 
     igi bench viewer-latency SCENE [--workers 2] [--size 96x96] [--inputs 10] [--ws]
-    python -m bench.viewer_latency SCENE ...       (the same)
+    python -m igi.bench.viewer_latency SCENE ...       (the same)
 """
 from __future__ import annotations
 
@@ -159,15 +159,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m bench.viewer_latency", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m igi.bench.viewer_latency", description=__doc__.split("\n")[0])
     add_arguments(p)
     return run(p.parse_args(argv))
 
 
 def run(a: argparse.Namespace) -> int:
-    from master.broker import Broker
-    from master.cli import load_scene_file
-    from master.local_workers import LocalWorkers, wait_workers
+    from igi.master.broker import Broker
+    from igi.master.cli import load_scene_file
+    from igi.master.local_workers import LocalWorkers, wait_workers
 
     w, h = (int(x) for x in a.size.lower().split("x"))
     scene = load_scene_file(a.scene)
@@ -180,7 +180,7 @@ def run(a: argparse.Namespace) -> int:
             res = {"scene": a.scene, "size": a.size, "workers": a.workers,
                    "broker": measure_latency(broker, a.inputs)}
             if a.ws:
-                from master import viewer
+                from igi.master import viewer
 
                 v = viewer.start(broker, "127.0.0.1", 0, None, pub=None, quiet=True)
                 try:

@@ -19,8 +19,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from common import microfacet as mf
-from common.fresnel import (
+from igi.common import microfacet as mf
+from igi.common.fresnel import (
     fresnel_conductor,
     fresnel_diffuse_reflectance,
     fresnel_dielectric,
@@ -28,7 +28,7 @@ from common.fresnel import (
     reflect_m,
     refract,
 )
-from common.scene import (
+from igi.common.scene import (
     CONDUCTOR,
     DIELECTRIC,
     DIFFUSE,

@@ -16,7 +16,7 @@ import struct
 import lz4.frame
 import numpy as np
 
-from common.frame import TileBuffers
+from igi.common.frame import TileBuffers
 
 MAGIC = b"IGTB"
 VERSION = 1
@@ -60,7 +60,7 @@ def oct_encode(n: np.ndarray) -> np.ndarray:
 
 def oct_decode(q: np.ndarray) -> np.ndarray:
     """(P, 2) int16 octahedral snorm16 -> (P, 3) float32 unit normals (zero for the reserved code)."""
-    from common.kernels.wire_decode import oct_decode_into
+    from igi.common.kernels.wire_decode import oct_decode_into
 
     q = np.asarray(q).reshape(-1, 2)
     out = np.empty((3, len(q)), np.float32)
@@ -184,7 +184,7 @@ def decode_into(raw: np.ndarray, p: int, h: int, w: int, n: int, y0: int, x0: in
     Compiled (``common.kernels.wire_decode``); the layout is this module's."""
     global _decode_tile
     if _decode_tile is None:  # numba loads only when something decodes
-        from common.kernels.wire_decode import decode_tile as _decode_tile
+        from igi.common.kernels.wire_decode import decode_tile as _decode_tile
     if h * w != p or len(raw) != p * BYTES_PER_PIXEL:
         raise ValueError(f"tile {h}x{w} does not match {p} pixels / {len(raw)} bytes")
     H, W = depth.shape

@@ -12,7 +12,7 @@ from collections.abc import Mapping, MutableMapping
 
 import numpy as np
 
-from common.frame import BUFFER_NAMES, Tile, TileBuffers
+from igi.common.frame import BUFFER_NAMES, Tile, TileBuffers
 
 
 def set_index(x, y, n: int):

@@ -16,7 +16,7 @@ import threading
 import numpy as np
 from scipy.special import erf, erfinv
 
-from common.fresnel import fresnel_dielectric, reflect_m, refract_m
+from igi.common.fresnel import fresnel_dielectric, reflect_m, refract_m
 
 INV_SQRT_PI = 1.0 / np.sqrt(np.pi)
 ROUGH_TRANSMITTANCE_RES = 64  # Mitsuba's MI_ROUGH_TRANSMITTANCE_RES

@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from common.frame import FrameSpec
-from master.kernels.accumulate import add_frame
-from master.kernels.accumulate import mean as mean_kernel
+from igi.common.frame import FrameSpec
+from igi.master.kernels.accumulate import add_frame
+from igi.master.kernels.accumulate import mean as mean_kernel
 
 SEED_MODULUS = 2**31  # seeds stay inside common.params' declared range
 

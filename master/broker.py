@@ -49,9 +49,9 @@ from typing import Any, Callable
 import numpy as np
 import zmq
 
-from common import protocol as P
-from common.frame import FrameSpec
-from common.scene import Scene
+from igi.common import protocol as P
+from igi.common.frame import FrameSpec
+from igi.common.scene import Scene
 
 from . import scene_state
 from .accumulation import Accumulator, accumulation_key, sequence_spec
@@ -239,7 +239,7 @@ class Broker:
         (encoded here, in the caller's thread): a worker that joins later gets that blob and
         the few edits since, never an ever-growing log (issue 20). Workers already in step
         keep their blob and get the edits one by one, as before."""
-        from common.scene_codec import apply_edit
+        from igi.common.scene_codec import apply_edit
 
         P.validate(P.EDIT, {"hash": "0" * 64, "version": 1, "edit": edit})  # wire shape
         version, fold = self._call(lambda: self._apply_edit(edit, apply_edit))
@@ -281,7 +281,7 @@ class Broker:
                    height: int | None = None, frame: int | None = None) -> FrameSpec:
         """FrameSpec of the current scene version: accumulation index ``index``; camera and
         resolution from the scene unless given (see ``common.camera.resolve_camera``)."""
-        from common.camera import resolve_camera
+        from igi.common.camera import resolve_camera
 
         scene = self.scene
         if scene is None:

@@ -41,8 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
-from master.errors import RenderError, UsageError
-from master.local_workers import LocalWorkers, supervise_workers, wait_workers
+from igi.master.errors import RenderError, UsageError
+from igi.master.local_workers import LocalWorkers, supervise_workers, wait_workers
 
 log = logging.getLogger("igi")
 
@@ -53,8 +53,8 @@ def load_scene_file(path: str | None, root: str | None = None):
     """Load a scene file, or a bundled scene by name (``igi scenes``); an existing path wins.
     ``root`` (``--scene-root``; None = the scene file's folder) confines the files the scene may
     name (:mod:`common.scene_root`)."""
-    from common import bundled
-    from common.scene import SceneError
+    from igi.common import bundled
+    from igi.common.scene import SceneError
 
     p = bundled.resolve(path)
     if p is None:
@@ -65,7 +65,7 @@ def load_scene_file(path: str | None, root: str | None = None):
         raise UsageError(f"scene file not found: {path}")
     if not p.is_file():
         raise UsageError(f"scene path is not a file: {path}")
-    from common.loader import load_scene
+    from igi.common.loader import load_scene
 
     try:
         return load_scene(p, root=root)
@@ -76,7 +76,7 @@ def load_scene_file(path: str | None, root: str | None = None):
 
 
 def params_from(args: argparse.Namespace):
-    from common.params import params_from_args
+    from igi.common.params import params_from_args
 
     try:
         params = params_from_args(args)
@@ -94,7 +94,7 @@ def params_from(args: argparse.Namespace):
 def check_sizes(width, height, frames=None, scene=None, params=None) -> None:
     """The shared limits (common/limits.py) on what a render asks for; UsageError naming the limit.
     Without a scene only the sides given are checked; with one, the effective resolution."""
-    from common import limits
+    from igi.common import limits
 
     try:
         if frames is not None:
@@ -102,7 +102,7 @@ def check_sizes(width, height, frames=None, scene=None, params=None) -> None:
         if scene is None:
             limits.check_resolution(width or 1, height or 1, what="--width/--height")
             return
-        from common.camera import resolve_camera
+        from igi.common.camera import resolve_camera
 
         _cam, _fov, w, h = resolve_camera(scene, None, width, height)
         limits.check_resolution(w, h)
@@ -113,7 +113,7 @@ def check_sizes(width, height, frames=None, scene=None, params=None) -> None:
 
 
 def apply_memory_budget(args: argparse.Namespace) -> None:
-    from common import limits
+    from igi.common import limits
 
     try:
         limits.set_memory_budget(getattr(args, "memory_budget", None))
@@ -160,7 +160,7 @@ class Progress:
 
 
 def write_image(path: str, image) -> None:
-    from common.image_io import write_exr, write_png
+    from igi.common.image_io import write_exr, write_png
 
     ext = Path(path).suffix.lower()
     if ext not in (".exr", ".png"):  # checked before rendering
@@ -190,9 +190,9 @@ def cmd_render(args: argparse.Namespace) -> int:
     scene = load_scene_file(args.scene, args.scene_root)
     check_sizes(args.width, args.height, args.frames, scene, params)
     if args.plan:
-        from common.camera import resolve_camera
-        from worker.renderer import Renderer
-        from worker.vpl_importance import View
+        from igi.common.camera import resolve_camera
+        from igi.worker.renderer import Renderer
+        from igi.worker.vpl_importance import View
 
         r = Renderer(scene)
         print("\n".join(r.plan.lines()))
@@ -242,7 +242,7 @@ class ErrorTracker:
     Accumulator, whose even/odd halves estimate the relMSE of the mean without a reference."""
 
     def __init__(self):
-        from master.accumulation import Accumulator
+        from igi.master.accumulation import Accumulator
 
         self.acc = Accumulator()
         self.prev = None
@@ -259,14 +259,14 @@ class ErrorTracker:
 
 def _render_frames(args, scene, params, on_frame):
     if args.workers == 0:
-        from master.inprocess import render_local
+        from igi.master.inprocess import render_local
 
         image = render_local(scene, params, frames=args.frames, width=args.width, height=args.height,
                              on_frame=on_frame)
     else:
-        from master.broker import Broker
+        from igi.master.broker import Broker
 
-        from master.broker import FrameCancelled
+        from igi.master.broker import FrameCancelled
 
         with Broker(scene, bind="tcp://127.0.0.1:*") as broker:
             workers = LocalWorkers(broker.endpoint, args.workers, threads=max(1, args.threads))
@@ -299,7 +299,7 @@ def _start_viewer(broker, args):
     if not http:
         return None
     try:
-        viewer = importlib.import_module("master.viewer")
+        viewer = importlib.import_module("igi.master.viewer")
     except ImportError:
         log.info("no viewer in this build (master/viewer.py); serving the master only")
         return None
@@ -308,7 +308,7 @@ def _start_viewer(broker, args):
 
 
 def _serve(args, scene, local_workers: int) -> int:
-    from master.broker import Broker
+    from igi.master.broker import Broker
 
     check_bind(args.bind)
     params = params_from(args) if scene is not None else None
@@ -321,7 +321,7 @@ def _serve(args, scene, local_workers: int) -> int:
     curve = None
     keys = getattr(args, "curve_keys", None)
     if keys:
-        from common import protocol as P
+        from igi.common import protocol as P
 
         try:
             if local_workers:
@@ -373,7 +373,7 @@ def _serve(args, scene, local_workers: int) -> int:
 
 
 def cmd_keys(args: argparse.Namespace) -> int:
-    from common import protocol as P
+    from igi.common import protocol as P
 
     try:
         out = P.generate_keys(args.directory, workers=tuple(args.worker or ["worker"]))
@@ -393,14 +393,14 @@ def cmd_serve(args: argparse.Namespace) -> int:
     check_sizes(args.width, args.height)
     scene = load_scene_file(args.scene, args.scene_root)
     check_sizes(args.width, args.height, None, scene, params_from(args))
-    from common.bundled import resolve
+    from igi.common.bundled import resolve
 
     args.scene_path = str(resolve(args.scene))  # the viewer looks for a reference image beside it
     return _serve(args, scene, args.workers)
 
 
 def cmd_scenes(args: argparse.Namespace) -> int:
-    from common import bundled
+    from igi.common import bundled
 
     rows = bundled.scenes()
     width = max((len(n) for n, _, _ in rows), default=0)
@@ -412,14 +412,14 @@ def cmd_scenes(args: argparse.Namespace) -> int:
 def cmd_master(args: argparse.Namespace) -> int:
     scene = load_scene_file(args.scene, args.scene_root) if args.scene else None
     if args.scene:
-        from common.bundled import resolve
+        from igi.common.bundled import resolve
 
         args.scene_path = str(resolve(args.scene))
     return _serve(args, scene, 0)
 
 
 def cmd_worker(args: argparse.Namespace) -> int:
-    from worker.node import run_from_args
+    from igi.worker.node import run_from_args
 
     return run_from_args(args)
 
@@ -435,7 +435,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 def bench_parser(name: str) -> argparse.ArgumentParser:
     """The parser of ``igi bench NAME``; parsed arguments carry ``func``, the module's ``run``."""
-    import bench  # master imports bench only inside cli.py's functions (tests/test_architecture.py)
+    from igi import bench  # master imports bench only inside cli.py's functions (tests/test_architecture.py)
 
     mod = bench.load(name)
     p = argparse.ArgumentParser(prog=f"igi bench {name}", description=bench.BENCHES[name].help)
@@ -448,14 +448,14 @@ def bench_names() -> dict[str, str]:
     """``igi bench`` subcommands (name → one-line help) from the bench registry; empty when the
     ``bench`` package is not installed."""
     try:
-        import bench
+        from igi import bench
     except ImportError:
         return {}
     return {name: b.help for name, b in bench.BENCHES.items()}
 
 
 def _add_render_params(p: argparse.ArgumentParser) -> None:
-    from common.params import add_arguments
+    from igi.common.params import add_arguments
 
     add_arguments(p)
     p.add_argument("--memory-budget", default=None, metavar="SIZE",
@@ -468,7 +468,7 @@ def _add_render_params(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from master.broker import DEFAULT_BIND
+    from igi.master.broker import DEFAULT_BIND
 
     parser = argparse.ArgumentParser(prog="igi", description="Interactive global illumination, distributed "
                                      "(Wald et al. 2002)")
@@ -509,7 +509,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.set_defaults(func=cmd_master)
 
     w = sub.add_parser("worker", help="run a worker that connects to a master")
-    from worker.node import add_arguments as worker_args
+    from igi.worker.node import add_arguments as worker_args
 
     worker_args(w)
     w.set_defaults(func=cmd_worker)
@@ -542,7 +542,7 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument("--paths", action="store_true", help="also print each scene file's path")
     sc.set_defaults(func=cmd_scenes)
 
-    from master import record
+    from igi.master import record
 
     rec = sub.add_parser("record", help=record.HELP)
     record.add_arguments(rec)

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from master.kernels.discontinuity import filter_rows
+from igi.master.kernels.discontinuity import filter_rows
 
 # Pixels per parallel stripe: enough work per hand-off to the pool, several per thread.
 STRIPE_PIXELS = 32768

@@ -25,11 +25,11 @@ import weakref
 
 import numpy as np
 
-from common.codec import decode_into, decode_raw, decompress
-from common.frame import Tile, TileBuffers
-from common.interleave import make_tiles, scatter, task_tile_size, tile_slices
-from master.discontinuity_buffer import resolve_window, run_stripes, window_offsets
-from master.kernels.discontinuity import finish_sub
+from igi.common.codec import decode_into, decode_raw, decompress
+from igi.common.frame import Tile, TileBuffers
+from igi.common.interleave import make_tiles, scatter, task_tile_size, tile_slices
+from igi.master.discontinuity_buffer import resolve_window, run_stripes, window_offsets
+from igi.master.kernels.discontinuity import finish_sub
 
 DEFAULT_TASK_PIXELS = 4096  # ~20-50 ms of worker time at 22 VPLs on this machine's cores
 
@@ -221,7 +221,7 @@ class _Planes:
         return _finish(self.vals, self.nrm, self.depth, self.n, self.width, self.height, window, w, p)
 
     def to_buffers(self, b: dict[str, np.ndarray], tiles) -> None:
-        from master.kernels.discontinuity import gather_rows
+        from igi.master.kernels.discontinuity import gather_rows
 
         self.fill_missing(tiles)
         H, W = self.height, self.width
@@ -252,6 +252,6 @@ def filter_weight(params: dict, index: int) -> float:
 
 
 def _asdict(params) -> dict:
-    from common.params import params_to_dict
+    from igi.common.params import params_to_dict
 
     return params_to_dict(params)

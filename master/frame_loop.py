@@ -30,8 +30,8 @@ import threading
 import time
 from typing import Callable
 
-from common import protocol as P
-from common.frame import FrameSpec
+from igi.common import protocol as P
+from igi.common.frame import FrameSpec
 
 from . import scheduler
 from .frame_assembly import FrameAssembler, task_tiles, tile_pixel_count

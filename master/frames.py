@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from common.frame import FrameSpec, Tile, accumulation_index
-from common.params import make_params, params_to_dict
+from igi.common.frame import FrameSpec, Tile, accumulation_index
+from igi.common.params import make_params, params_to_dict
 
 from . import scheduler
 from .frame_assembly import FrameAssembler

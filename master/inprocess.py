@@ -14,9 +14,9 @@ from typing import Callable
 
 import numpy as np
 
-from common.camera import resolve_camera
-from common.params import make_params, params_to_dict
-from common.scene import Scene
+from igi.common.camera import resolve_camera
+from igi.common.params import make_params, params_to_dict
+from igi.common.scene import Scene
 
 from .accumulation import Accumulator, accumulation_key, sequence_spec
 from .frame_assembly import DEFAULT_TASK_PIXELS, FrameAssembler, task_tiles
@@ -26,7 +26,7 @@ def roundtrip(buffers, enabled: bool = True):
     """The buffers as the master receives them from the wire (codec encode → decode)."""
     if not enabled:
         return buffers
-    from common.codec import decode, encode
+    from igi.common.codec import decode, encode
 
     return decode(encode(buffers), len(buffers))
 
@@ -49,7 +49,7 @@ def render_local(scene: Scene, params=None, frames: int = 1, camera=None,
         params = make_params(**params)
     pdict = params_to_dict(params)
     if renderer is None:
-        from worker.renderer import Renderer
+        from igi.worker.renderer import Renderer
 
         renderer = Renderer(scene, scene_version=scene_version)
     cam, fov_x, w, h = resolve_camera(scene, camera, width, height)

@@ -30,8 +30,8 @@ from typing import Callable
 
 import zmq
 
-from common import protocol as P
-from common.ratelimit_log import RateLimitedLog
+from igi.common import protocol as P
+from igi.common.ratelimit_log import RateLimitedLog
 
 from . import scheduler
 from .scene_state import SceneState
@@ -337,7 +337,7 @@ def _handshake_monitor(sock: zmq.Socket):
     try:
         if not sock.getsockopt(zmq.CURVE_SERVER):
             return None
-        from common.curve_log import HandshakeMonitor
+        from igi.common.curve_log import HandshakeMonitor
 
         return HandshakeMonitor(sock)
     except zmq.ZMQError:  # pragma: no cover - monitoring unsupported

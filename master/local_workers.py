@@ -18,7 +18,7 @@ PACKAGE_ROOT = Path(__file__).resolve().parents[1]
 
 def worker_command(endpoint: str, threads: int = 1, quiet: bool = True, name: str | None = None,
                    curve_keys: str | None = None) -> list[str]:
-    cmd = [sys.executable, "-m", "worker.node", "--connect", endpoint, "--threads", str(threads),
+    cmd = [sys.executable, "-m", "igi.worker.node", "--connect", endpoint, "--threads", str(threads),
            "--exit-with-master", "--parent-pid", str(os.getpid())]
     if curve_keys:
         cmd += ["--curve-keys", str(curve_keys), "--key-name", "worker"]

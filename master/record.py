@@ -47,7 +47,7 @@ def decode_frame(header: dict, payload: bytes):
 
         from PIL import Image
 
-        from common.image_io import srgb_to_linear
+        from igi.common.image_io import srgb_to_linear
 
         with Image.open(io.BytesIO(payload)) as im:
             return srgb_to_linear(np.asarray(im.convert("RGB")) / 255.0).astype(np.float32)
@@ -61,7 +61,7 @@ def record(endpoint: str, output: str | Path, count: int = 10, fmt: str = "png",
     import msgpack
     import zmq
 
-    from common.image_io import write_exr, write_png
+    from igi.common.image_io import write_exr, write_png
 
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)

@@ -12,14 +12,14 @@ from __future__ import annotations
 
 import threading
 
-from common.scene import Scene
+from igi.common.scene import Scene
 
 FOLD_EDITS = 64  # edits on top of the scene blob before they are folded into a new blob (issue 20)
 
 
 def encode(scene: Scene) -> tuple[bytes, str]:
     """(blob, content hash) of ``scene`` (may take a while: call it outside the loop thread)."""
-    from common.scene_codec import encode_scene, scene_hash
+    from igi.common.scene_codec import encode_scene, scene_hash
 
     blob = encode_scene(scene)
     return blob, scene_hash(blob)

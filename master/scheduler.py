@@ -192,7 +192,7 @@ def requeue_front(pending: Sequence, lost: Sequence) -> list:
 
 def credit_for(threads: int, per_thread: int | None = None) -> int:
     """Default credit a worker grants: ~3 tasks in flight per render thread."""
-    from common.protocol import CREDIT_PER_THREAD
+    from igi.common.protocol import CREDIT_PER_THREAD
 
     return max(1, int(threads) * (CREDIT_PER_THREAD if per_thread is None else per_thread))
 

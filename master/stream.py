@@ -23,9 +23,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from common import protocol as P
-from common.frame import FrameSpec
-from common.params import make_params, params_to_dict
+from igi.common import protocol as P
+from igi.common.frame import FrameSpec
+from igi.common.params import make_params, params_to_dict
 
 from .accumulation import Accumulator, accumulation_key, sequence_spec
 from .frame_loop import FrameLoop
@@ -77,7 +77,7 @@ class Stream:
 
     # ------------------------------------------------------------------ view (any thread)
     def start(self, params=None, camera=None, width: int | None = None, height: int | None = None) -> None:
-        from common.camera import resolve_camera
+        from igi.common.camera import resolve_camera
 
         scene = self.scene.current()
         if scene is None:

@@ -123,7 +123,7 @@ def tonemap8(rgb: np.ndarray, exposure: float = 0.0) -> np.ndarray:
     ``common.image_io.to_srgb8``, several times faster; downloads use the exact one)."""
     global _SRGB_LUT
     if _SRGB_LUT is None:
-        from common.image_io import linear_to_srgb
+        from igi.common.image_io import linear_to_srgb
 
         x = np.arange(_SRGB_LUT_SIZE, dtype=np.float64) / (_SRGB_LUT_SIZE - 1)
         _SRGB_LUT = np.round(linear_to_srgb(x) * 255.0).astype(np.uint8)
@@ -193,8 +193,8 @@ class SceneInfo:
 
     def geometry(self, broker):
         """(scene, Geometry, LightSampler, version) of the broker's current scene."""
-        from common.geometry import Geometry
-        from common.lights import LightSampler
+        from igi.common.geometry import Geometry
+        from igi.common.lights import LightSampler
 
         with self._lock:
             version = broker.scene_version
@@ -207,7 +207,7 @@ class SceneInfo:
 
     def plan(self, broker) -> dict:
         """The render plan of the current scene version: {version, lines, flags}."""
-        from common.render_plan import analyze
+        from igi.common.render_plan import analyze
 
         with self._lock:
             if self._plan is not None and self._plan_version == broker.scene_version:
@@ -242,8 +242,8 @@ def scene_objects(scene) -> dict:
 def pick(broker, info: SceneInfo, x: float, y: float) -> dict | None:
     """What the pixel (x, y) of the stream's view shows: a mesh (possibly an area light) or a
     point/spot light near the ray; None for the background."""
-    from common import scene as S
-    from common.camera import camera_rays
+    from igi.common import scene as S
+    from igi.common.camera import camera_rays
 
     v = broker.view()
     w, h = int(v["width"]), int(v["height"])
@@ -307,7 +307,7 @@ def select_object(broker, mesh: int | None = None, emitter: int | None = None) -
 
 def move_edit(broker, sel: dict, delta) -> dict:
     """The scene edit that translates the selection by ``delta`` (world space)."""
-    from common import scene as S
+    from igi.common import scene as S
 
     dv = _finite_vec(delta, 3, "move.delta")
     if np.linalg.norm(dv) > 10 * broker.scene.diagonal():
@@ -491,7 +491,7 @@ class Reference:
                 return self._sized[(w, h)]
             try:
                 if self._img is None:
-                    from common.image_io import read_image
+                    from igi.common.image_io import read_image
 
                     self._img = np.asarray(read_image(self.path), np.float32)
                 img = self._img
@@ -527,7 +527,7 @@ class Reference:
         ref = self.image(w, h)
         if ref is None:
             return None
-        from common.metrics import relmse
+        from igi.common.metrics import relmse
 
         return relmse(sf.image, ref)
 
@@ -885,11 +885,11 @@ class Viewer:
 
     # -------------------------------------------------------------- WebSocket
     def _init_message(self) -> dict:
-        from common.params import viewer_schema
+        from igi.common.params import viewer_schema
 
         v = self.broker.view()
         scene = self.broker.scene
-        from common.params import values_in_use
+        from igi.common.params import values_in_use
 
         return {"type": "init", "schema": viewer_schema(), "params": v.get("params"),
                 "in_use": values_in_use(v.get("params") or {}),
@@ -942,7 +942,7 @@ class Viewer:
             c.wake.set()
             return None
         if kind == "camera":
-            from common.limits import check_camera
+            from igi.common.limits import check_camera
 
             cam = _finite_vec(m.get("to_world"), 16, "camera.to_world")
             fov = m.get("fov_x")
@@ -953,8 +953,8 @@ class Viewer:
             values = m.get("values")
             if not isinstance(values, dict):
                 raise ValueError("params.values: expected a map")
-            from common.limits import check_params
-            from common.params import make_params, params_to_dict, values_in_use
+            from igi.common.limits import check_params
+            from igi.common.params import make_params, params_to_dict, values_in_use
 
             merged = dict(b.view().get("params") or {})
             merged.update(values)
@@ -962,7 +962,7 @@ class Viewer:
             params = await run(lambda: b.set_params(**values))
             return {"type": "params", "params": params, "in_use": values_in_use(params)}
         if kind == "resolution":
-            from common.limits import check_resolution
+            from igi.common.limits import check_resolution
 
             w, h = check_resolution(m.get("width"), m.get("height"))
             await run(b.set_resolution, w, h)
@@ -1019,7 +1019,7 @@ def _image_file(image: np.ndarray, ext: str) -> bytes:
     import os
     import tempfile
 
-    from common.image_io import write_exr, write_png
+    from igi.common.image_io import write_exr, write_png
 
     fd, path = tempfile.mkstemp(suffix="." + ext)
     os.close(fd)
@@ -1051,7 +1051,7 @@ def start(broker, host: str = "127.0.0.1", port: int = 8000, args=None, *, requi
     reference = None
     scene_path = getattr(args, "scene_path", None) if args is not None else None
     if scene_path:
-        from common.bundled import reference_of
+        from igi.common.bundled import reference_of
 
         reference = reference_of(scene_path)
     v = Viewer(broker, host, port, token=token, require_token=require_token, pub=pub or None,
@@ -1059,7 +1059,7 @@ def start(broker, host: str = "127.0.0.1", port: int = 8000, args=None, *, requi
     try:
         v.start()
     except OSError as e:
-        from master.errors import UsageError
+        from igi.master.errors import UsageError
 
         raise UsageError(str(e)) from None
     if not quiet:

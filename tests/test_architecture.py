@@ -49,6 +49,13 @@ def _is_package(module: str, files: dict[str, Path]) -> bool:
     return f is not None and f.name == "__init__.py"
 
 
+def _local(name: str) -> str:
+    """``igi.common.scene`` -> ``common.scene``: installed names to this file's module names
+    (the folders of the repository); a bare top-level ``common`` stays as it is (and fails
+    :func:`test_product_imports_name_the_igi_namespace`)."""
+    return name[4:] if name.startswith("igi.") else name
+
+
 def _imports(module: str, path: Path, files: dict[str, Path]):
     """(imported module or top-level name, line, lazy) for every import statement of ``path``;
     ``lazy``: the import is inside a function (runs when the function is called)."""
@@ -60,16 +67,16 @@ def _imports(module: str, path: Path, files: dict[str, Path]):
             inner = lazy or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda))
             if isinstance(child, ast.Import):
                 for alias in child.names:
-                    yield alias.name, child.lineno, lazy
+                    yield _local(alias.name), child.lineno, lazy
             elif isinstance(child, ast.ImportFrom):
                 if child.level:
                     base = package.split(".")
                     base = base[:len(base) - (child.level - 1)]
                     target = ".".join(base + ([child.module] if child.module else []))
                 else:
-                    target = child.module
+                    target = _local(child.module)
                 for alias in child.names:  # `from pkg import mod` imports the module pkg.mod
-                    sub = f"{target}.{alias.name}"
+                    sub = _local(f"{child.module}.{alias.name}") if not child.level else f"{target}.{alias.name}"
                     yield (sub if sub in files else target), child.lineno, lazy
             yield from visit(child, inner)
 
@@ -103,6 +110,34 @@ def test_the_graph_sees_the_known_imports():
     assert "master.scheduler" in edges["master.frame_loop"]  # relative import: from . import scheduler
     assert "bench.scaling_model" in edges["bench.scaling"]
     assert "bench" in edges["master.cli"]  # the one lazy upward import
+
+
+def test_product_imports_name_the_igi_namespace():
+    # installed, the packages are igi.common, igi.worker, ...: a bare `import common` works
+    # only from a checkout with the repository on sys.path, and names someone else's package
+    bad = []
+    for pkg in PACKAGES + ("tests",):
+        for f in sorted((ROOT / pkg).rglob("*.py")):
+            for node in ast.walk(ast.parse(f.read_text(), str(f))):
+                names = []
+                if isinstance(node, ast.Import):
+                    names = [a.name for a in node.names]
+                elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+                    names = [node.module]
+                bad += [f"{_rel(f)}:{node.lineno} imports {n}" for n in names if n.split(".")[0] in PACKAGES]
+    assert not bad, "imports without the igi. namespace:\n" + "\n".join(bad)
+
+
+def test_pyproject_installs_every_package_folder_under_igi():
+    import tomllib
+
+    cfg = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    listed = set(cfg["packages"])
+    folders = {"igi." + ".".join(d.relative_to(ROOT).parts)
+               for pkg in PACKAGES for d in [ROOT / pkg, *(ROOT / pkg).rglob("*")]
+               if d.is_dir() and (d / "__init__.py").is_file()}
+    assert folders == listed, f"package folders {sorted(folders)} vs pyproject {sorted(listed)}"
+    assert {f"igi.{p}": p for p in PACKAGES} == cfg["package-dir"]
 
 
 def test_no_import_points_up_a_layer():
@@ -187,10 +222,10 @@ def test_no_benchmarks_in_master():
 def test_every_registered_benchmark_has_its_entry_points():
     import importlib
 
-    import bench
+    from igi import bench
 
     for name, b in bench.BENCHES.items():
-        assert b.module.startswith("bench."), name
-        assert (ROOT / (b.module.replace(".", "/") + ".py")).is_file(), name
+        assert b.module.startswith("igi.bench."), name
+        assert (ROOT / (b.module.removeprefix("igi.").replace(".", "/") + ".py")).is_file(), name
         mod = importlib.import_module(b.module)
         assert callable(getattr(mod, "add_arguments", None)) and callable(getattr(mod, "run", None)), name

@@ -13,12 +13,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import bsdf
-from common.geometry import Geometry
-from common.lights import LightSampler, to_local, to_world, uniform_sphere
-from common.scene import AREA, NULL, POINT, SPECULAR_KINDS, SPOT, Scene
-from common.sobol_stream import SobolStream
-from common.specular import specular_targets
+from igi.common import bsdf
+from igi.common.geometry import Geometry
+from igi.common.lights import LightSampler, to_local, to_world, uniform_sphere
+from igi.common.scene import AREA, NULL, POINT, SPECULAR_KINDS, SPOT, Scene
+from igi.common.sobol_stream import SobolStream
+from igi.common.specular import specular_targets
 
 from .hash_grid import HashGrid
 
@@ -112,7 +112,7 @@ def build_photon_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: i
             flux = e.intensity[None, :] / pdf[:, None]
             o = pos
         else:
-            from common.lights import spot_falloff
+            from igi.common.lights import spot_falloff
             fall = spot_falloff(np.einsum("ij,ij->i", d, nrm), e.cutoff_angle, e.beam_width)
             flux = e.intensity[None, :] * (fall / pdf)[:, None]
             o = pos

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common.geometry import Geometry
-from common.lights import VPL_DIRECTIONAL, LightSampler, cosine_hemisphere, to_world
-from common.scene import CONSTANT, Scene
+from igi.common.geometry import Geometry
+from igi.common.lights import VPL_DIRECTIONAL, LightSampler, cosine_hemisphere, to_world
+from igi.common.scene import CONSTANT, Scene
 
 BINS_Z, BINS_PHI = 16, 32  # equal-area bins: uniform in cos θ and φ about the world z axis
 RAYS_PER_POINT = 8

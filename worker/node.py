@@ -42,9 +42,9 @@ import uuid
 
 import zmq
 
-from common import protocol as P
-from common.frame import Tile
-from common.ratelimit_log import RateLimitedLog
+from igi.common import protocol as P
+from igi.common.frame import Tile
+from igi.common.ratelimit_log import RateLimitedLog
 
 log = logging.getLogger("igi.worker")
 
@@ -363,7 +363,7 @@ class WorkerNode:
         self._set_state(_SceneState(h, version, fut))
 
     def _build_scene(self, h: str, blob: bytes, base_version: int, edits: list):
-        from common.scene_codec import apply_edit, decode_scene
+        from igi.common.scene_codec import apply_edit, decode_scene
 
         t0 = time.perf_counter()
         scene = decode_scene(blob, expected_hash=h)
@@ -377,7 +377,7 @@ class WorkerNode:
     def _make_renderer(self, scene, version: int):
         if self._renderer_factory is not None:
             return self._renderer_factory(scene, version)
-        from worker.renderer import Renderer
+        from igi.worker.renderer import Renderer
 
         return Renderer(scene, scene_version=version)
 
@@ -390,7 +390,7 @@ class WorkerNode:
         edit = body["edit"]
 
         def build(prev=st.future):
-            from common.scene_codec import apply_edit
+            from igi.common.scene_codec import apply_edit
 
             scene, _ = prev.result()
             new = apply_edit(scene, edit)
@@ -436,7 +436,7 @@ class WorkerNode:
                                   "task": body["task"], "epoch": body["epoch"]})
 
     def _render(self, body: dict, spec, h: str, session: int) -> None:
-        from common.codec import encode
+        from igi.common.codec import encode
 
         try:
             t0 = time.perf_counter()

@@ -13,14 +13,14 @@ from collections import OrderedDict
 import numpy as np
 from scipy.special import gammaln
 
-from common.camera import camera_rays
-from common.frame import FrameSpec, Tile, TileBuffers, accumulation_index
-from common.geometry import Geometry
-from common.lights import LightSampler
-from common.params import Params, make_params
-from common.render_plan import analyze
-from common.scene import DIFFUSE, GLOSSY_KINDS, PLASTIC, ROUGHPLASTIC_DIFFUSE, Scene
-from common.sobol_stream import rng as make_rng
+from igi.common.camera import camera_rays
+from igi.common.frame import FrameSpec, Tile, TileBuffers, accumulation_index
+from igi.common.geometry import Geometry
+from igi.common.lights import LightSampler
+from igi.common.params import Params, make_params
+from igi.common.render_plan import analyze
+from igi.common.scene import DIFFUSE, GLOSSY_KINDS, PLASTIC, ROUGHPLASTIC_DIFFUSE, Scene
+from igi.common.sobol_stream import rng as make_rng
 
 from .caustics import PhotonSet, build_photon_set, default_radius, gather_photons
 from .shading import bsdf_direct, clamp_compensation, gather_vpls, trace_eye

@@ -17,11 +17,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from common import bsdf
-from common.geometry import Geometry
-from common.lights import (VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE, LightSampler, luminance,
+from igi.common import bsdf
+from igi.common.geometry import Geometry
+from igi.common.lights import (VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE, LightSampler, luminance,
                            to_local, to_world)
-from common.scene import DIFFUSE, NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE, SPECULAR_KINDS, Scene
+from igi.common.scene import DIFFUSE, NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE, SPECULAR_KINDS, Scene
 
 from .kernels import vpl_gather as vg
 from .vpl import VPLSet, concat_surface

@@ -11,12 +11,12 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from common import bsdf
-from common.geometry import Geometry
-from common.lights import VPL_SPOT, VPL_SURFACE, LightSampler, to_local, to_world
-from common.scene import NULL, SPECULAR_KINDS, Scene
-from common.sobol_stream import SobolStream
-from common.sobol_stream import rng as make_rng
+from igi.common import bsdf
+from igi.common.geometry import Geometry
+from igi.common.lights import VPL_SPOT, VPL_SURFACE, LightSampler, to_local, to_world
+from igi.common.scene import NULL, SPECULAR_KINDS, Scene
+from igi.common.sobol_stream import SobolStream
+from igi.common.sobol_stream import rng as make_rng
 
 # Sobol dimensions: direct samples use 3 (emitter, 2 for the point); a walk uses 5 to leave
 # the light and 3 per bounce (component + 2 for the direction).

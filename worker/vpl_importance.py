@@ -21,11 +21,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common.camera import camera_rays
-from common.geometry import Geometry
-from common.lights import VPL_SURFACE, LightSampler
-from common.scene import Scene
-from common.sobol_stream import rng as make_rng
+from igi.common.camera import camera_rays
+from igi.common.geometry import Geometry
+from igi.common.lights import VPL_SURFACE, LightSampler
+from igi.common.scene import Scene
+from igi.common.sobol_stream import rng as make_rng
 
 from .env_guide import ENV_SAMPLES, build_guide, guide_environment_samples, only_environment
 from .shading import contribution_per_vpl, trace_eye

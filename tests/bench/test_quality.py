@@ -27,7 +27,7 @@ def parse(module, argv):
 def test_block_average_is_the_reduced_render_exactly():
     """A pixel of a k-times smaller render is the k×k box average of the full-resolution
     pixels: the reduced reference must be exactly that, for every block."""
-    from bench.quality import downscale_factor, reduced_reference
+    from igi.bench.quality import downscale_factor, reduced_reference
 
     rng = np.random.default_rng(1)
     full = rng.random((12, 18, 3)).astype(np.float32) * 5
@@ -40,7 +40,7 @@ def test_block_average_is_the_reduced_render_exactly():
             np.testing.assert_allclose(small[y, x], full[3 * y:3 * y + 3, 3 * x:3 * x + 3].mean(axis=(0, 1)),
                                        rtol=1e-6)
     # a render that IS the box-filtered full image scores 0 against the reduced reference
-    from common.metrics import relmse
+    from igi.common.metrics import relmse
 
     boxed = full.reshape(4, 3, 6, 3, 3).mean(axis=(1, 3))
     assert relmse(boxed, small) == pytest.approx(0.0, abs=1e-12)
@@ -49,7 +49,7 @@ def test_block_average_is_the_reduced_render_exactly():
 
 
 def test_downscale_factor_rejects_non_dividing_sizes():
-    from bench.quality import BenchError, downscale_factor
+    from igi.bench.quality import BenchError, downscale_factor
 
     for kw in ({"scale": 0.4}, {"width": 7}, {"width": 9, "height": 3}, {"scale": 0.2}):
         with pytest.raises(BenchError):
@@ -57,7 +57,7 @@ def test_downscale_factor_rejects_non_dividing_sizes():
 
 
 def test_pareto_front_is_non_dominated_and_complete():
-    from bench.quality import dominated, pareto_front
+    from igi.bench.quality import dominated, pareto_front
 
     rng = np.random.default_rng(7)
     pts = [{"time_s": float(t), "relmse": float(e)} for t, e in rng.random((40, 2))]
@@ -71,7 +71,7 @@ def test_pareto_front_is_non_dominated_and_complete():
 
 
 def test_bias_noise_fit_recovers_the_model():
-    from bench.quality import fit_bias_noise
+    from igi.bench.quality import fit_bias_noise
 
     f = np.arange(1, 33)
     fit = fit_bias_noise(f, 0.002 + 0.03 / f)
@@ -81,8 +81,8 @@ def test_bias_noise_fit_recovers_the_model():
 
 
 def test_sweep_values_follow_the_declared_defaults():
-    from common.params import PARAM_BY_NAME, make_params
-    from bench.quality import BenchError, make_configs, parse_sweeps
+    from igi.common.params import PARAM_BY_NAME, make_params
+    from igi.bench.quality import BenchError, make_configs, parse_sweeps
 
     d = PARAM_BY_NAME["indirect_vpls"].default
     sweeps = parse_sweeps(["indirect-vpls=x2,7", "interleave=1"])
@@ -102,7 +102,7 @@ def test_sweep_values_follow_the_declared_defaults():
 
 @needs_shared
 def test_quality_bench_on_cornell_box(tmp_path):
-    from bench import quality as bq
+    from igi.bench import quality as bq
 
     args = parse(bq, ["cornell-box", "--width", 64, "--height", 64, "--frames", "2",
                       "--sweep", "indirect_vpls=x0.5,x2", "-o", tmp_path])
@@ -138,25 +138,25 @@ def test_quality_bench_on_cornell_box(tmp_path):
 
 @needs_shared
 def test_quality_bench_is_registered_in_the_cli():
-    from master.cli import bench_parser, build_parser
+    from igi.master.cli import bench_parser, build_parser
 
     args = build_parser().parse_args(["bench", "quality", "cornell-box", "--frames", "1,4", "--scale", "0.5"])
     assert args.bench == "quality" and args.bench_args == ["cornell-box", "--frames", "1,4", "--scale", "0.5"]
     args = bench_parser("quality").parse_args(args.bench_args)
-    assert args.func.__module__ == "bench.quality"
+    assert args.func.__module__ == "igi.bench.quality"
     args = bench_parser("compare").parse_args(["cornell-box", "--budgets", "0.25,1"])
-    assert args.func.__module__ == "bench.compare"
+    assert args.func.__module__ == "igi.bench.compare"
 
 
 def _tiny_scene():
-    from common.loader import load_scene
+    from igi.common.loader import load_scene
 
     return load_scene(CORNELL)
 
 
 @needs_shared
 def test_orbit_cameras():
-    from bench.compare import orbit_cameras
+    from igi.bench.compare import orbit_cameras
 
     scene = _tiny_scene()
     m0 = np.asarray(scene.camera.to_world, np.float64).reshape(4, 4)
@@ -173,7 +173,7 @@ def test_orbit_cameras():
 @needs_shared
 @pytest.mark.skipif(importlib.util.find_spec("mitsuba") is None, reason="mitsuba not installed (extra [peers])")
 def test_compare_bench_against_mitsuba(tmp_path):
-    from bench import compare as bc
+    from igi.bench import compare as bc
 
     args = parse(bc, ["cornell-box", "--width", 32, "--height", 32, "--budgets", "0.05,0.1", "--converged-frames", 1,
                       "--flicker-frames", 2, "--path-ref-spp", 2, "-o", tmp_path])

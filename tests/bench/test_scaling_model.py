@@ -11,15 +11,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common.codec import decode, encode, oct_decode
+from igi.common.codec import decode, encode, oct_decode
 from tests.support.oracle_codec import oct_decode_planes
-from common.frame import TileBuffers
-from common.interleave import extract
-from common.params import make_params, params_to_dict
-from master import parallel
-from master.discontinuity_buffer import filter_irradiance, window_offsets
-from master.frame_assembly import FrameAssembler, task_tiles, tile_pixel_count
-from bench.scaling_model import LOOPBACK, NETWORKS, Config, Costs, Network, simulate
+from igi.common.frame import TileBuffers
+from igi.common.interleave import extract
+from igi.common.params import make_params, params_to_dict
+from igi.master import parallel
+from igi.master.discontinuity_buffer import filter_irradiance, window_offsets
+from igi.master.frame_assembly import FrameAssembler, task_tiles, tile_pixel_count
+from igi.bench.scaling_model import LOOPBACK, NETWORKS, Config, Costs, Network, simulate
 
 ZERO_NET = Network("zero", float("inf"), 0.0)
 
@@ -300,7 +300,7 @@ def test_a_deeper_pipeline_builds_fewer_sets():
 
 def test_result_cost_micro_benchmark_runs():
     """bench/result_cost.py drives the broker's own RESULT handler (no sockets); figures > 0."""
-    from bench.result_cost import measure
+    from igi.bench.result_cost import measure
 
     r = measure(width=96, height=72, workers=4, results=40, reps=1)
     assert r["no_sets"]["per_result_us"] > 0 and r["sets_64"]["per_result_us"] > 0

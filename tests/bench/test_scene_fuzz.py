@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench import stress as bs
+from igi.bench import stress as bs
 
 HANG_LIMIT = 120.0  # seconds before a load counts as a hang (seed loads take ~0.1 s)
 
@@ -182,8 +182,8 @@ _LONG = "a" * 5000
 
 @pytest.mark.parametrize("where", ["xml-mesh", "obj-mtllib", "mtl-map_Kd", "top-level"])
 def test_overlong_file_names_give_a_scene_error(where, tmp_path):
-    from common.loader import load_scene
-    from common.scene import SceneError
+    from igi.common.loader import load_scene
+    from igi.common.scene import SceneError
 
     tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\n"
     if where == "xml-mesh":
@@ -204,9 +204,9 @@ def test_overlong_file_names_give_a_scene_error(where, tmp_path):
 
 
 def test_roughplastic_with_zero_ior_is_rejected_or_renders(tmp_path):
-    from common.loader import load_scene
-    from common.scene import SceneError
-    from master.inprocess import render_local
+    from igi.common.loader import load_scene
+    from igi.common.scene import SceneError
+    from igi.master.inprocess import render_local
 
     p = tmp_path / "s.xml"
     p.write_text('<scene version="3.0.0"><bsdf type="roughplastic" id="rp"><float name="int_ior" value="0"/>'

@@ -16,7 +16,7 @@ CASES = ["scene-root", "host-rebinding", "viewer-validation", "rogue-wrong", "mo
 @pytest.mark.timeout(600)
 def test_bench_stress_runs_the_selected_hostile_cases(tmp_path):
     out = tmp_path / "stress"
-    r = subprocess.run([sys.executable, "-m", "master.cli", "bench", "stress", "--cases", ",".join(CASES),
+    r = subprocess.run([sys.executable, "-m", "igi.master.cli", "bench", "stress", "--cases", ",".join(CASES),
                         "-o", str(out)], cwd=ROOT, env=pythonpath_env(), capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-4000:]
     d = json.loads((tmp_path / "stress.json").read_text())
@@ -36,6 +36,6 @@ def test_bench_stress_runs_the_selected_hostile_cases(tmp_path):
 
 
 def test_unknown_case_is_one_line():
-    r = subprocess.run([sys.executable, "-m", "master.cli", "bench", "stress", "--cases", "nope"], cwd=ROOT,
+    r = subprocess.run([sys.executable, "-m", "igi.master.cli", "bench", "stress", "--cases", "nope"], cwd=ROOT,
                        env=pythonpath_env(), capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "unknown case 'nope'" in r.stderr and "Traceback" not in r.stderr, r.stderr

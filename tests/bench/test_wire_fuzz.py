@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import json
 
-from bench import stress as bs
+from igi.bench import stress as bs
 
 
 def test_decoder_gives_a_message_or_a_protocol_error_for_every_mutant():
@@ -49,7 +49,7 @@ def test_worker_drops_bad_messages_with_rate_limited_log_lines_and_keeps_renderi
 def test_rate_limited_log_counts_and_reports_suppressed_lines():
     import logging
 
-    from common.ratelimit_log import RateLimitedLog
+    from igi.common.ratelimit_log import RateLimitedLog
 
     lines = []
 

@@ -19,14 +19,14 @@ import numpy as np
 import pytest
 import zmq
 
-from bench.stress_scenes import mini_cornell
+from igi.bench.stress_scenes import mini_cornell
 from tests.support.cluster_helpers import start_worker, stop_procs, wait_until
-from common import protocol as P
-from common.params import make_params, params_to_dict
-from master.accumulation import sequence_spec
-from master.broker import Broker
-from master.frame_assembly import FrameAssembler, task_tiles
-from master.inprocess import render_local, roundtrip
+from igi.common import protocol as P
+from igi.common.params import make_params, params_to_dict
+from igi.master.accumulation import sequence_spec
+from igi.master.broker import Broker
+from igi.master.frame_assembly import FrameAssembler, task_tiles
+from igi.master.inprocess import render_local, roundtrip
 
 W, H = 64, 48
 REL = 2.0 ** -10
@@ -74,7 +74,7 @@ def test_two_workers_equal_one_worker_and_local(scene, procs):
 
 def local_frame_images(scene, pdict, count):
     """Reference: each frame's filtered image, rendered in this process."""
-    from worker.renderer import Renderer
+    from igi.worker.renderer import Renderer
 
     r = Renderer(scene)
     cam = scene.camera

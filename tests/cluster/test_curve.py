@@ -10,11 +10,11 @@ import threading
 import pytest
 import zmq
 
-from bench.stress_scenes import mini_cornell
+from igi.bench.stress_scenes import mini_cornell
 from tests.support.cluster_helpers import wait_until
-from common import protocol as P
-from master.broker import Broker
-from worker.node import WorkerNode
+from igi.common import protocol as P
+from igi.master.broker import Broker
+from igi.worker.node import WorkerNode
 
 W, H = 24, 18
 

@@ -19,7 +19,7 @@ def _free_port() -> int:
 
 
 def test_igi_keys_writes_master_and_worker_keys(tmp_path):
-    out = subprocess.run([sys.executable, "-m", "master.cli", "keys", str(tmp_path / "k"), "--worker", "a",
+    out = subprocess.run([sys.executable, "-m", "igi.master.cli", "keys", str(tmp_path / "k"), "--worker", "a",
                           "--worker", "b"], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     k = tmp_path / "k"
@@ -30,7 +30,7 @@ def test_igi_keys_writes_master_and_worker_keys(tmp_path):
 
 def test_serve_with_curve_keys_renders_with_an_authenticated_local_worker(tmp_path):
     port = _free_port()
-    cmd = [sys.executable, "-m", "master.cli", "serve", str(SCENE), "--workers", "1", "--width", "32",
+    cmd = [sys.executable, "-m", "igi.master.cli", "serve", str(SCENE), "--workers", "1", "--width", "32",
            "--height", "32", "--bind", f"tcp://127.0.0.1:{port}", "--http", "", "--stats-interval", "1",
            "--curve-keys", str(tmp_path / "keys")]
     p = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

@@ -36,7 +36,7 @@ K8S_VERSIONS = ("1.27.0", None)  # oldest supported here, and the validator's la
 
 @functools.lru_cache(maxsize=1)
 def igi_parser():
-    from master.cli import build_parser
+    from igi.master.cli import build_parser
 
     return build_parser()
 
@@ -478,7 +478,7 @@ MASTER_IP = f"{SUBNET}.1"
 ZMQ_PORT = 5555
 ENDPOINT = f"tcp://{MASTER_IP}:{ZMQ_PORT}"
 WORKERS = {"w1": f"{SUBNET}.2", "w2": f"{SUBNET}.3"}
-IGI = [sys.executable, "-m", "master.cli"]  # the `igi` console script's entry point, this tree
+IGI = [sys.executable, "-m", "igi.master.cli"]  # the `igi` console script's entry point, this tree
 
 
 def _ip(*args: str, check: bool = True) -> subprocess.CompletedProcess:
@@ -641,9 +641,9 @@ def test_netns_worker_retries_while_master_is_down(workers):
 MASTER_DRIVER = r"""
 import json, re, subprocess, sys, time
 import numpy as np
-from master.broker import Broker
-from master.cli import load_scene_file, write_image
-from master.inprocess import render_local
+from igi.master.broker import Broker
+from igi.master.cli import load_scene_file, write_image
+from igi.master.inprocess import render_local
 
 scene_path, bind, out, stats_out, frames, width, height = sys.argv[1:8]
 frames, width, height = int(frames), int(width), int(height)
@@ -701,7 +701,7 @@ def test_netns_render_across_namespaces(netns, workers, tmp_path):
     for _, wlog in workers.values():
         assert f"registered with master {ENDPOINT}" in wlog.read_text(errors="replace")
 
-    from common.image_io import read_image
+    from igi.common.image_io import read_image
 
     img = np.asarray(read_image(out), np.float64)
     assert img.shape[:2] == (48, 64)

@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.rogue_peer import rogue_report, start_rogue
-from bench.stress_scenes import mini_cornell
+from igi.bench.rogue_peer import rogue_report, start_rogue
+from igi.bench.stress_scenes import mini_cornell
 from tests.support.cluster_helpers import env, start_worker, stop_procs, wait_until
 from tests.support.paths import ROOT, SHARED
-from master.broker import Broker
-from master.inprocess import render_local
+from igi.master.broker import Broker
+from igi.master.inprocess import render_local
 
 W, H = 64, 48
 PARAMS = {"photons": 0}
@@ -66,7 +66,7 @@ def test_rogue_worker_cannot_stop_a_render(mode, procs, tmp_path, reference, cap
 
 
 def _igi_render(out: Path, extra=()) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "master.cli", "render", str(CORNELL), "-o", str(out), "--width", str(W),
+    cmd = [sys.executable, "-m", "igi.master.cli", "render", str(CORNELL), "-o", str(out), "--width", str(W),
            "--height", str(H), "--frames", "3", "--workers", "1", "--photons", "0", "-q", *extra]
     return subprocess.Popen(cmd, cwd=ROOT, env=env(), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
@@ -76,7 +76,7 @@ def _igi_render(out: Path, extra=()) -> subprocess.Popen:
                     reason="needs the shared scenes and Linux /proc")
 @pytest.mark.parametrize("mode", ["silent", "wrong"])
 def test_igi_render_survives_a_rogue_worker(mode, procs, tmp_path):
-    from common.image_io import read_image
+    from igi.common.image_io import read_image
 
     plain = tmp_path / "plain.exr"
     p = _igi_render(plain)

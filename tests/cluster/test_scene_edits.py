@@ -9,11 +9,11 @@ import logging
 
 import pytest
 
-from bench.stress_scenes import mini_cornell
+from igi.bench.stress_scenes import mini_cornell
 from tests.support.cluster_helpers import start_worker, stop_procs, wait_until
-from common import protocol as P
-from master import broker as B
-from master.viewer import move_edit
+from igi.common import protocol as P
+from igi.master import broker as B
+from igi.master.viewer import move_edit
 
 W, H = 64, 48
 

@@ -23,7 +23,7 @@ pytestmark = [pytest.mark.timeout(600),
 
 @pytest.fixture(scope="module")
 def run():
-    from bench.stress_hostile import serve_with_rogue
+    from igi.bench.stress_hostile import serve_with_rogue
 
     r = serve_with_rogue("cornell-box", baseline_s=5.0, window_s=10.0)
     print({k: v for k, v in r.items() if k not in ("serve_log", "state_after")})

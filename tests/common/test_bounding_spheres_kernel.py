@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from bench.stress_scenes import load_shared
-from common.geometry import Geometry
-from common.kernels.bounding_spheres import any_hit
-from common.lights import LightSampler
+from igi.bench.stress_scenes import load_shared
+from igi.common.geometry import Geometry
+from igi.common.kernels.bounding_spheres import any_hit
+from igi.common.lights import LightSampler
 from tests.support.oracle_bounding_spheres import any_hit_numpy
 
 

@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from common import bsdf
-from common import microfacet as mf
-from common.fresnel import fresnel_conductor, fresnel_diffuse_reflectance, fresnel_dielectric
-from common.scene import (
+from igi.common import bsdf
+from igi.common import microfacet as mf
+from igi.common.fresnel import fresnel_conductor, fresnel_diffuse_reflectance, fresnel_dielectric
+from igi.common.scene import (
     CONDUCTOR,
     DIELECTRIC,
     DIFFUSE,
@@ -524,7 +524,7 @@ def test_diffuse_layer_plus_sampled_lobe_equal_the_whole_bsdf(mat, theta):
     """Splitting a rough plastic/conductor into its diffuse layer (ROUGHPLASTIC_DIFFUSE) and its
     glossy lobe (bsdf.sample_lobe) loses and adds nothing: for a smooth test function g,
     E[lobe weight · g] + ∫ f_diffuse g = ∫ f g (both estimated by sampling the whole BSDF)."""
-    from common.scene import ROUGHPLASTIC_DIFFUSE
+    from igi.common.scene import ROUGHPLASTIC_DIFFUSE
 
     rng = _rng(4)
     n = N

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common import bundled
+from igi.common import bundled
 
 
 def test_names_and_descriptions():
@@ -31,8 +31,8 @@ def test_resolve(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("name", ["cornell-box", "window-room"])
 def test_bundled_scene_loads_and_its_reference_fits(name):
-    from common.image_io import read_image
-    from common.loader import load_scene
+    from igi.common.image_io import read_image
+    from igi.common.loader import load_scene
 
     path = bundled.path_of(name)
     scene = load_scene(path)
@@ -47,8 +47,8 @@ def test_bundled_scene_loads_and_its_reference_fits(name):
 
 
 def test_cornell_box_has_a_mirror_and_a_glass_sphere():
-    from common.loader import load_scene
-    from common.scene import CONDUCTOR, DIELECTRIC
+    from igi.common.loader import load_scene
+    from igi.common.scene import CONDUCTOR, DIELECTRIC
 
     scene = load_scene(bundled.path_of("cornell-box"))
     kinds = {m.name: scene.materials[m.material].kind for m in scene.meshes}

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common.camera import camera_rays, look_at
-from common.scene import Camera
+from igi.common.camera import camera_rays, look_at
+from igi.common.scene import Camera
 
 
 def test_lookat_matches_mitsuba_columns():

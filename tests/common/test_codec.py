@@ -4,9 +4,9 @@ import lz4.frame
 import numpy as np
 import pytest
 
-from common.codec import (BYTES_PER_PIXEL, HEADER_SIZE, MAGIC, decode, encode, oct_decode, oct_encode,
+from igi.common.codec import (BYTES_PER_PIXEL, HEADER_SIZE, MAGIC, decode, encode, oct_decode, oct_encode,
                           to_f16)
-from common.frame import TileBuffers
+from igi.common.frame import TileBuffers
 
 
 def _angle(a, b):

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from tests.support.oracle_hit_surface import surface_numpy
-from bench.stress_scenes import load_shared
-from common.geometry import Geometry
+from igi.bench.stress_scenes import load_shared
+from igi.common.geometry import Geometry
 
 
 @pytest.mark.parametrize("name", ["cornell-box-sphere", "modern-hall", "veach-ajar"])

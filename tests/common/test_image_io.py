@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from common.image_io import linear_to_srgb, read_image, srgb_to_linear, to_srgb8, write_exr, write_png
-from common.scene import SceneError
+from igi.common.image_io import linear_to_srgb, read_image, srgb_to_linear, to_srgb8, write_exr, write_png
+from igi.common.scene import SceneError
 
 
 def test_exr_round_trip_is_exact(tmp_path):

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from common.frame import Tile, TileBuffers
-from common.interleave import (extract, make_tiles, scatter, set_index, sub_image_size,
+from igi.common.frame import Tile, TileBuffers
+from igi.common.interleave import (extract, make_tiles, scatter, set_index, sub_image_size,
                                task_tile_size, tile_slices)
 
 SIZES = [(64, 48, 3, 5, 4), (67, 50, 3, 7, 3), (10, 7, 4, 2, 2), (5, 3, 8, 3, 3), (1, 1, 1, 1, 1),

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.loader import load_scene
-from common.mitsuba_xml import load_mitsuba
-from common.scene import (AREA, CONDUCTOR, CONSTANT, DIELECTRIC, DIFFUSE, DIRECTIONAL, PLASTIC, POINT,
+from igi.common.loader import load_scene
+from igi.common.mitsuba_xml import load_mitsuba
+from igi.common.scene import (AREA, CONDUCTOR, CONSTANT, DIELECTRIC, DIFFUSE, DIRECTIONAL, PLASTIC, POINT,
                           ROUGHCONDUCTOR, ROUGHPLASTIC, SPOT, THINDIELECTRIC, SceneError)
 
 from tests.support.paths import SCENES

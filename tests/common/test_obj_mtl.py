@@ -5,9 +5,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.loader import load_scene
-from common.obj_mtl import _parse_fast, _parse_slow, load_obj_mesh, load_obj_scene, recompute_vertex_normals
-from common.scene import AREA, CONDUCTOR, DIELECTRIC, DIFFUSE, ROUGHPLASTIC, SceneError
+from igi.common.loader import load_scene
+from igi.common.obj_mtl import _parse_fast, _parse_slow, load_obj_mesh, load_obj_scene, recompute_vertex_normals
+from igi.common.scene import AREA, CONDUCTOR, DIELECTRIC, DIFFUSE, ROUGHPLASTIC, SceneError
 
 from tests.support.paths import SCENES
 

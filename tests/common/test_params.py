@@ -5,7 +5,7 @@ import argparse
 
 import pytest
 
-from common.params import PARAMS, add_arguments, make_params, parameters_doc, params_from_args, viewer_schema
+from igi.common.params import PARAMS, add_arguments, make_params, parameters_doc, params_from_args, viewer_schema
 
 from tests.support.paths import ROOT
 

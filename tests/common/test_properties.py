@@ -15,13 +15,13 @@ import numpy as np
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from common import bsdf
-from common.codec import decode, encode, oct_decode, oct_encode, to_f16
-from common.frame import TileBuffers
-from common.scene import (CONDUCTOR, DIELECTRIC, DIFFUSE, PLASTIC, ROUGHCONDUCTOR, ROUGHPLASTIC,
+from igi.common import bsdf
+from igi.common.codec import decode, encode, oct_decode, oct_encode, to_f16
+from igi.common.frame import TileBuffers
+from igi.common.scene import (CONDUCTOR, DIELECTRIC, DIFFUSE, PLASTIC, ROUGHCONDUCTOR, ROUGHPLASTIC,
                           THINDIELECTRIC, Material, Texture)
-from common.sobol_stream import SobolStream
-from worker.hash_grid import HashGrid
+from igi.common.sobol_stream import SobolStream
+from igi.worker.hash_grid import HashGrid
 
 SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -274,6 +274,6 @@ def test_sobol_blocks_are_disjoint_and_their_union_is_the_prefix(seed, bs, nbloc
 
 def _group_rows(stream: SobolStream, g: int, d: int, start: int, count: int) -> np.ndarray:
     """Rows [start, start+count) of padded group g's own Sobol' instance (unshuffled)."""
-    from common.sobol_stream import _draw
+    from igi.common.sobol_stream import _draw
 
     return _draw(stream._group_engine(g, d), start, count)

@@ -7,8 +7,8 @@ import random
 import msgpack
 import pytest
 
-from common import protocol as P
-from common.params import make_params, params_to_dict
+from igi.common import protocol as P
+from igi.common.params import make_params, params_to_dict
 
 H = "ab" * 32
 
@@ -127,7 +127,7 @@ def test_outgoing_messages_are_checked_too():
 
 
 def test_frame_spec_round_trip():
-    from common.frame import FrameSpec
+    from igi.common.frame import FrameSpec
 
     spec = FrameSpec(frame=5, seed=11, camera_to_world=tuple(float(i) for i in range(16)), fov_x=30.0,
                      width=10, height=8, params=params_to_dict(make_params(photons=7)), scene_version=2,

@@ -3,17 +3,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from common.camera import look_at
-from common.frame import FrameSpec, Tile
-from common.geometry import Geometry
-from common.lights import LightSampler
-from common.loader import load_scene
-from common.params import make_params, params_to_dict
-from common.render_plan import analyze, frame_plan
-from common.scene import AREA, DIFFUSE, Camera, Emitter, Material, Mesh, Scene, Texture
+from igi.common.camera import look_at
+from igi.common.frame import FrameSpec, Tile
+from igi.common.geometry import Geometry
+from igi.common.lights import LightSampler
+from igi.common.loader import load_scene
+from igi.common.params import make_params, params_to_dict
+from igi.common.render_plan import analyze, frame_plan
+from igi.common.scene import AREA, DIFFUSE, Camera, Emitter, Material, Mesh, Scene, Texture
 from tests.support.paths import SHARED
 from tests.support.scenes_synthetic import box_faces, quad
-from worker.renderer import Renderer
+from igi.worker.renderer import Renderer
 
 _CACHE: dict = {}
 
@@ -121,7 +121,7 @@ def test_plan_off_renders_the_same_image():
     # Forcing every pass on (no plan) must not change the result on a Lambertian scene:
     # the skipped passes contribute nothing there.
     scene = load_scene(SHARED / "scenes" / "cornell-box" / "scene.xml")
-    from master.inprocess import render_local
+    from igi.master.inprocess import render_local
 
     a = render_local(scene, {}, 1, width=32, height=32, renderer=Renderer(scene))
     b = render_local(scene, {}, 1, width=32, height=32, renderer=Renderer(scene, use_plan=False))

@@ -7,10 +7,10 @@ import msgpack
 import numpy as np
 import pytest
 
-from bench.stress_scenes import mini_cornell
+from igi.bench.stress_scenes import mini_cornell
 from tests.support.paths import SHARED
-from common import scene_codec as sc
-from common.scene import SceneError, Texture
+from igi.common import scene_codec as sc
+from igi.common.scene import SceneError, Texture
 
 
 def textured_scene():
@@ -54,7 +54,7 @@ def test_round_trip_is_exact_and_deterministic():
 
 @pytest.mark.parametrize("name", ["cornell-box-sphere", "veach-ajar"])  # veach-ajar: bitmap textures
 def test_shared_scene_round_trip(name):
-    from common.loader import load_scene
+    from igi.common.loader import load_scene
 
     s = load_scene(SHARED / "scenes" / name / "scene.xml")
     blob = sc.encode_scene(s)

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from common.loader import load_scene
-from common.scene import SceneError
-from common.scene_root import SceneRootError
+from igi.common.loader import load_scene
+from igi.common.scene import SceneError
+from igi.common.scene_root import SceneRootError
 
 from tests.support.paths import ROOT, SHARED
 
@@ -136,7 +136,7 @@ def test_obj_scene_mtllib_and_map_kd_are_confined(tmp_path):
 def igi(*args, timeout=300):
     e = dict(os.environ)
     e["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), e.get("PYTHONPATH", "")) if p)
-    return subprocess.run([sys.executable, "-m", "master.cli", *args], cwd=ROOT, env=e, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "igi.master.cli", *args], cwd=ROOT, env=e, capture_output=True,
                           text=True, timeout=timeout)
 
 
@@ -161,7 +161,7 @@ def test_cli_refuses_with_one_line_and_scene_root_widens(tmp_path):
 
 @pytest.mark.skipif(not (SHARED / "scenes").is_dir(), reason="shared scenes not available")
 def test_every_shared_and_bundled_scene_loads_under_its_default_root():
-    from common import bundled
+    from igi.common import bundled
 
     shared = SHARED / "scenes"
     paths = sorted(shared.glob("*/scene.xml")) + sorted(shared.glob("*/*.obj")) + [p for _, _, p in bundled.scenes()]

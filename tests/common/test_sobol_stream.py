@@ -5,14 +5,14 @@ import sys
 import numpy as np
 import pytest
 
-from common.sobol_stream import SobolStream, rng
+from igi.common.sobol_stream import SobolStream, rng
 
 from tests.support.paths import ROOT as REPO
 
 
 _CHILD = """
 import sys
-from common.sobol_stream import SobolStream, rng
+from igi.common.sobol_stream import SobolStream, rng
 s = SobolStream(int(sys.argv[1]), dims=12)
 sys.stdout.buffer.write(s.block(3, 100, 128).tobytes())
 sys.stdout.buffer.write(s.padded(2, 64, 64, 11).tobytes())
@@ -145,7 +145,7 @@ def test_direct_seek_draws_what_fast_forward_draws(start):
     not scipy's O(n) walk); the points drawn must be exactly fast_forward's."""
     import warnings
 
-    from common import sobol_stream as ss
+    from igi.common import sobol_stream as ss
 
     assert ss._direct_seek_works()
     a = ss._draw(ss._sobol(7, 99, 4), start, 33)

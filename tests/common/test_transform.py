@@ -4,7 +4,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from common import transform as tf
+from igi.common import transform as tf
 
 
 def el(tag, **attrib):

@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common.codec import (BYTES_PER_PIXEL, _F16_TO_F32, decode, decode_into, decode_raw, decompress,
+from igi.common.codec import (BYTES_PER_PIXEL, _F16_TO_F32, decode, decode_into, decode_raw, decompress,
                           encode, oct_decode, section_offsets)
-from common.frame import TileBuffers
-from common.kernels.wire_decode import f16_to_f32
+from igi.common.frame import TileBuffers
+from igi.common.kernels.wire_decode import f16_to_f32
 from tests.support import oracle_codec as oc
 
 

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 import zmq
 
-from bench.stress_scenes import mini_cornell
+from igi.bench.stress_scenes import mini_cornell
 from tests.support.cluster_helpers import FakeWorker, wait_until
-from common import protocol as P
-from master.broker import Broker, FrameCancelled
+from igi.common import protocol as P
+from igi.master.broker import Broker, FrameCancelled
 
 W, H = 24, 18  # 9 tasks of one sub-image tile each
 
@@ -214,7 +214,7 @@ def test_stop_cancels_open_frames_and_later_submissions():
 def test_worker_lists_its_sets_only_when_they_change():
     """Issue 19: RESULT.sets goes out only when the renderer's cached-set list changed since the
     last RESULT of this connection (or the renderer changed)."""
-    from worker.node import WorkerNode
+    from igi.worker.node import WorkerNode
 
     class R:
         def __init__(self, sets):

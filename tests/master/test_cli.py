@@ -18,7 +18,7 @@ CORNELL = SHARED / "scenes" / "cornell-box" / "scene.xml"
 def igi(*args, cwd=None, timeout=300):
     """Run the ``igi`` console script (or ``python -m master.cli`` when not installed)."""
     exe = shutil.which("igi")
-    cmd = [exe] if exe else [sys.executable, "-m", "master.cli"]
+    cmd = [exe] if exe else [sys.executable, "-m", "igi.master.cli"]
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
     return subprocess.run(cmd + [str(a) for a in args], cwd=cwd or ROOT, env=env, capture_output=True,
@@ -26,7 +26,7 @@ def igi(*args, cwd=None, timeout=300):
 
 
 def test_render_exr_and_png(tmp_path):
-    from common.image_io import read_image
+    from igi.common.image_io import read_image
 
     exr, png = tmp_path / "cb.exr", tmp_path / "cb.png"
     r = igi("render", CORNELL, "-o", exr, "--width", 64, "--height", 64, "--frames", 2, "--workers", 2)
@@ -44,7 +44,7 @@ def test_render_exr_and_png(tmp_path):
 
 
 def test_in_process_render_matches_the_workers(tmp_path):
-    from common.image_io import read_image
+    from igi.common.image_io import read_image
 
     a, b = tmp_path / "a.exr", tmp_path / "b.exr"
     common = ["--width", 32, "--height", 24, "--photons", 0, "-q"]
@@ -100,7 +100,7 @@ def test_serve_starts_workers_and_stops_them_all_on_sigterm(tmp_path):
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     exe = shutil.which("igi")
-    cmd = ([exe] if exe else [sys.executable, "-m", "master.cli"]) + [
+    cmd = ([exe] if exe else [sys.executable, "-m", "igi.master.cli"]) + [
         "serve", str(CORNELL), "--workers", "2", "--bind", f"tcp://127.0.0.1:{port}", "--http", "",
         "--width", "32", "--height", "24", "--stats-interval", "0.5"]
     env = dict(os.environ)
@@ -149,7 +149,7 @@ def test_scenes_lists_the_bundled_scenes():
 
 @pytest.mark.parametrize("name", ["cornell-box", "window-room"])
 def test_bundled_scene_renders_by_name(tmp_path, name):
-    from common.image_io import read_image
+    from igi.common.image_io import read_image
 
     out = tmp_path / f"{name}.exr"
     r = igi("render", name, "-o", out, "--width", 32, "--height", 24, "--workers", 0, "-q", cwd=tmp_path)
@@ -247,7 +247,7 @@ def test_serve_restarts_a_killed_local_worker(tmp_path):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    cmd = [sys.executable, "-m", "master.cli", "serve", "--workers", "1",  # no scene: the bundled Cornell box
+    cmd = [sys.executable, "-m", "igi.master.cli", "serve", "--workers", "1",  # no scene: the bundled Cornell box
            "--bind", f"tcp://127.0.0.1:{port}", "--http", "", "--width", "32", "--height", "24",
            "--stats-interval", "0.5"]
     env = dict(os.environ)
@@ -295,7 +295,7 @@ def test_unwritable_output_is_one_line(tmp_path):
 
 
 def test_unexpected_failure_is_one_line_and_traceback_only_with_v(capsys, caplog, monkeypatch):
-    from master import cli
+    from igi.master import cli
 
     def boom(args):
         raise RuntimeError("something\nunexpected")

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from master.discontinuity_buffer import compose, filter_irradiance, resolve_window, window_offsets
+from igi.master.discontinuity_buffer import compose, filter_irradiance, resolve_window, window_offsets
 
 
 def _reference(irr, depth, normal, window, dt, nt):

@@ -1,12 +1,12 @@
 """The live error estimate (even/odd halves) tracks the true relMSE against the reference."""
 from __future__ import annotations
 
-from common.image_io import read_image
-from common.loader import load_scene
-from common.metrics import block_average, relmse
+from igi.common.image_io import read_image
+from igi.common.loader import load_scene
+from igi.common.metrics import block_average, relmse
 from tests.support.paths import SHARED
-from master.cli import ErrorTracker
-from master.inprocess import render_local
+from igi.master.cli import ErrorTracker
+from igi.master.inprocess import render_local
 
 
 def test_error_estimate_within_factor_two_of_true_relmse():

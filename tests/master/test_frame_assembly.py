@@ -4,10 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common.frame import TileBuffers
-from common.params import make_params, params_to_dict
-from master.accumulation import Accumulator, accumulation_key, jitter_for, sequence_spec
-from master.frame_assembly import FrameAssembler, task_tiles, tile_pixel_count
+from igi.common.frame import TileBuffers
+from igi.common.params import make_params, params_to_dict
+from igi.master.accumulation import Accumulator, accumulation_key, jitter_for, sequence_spec
+from igi.master.frame_assembly import FrameAssembler, task_tiles, tile_pixel_count
 
 
 @pytest.mark.parametrize("w,h,n,px", [(64, 48, 3, 4096), (65, 47, 3, 50), (7, 5, 4, 3), (2, 2, 3, 10), (640, 480, 3, 4096)])

@@ -9,14 +9,14 @@ import lz4.frame
 import numpy as np
 import pytest
 
-from common import codec
-from common.codec import encode
-from common.interleave import extract
-from common.params import make_params, params_to_dict
-from master import parallel
-from master.accumulation import Accumulator
-from master.discontinuity_buffer import filter_irradiance
-from master.frame_assembly import FrameAssembler, task_tiles, tile_pixel_count
+from igi.common import codec
+from igi.common.codec import encode
+from igi.common.interleave import extract
+from igi.common.params import make_params, params_to_dict
+from igi.master import parallel
+from igi.master.accumulation import Accumulator
+from igi.master.discontinuity_buffer import filter_irradiance
+from igi.master.frame_assembly import FrameAssembler, task_tiles, tile_pixel_count
 from tests.support import oracle_master as om
 
 # the numpy oracle warns on NaN/Inf arithmetic (the inputs are hostile on purpose)
@@ -122,7 +122,7 @@ def test_float_path_and_thread_count_match(threads):
     w, h, n = 70, 45, 3
     full = _frame(w, h, 7)
     ref, new = om.OracleFrameAssembler(w, h, n), FrameAssembler(w, h, n)
-    from common.codec import decode
+    from igi.common.codec import decode
     for t in task_tiles(w, h, n, 300):
         b = decode(encode(extract(t, n, full)))
         ref.add(t, b)

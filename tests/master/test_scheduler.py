@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import collections
 
-from master.scheduler import (TIMEOUT_FLOOR, FaultLedger, PendingTask, WorkerView, assign, credit_for,
+from igi.master.scheduler import (TIMEOUT_FLOOR, FaultLedger, PendingTask, WorkerView, assign, credit_for,
                               requeue_front, task_timeout)
 
 

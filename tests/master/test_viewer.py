@@ -61,7 +61,7 @@ def served():
     if not CORNELL.exists():
         pytest.skip(f"shared scene missing: {CORNELL}")
     http, bind, pub = free_port(), free_port(), free_port()
-    cmd = [sys.executable, "-m", "master.cli", "serve", str(CORNELL), "--workers", "1", "--width", str(SIZE),
+    cmd = [sys.executable, "-m", "igi.master.cli", "serve", str(CORNELL), "--workers", "1", "--width", str(SIZE),
            "--height", str(SIZE), "--http", f"127.0.0.1:{http}", "--bind", f"tcp://127.0.0.1:{bind}",
            "--pub", f"tcp://127.0.0.1:{pub}", "--stats-interval", "0"]
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env(), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
@@ -116,7 +116,7 @@ def test_page_static_files_and_downloads(served):
 async def _ws_session(url: str):
     import aiohttp
 
-    from common.params import viewer_schema
+    from igi.common.params import viewer_schema
 
     session = aiohttp.ClientSession()
     ws = await session.ws_connect(url.replace("http://", "ws://") + "ws")
@@ -256,7 +256,7 @@ async def _hostile_session(url: str):
             init = await next_text("init")
             h = await frame_after(0)
             cam = init["view"]["camera"]
-            from bench.stress_hostile import HOSTILE_MESSAGES  # the same list igi bench stress sends
+            from igi.bench.stress_hostile import HOSTILE_MESSAGES  # the same list igi bench stress sends
 
             bad = list(HOSTILE_MESSAGES) + [(json.dumps({"type": "camera", "to_world": cam, "fov_x": 180}), "fov")]
             for text, needle in bad:
@@ -273,7 +273,7 @@ def test_hostile_messages_get_error_replies_and_the_stream_goes_on(served):
 
 
 def test_ws_latency_through_the_viewer(served):
-    from bench.viewer_latency import ws_latency
+    from igi.bench.viewer_latency import ws_latency
 
     res = ws_latency(served.url, inputs=3, timeout=90)
     assert res["inputs"] == 3 and 0 < res["min_ms"] <= res["max_ms"] < 90_000
@@ -284,10 +284,10 @@ def test_ws_latency_through_the_viewer(served):
 
 @pytest.mark.parametrize("fmt", ["png", "exr"])
 def test_igi_record_writes_frames(served, tmp_path, fmt):
-    from common.image_io import read_image
+    from igi.common.image_io import read_image
 
     out = tmp_path / "frames"
-    r = subprocess.run([sys.executable, "-m", "master.cli", "record", served.pub, "-o", str(out), "--count", "2",
+    r = subprocess.run([sys.executable, "-m", "igi.master.cli", "record", served.pub, "-o", str(out), "--count", "2",
                         "--format", fmt, "--timeout", "60"], cwd=ROOT, env=env(), capture_output=True, text=True,
                        timeout=120, stdin=subprocess.DEVNULL)
     assert r.returncode == 0, r.stderr
@@ -317,7 +317,7 @@ def test_pub_feed_png_topic(served):
 
 
 def test_record_times_out_without_a_feed(tmp_path):
-    r = subprocess.run([sys.executable, "-m", "master.cli", "record", f"tcp://127.0.0.1:{free_port()}", "-o",
+    r = subprocess.run([sys.executable, "-m", "igi.master.cli", "record", f"tcp://127.0.0.1:{free_port()}", "-o",
                         str(tmp_path), "--count", "1", "--timeout", "0.5"], cwd=ROOT, env=env(),
                        capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
     assert r.returncode == 1 and "no frame" in r.stderr and "Traceback" not in r.stderr
@@ -327,9 +327,9 @@ def test_record_times_out_without_a_feed(tmp_path):
 
 def _pick_pixel(camera, fov_x):
     """A pixel showing the smallest non-emitting object well inside the image (mesh, x, y)."""
-    from common.camera import camera_rays
-    from common.geometry import Geometry
-    from common.loader import load_scene
+    from igi.common.camera import camera_rays
+    from igi.common.geometry import Geometry
+    from igi.common.loader import load_scene
 
     scene = load_scene(CORNELL)
     geom = Geometry(scene)
@@ -405,7 +405,7 @@ def test_browser_viewer(served):
             page.goto(served.url)
             wait_js(page, "window.igi && window.igi.frames >= 2", timeout=90_000)
             # the panel is generated from the declarations
-            from common.params import viewer_schema
+            from igi.common.params import viewer_schema
 
             for prm in viewer_schema():
                 assert page.locator(f'[data-param="{prm["name"]}"]').count() >= 1, prm["name"]
@@ -526,9 +526,9 @@ def test_browser_viewer(served):
 @pytest.fixture()
 def quiet_broker():
     """A streaming broker on loopback without workers (no frames: enough for HTTP, picking, edits)."""
-    from bench.stress_scenes import mini_cornell
+    from igi.bench.stress_scenes import mini_cornell
 
-    from master.broker import Broker
+    from igi.master.broker import Broker
 
     b = Broker(mini_cornell(64, 48), bind="tcp://127.0.0.1:*").start()
     b.start_stream({"photons": 0})
@@ -537,7 +537,7 @@ def quiet_broker():
 
 
 def test_token_is_required_when_forced(quiet_broker):
-    from master import viewer
+    from igi.master import viewer
 
     v = viewer.start(quiet_broker, "127.0.0.1", 0, None, require_token=True, pub=None, quiet=True)
     try:
@@ -571,7 +571,7 @@ def test_token_is_required_when_forced(quiet_broker):
 
 
 def test_loopback_needs_no_token_and_refuses_foreign_origins(quiet_broker):
-    from master import viewer
+    from igi.master import viewer
 
     v = viewer.start(quiet_broker, "127.0.0.1", 0, None, pub=None, quiet=True)
     try:
@@ -599,7 +599,7 @@ def test_loopback_needs_no_token_and_refuses_foreign_origins(quiet_broker):
 def test_dns_rebinding_shaped_requests_are_refused(quiet_broker):
     """Loopback viewer: a request whose Host is not 127.0.0.1/localhost/[::1] with the port gets 403
     (a web page reaching it through a rebinding name), even with a matching Origin."""
-    from master import viewer
+    from igi.master import viewer
 
     v = viewer.start(quiet_broker, "127.0.0.1", 0, None, pub=None, quiet=True)
     try:
@@ -627,7 +627,7 @@ def test_dns_rebinding_shaped_requests_are_refused(quiet_broker):
 
 
 def test_move_edits_are_rate_limited_per_client(quiet_broker):
-    from master import viewer
+    from igi.master import viewer
 
     v = viewer.start(quiet_broker, "127.0.0.1", 0, None, pub=None, quiet=True)
 
@@ -660,7 +660,7 @@ def test_move_edits_are_rate_limited_per_client(quiet_broker):
 
 
 def test_pick_and_move_edits(quiet_broker):
-    from master.viewer import SceneInfo, move_edit, pick, select_object
+    from igi.master.viewer import SceneInfo, move_edit, pick, select_object
 
     b = quiet_broker
     info = SceneInfo()
@@ -684,10 +684,10 @@ def test_pick_and_move_edits(quiet_broker):
 
 
 def test_point_light_pick_and_move():
-    from common.camera import look_at
-    from common.scene import DIFFUSE, POINT, Camera, Emitter, Material, Mesh, Scene
-    from master.broker import Broker
-    from master.viewer import SceneInfo, move_edit, pick
+    from igi.common.camera import look_at
+    from igi.common.scene import DIFFUSE, POINT, Camera, Emitter, Material, Mesh, Scene
+    from igi.master.broker import Broker
+    from igi.master.viewer import SceneInfo, move_edit, pick
 
     quad = np.array([[-5, 0, -5], [5, 0, -5], [5, 0, 5], [-5, 0, 5]], float)
     scene = Scene([Mesh("ground", quad, np.array([[0, 1, 2], [0, 2, 3]], np.int32), 0)],
@@ -705,8 +705,8 @@ def test_point_light_pick_and_move():
 
 
 def test_stream_tonemap_matches_image_io():
-    from common.image_io import to_srgb8
-    from master.viewer import encode_image, tonemap8
+    from igi.common.image_io import to_srgb8
+    from igi.master.viewer import encode_image, tonemap8
 
     rng = np.random.default_rng(1)
     img = (rng.random((40, 30, 3)) ** 3 * 1.5).astype(np.float32)
@@ -720,8 +720,8 @@ def test_stream_tonemap_matches_image_io():
 def test_feed_address_in_use(quiet_broker):
     import zmq
 
-    from master import viewer
-    from master.errors import UsageError
+    from igi.master import viewer
+    from igi.master.errors import UsageError
 
     busy = zmq.Context.instance().socket(zmq.PUB)
     busy.setsockopt(zmq.LINGER, 0)
@@ -740,7 +740,7 @@ def test_feed_address_in_use(quiet_broker):
 
 
 def test_overlay_says_which_worker_left_and_why(quiet_broker):
-    from master import viewer
+    from igi.master import viewer
 
     v = viewer.start(quiet_broker, "127.0.0.1", 0, None, pub=None, quiet=True)
     v.note_worker_left("local0", "killed by SIGKILL; restarting in 0.5 s")
@@ -763,11 +763,11 @@ def test_overlay_says_which_worker_left_and_why(quiet_broker):
 
 
 def test_reference_beside_the_scene_gives_the_true_rel_mse(tmp_path):
-    from common.bundled import reference_of
-    from common.camera import look_at
-    from common.image_io import write_exr
-    from common.scene import Camera
-    from master.viewer import Reference
+    from igi.common.bundled import reference_of
+    from igi.common.camera import look_at
+    from igi.common.image_io import write_exr
+    from igi.common.scene import Camera
+    from igi.master.viewer import Reference
 
     scene_dir = tmp_path / "scenes" / "box"
     scene_dir.mkdir(parents=True)

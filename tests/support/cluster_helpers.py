@@ -10,10 +10,10 @@ import time
 import numpy as np
 import zmq
 
-from common import protocol as P
-from common.frame import Tile, TileBuffers
+from igi.common import protocol as P
+from igi.common.frame import Tile, TileBuffers
 
-from bench.stress_hostile import stop_processes
+from igi.bench.stress_hostile import stop_processes
 from tests.support.paths import ROOT
 
 
@@ -27,7 +27,7 @@ def env() -> dict:
 def start_worker(endpoint: str, name: str, heartbeat: float = 1.0, threads: int = 1,
                  exit_with_master: bool = True) -> subprocess.Popen:
     """A real worker process (python -m worker.node) on loopback."""
-    return subprocess.Popen([sys.executable, "-m", "worker.node", "--connect", endpoint, "--threads", str(threads),
+    return subprocess.Popen([sys.executable, "-m", "igi.worker.node", "--connect", endpoint, "--threads", str(threads),
                              "--name", name, "--heartbeat", str(heartbeat), "--parent-pid", str(os.getpid()),
                              "--quiet"] + (["--exit-with-master"] if exit_with_master else []),
                             env=env(), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
@@ -97,8 +97,8 @@ class FakeWorker:
 
     def result(self, task: dict, epoch: int | None = None, value: float = 1.0):
         """Answer a TASK with constant buffers of the right size."""
-        from common.codec import encode
-        from master.frame_assembly import tile_pixel_count
+        from igi.common.codec import encode
+        from igi.master.frame_assembly import tile_pixel_count
 
         fb = self.frames[task["frame"]]
         tile = Tile(task["k"], *task["tile"])

@@ -33,12 +33,12 @@ def synthetic_frame(w: int, h: int, seed: int = 0) -> dict:
 
 
 def rendered_frame(scene: str, w: int, h: int) -> dict:
-    from bench.stress_scenes import load_shared
-    from common.camera import resolve_camera
-    from common.params import make_params, params_to_dict
-    from master.accumulation import sequence_spec
-    from master.frame_assembly import FrameAssembler, task_tiles
-    from worker.renderer import Renderer
+    from igi.bench.stress_scenes import load_shared
+    from igi.common.camera import resolve_camera
+    from igi.common.params import make_params, params_to_dict
+    from igi.master.accumulation import sequence_spec
+    from igi.master.frame_assembly import FrameAssembler, task_tiles
+    from igi.worker.renderer import Renderer
 
     sc = load_shared(scene)
     cam, fov, w, h = resolve_camera(sc, None, w, h)
@@ -52,11 +52,11 @@ def rendered_frame(scene: str, w: int, h: int) -> dict:
 
 
 def measure(buffers: dict, n: int = 3, reps: int = 5, params: dict | None = None) -> dict:
-    from common.codec import encode
-    from common.interleave import extract
-    from common.params import make_params, params_to_dict
-    from master import parallel
-    from master.frame_assembly import FrameAssembler, task_tiles
+    from igi.common.codec import encode
+    from igi.common.interleave import extract
+    from igi.common.params import make_params, params_to_dict
+    from igi.master import parallel
+    from igi.master.frame_assembly import FrameAssembler, task_tiles
 
     from tests.support.oracle_master import OracleFrameAssembler
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from common.codec import _SNORM, _ZERO_NORMAL, _sections
-from common.frame import TileBuffers
+from igi.common.codec import _SNORM, _ZERO_NORMAL, _sections
+from igi.common.frame import TileBuffers
 
 # float16 -> float32 by table: numpy's cast is slow for subnormal inputs, a gather is not.
 _F16_TO_F32 = np.arange(1 << 16, dtype=np.uint32).astype(np.uint16).view(np.float16).astype(np.float32)

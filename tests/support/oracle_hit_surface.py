@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from common.geometry import Hits
+from igi.common.geometry import Hits
 
 
 def surface_numpy(self, origins, directions, valid, prim, u, v, t) -> Hits:

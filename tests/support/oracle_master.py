@@ -9,10 +9,10 @@ import threading
 
 import numpy as np
 
-from common.codec import decompress
-from common.frame import Tile, TileBuffers
-from common.interleave import scatter, sub_image_size, tile_slices
-from master.discontinuity_buffer import resolve_window, window_offsets  # unchanged helpers
+from igi.common.codec import decompress
+from igi.common.frame import Tile, TileBuffers
+from igi.common.interleave import scatter, sub_image_size, tile_slices
+from igi.master.discontinuity_buffer import resolve_window, window_offsets  # unchanged helpers
 
 from tests.support.oracle_codec import decode_raw, f16_to_f32, oct_decode_planes
 
@@ -107,7 +107,7 @@ class FilterPlanes:
         """Filtered irradiance as a (3, H, W) view (of ``out``: (3, H*Wp) float32 when given).
         Misses (NaN dp) keep their irradiance. Non-finite irradiance: neighbours read it as 0,
         the pixel keeps its own value (one firefly must not wipe out its window)."""
-        from master import parallel
+        from igi.master import parallel
 
         H, W, Wp, pad = self.H, self.W, self.Wp, self.pad
         lo, hi = -offs[0], offs[-1]
@@ -301,7 +301,7 @@ class OracleFrameAssembler:
     def _wire_image(self, window: int, w: float, p: dict) -> np.ndarray:
         """image() of the wire path: the same operations as the float path, planar and in
         parallel stripes (bit-identical results)."""
-        from master import parallel
+        from igi.master import parallel
 
         H, W = self.height, self.width
         wire = self._wire if self._wire is not None else _WireFrame(W, H, self.n)
@@ -471,7 +471,7 @@ class _WireFrame:
         return [(r, min(self.shm, r + step)) for r in range(0, self.shm, step)]
 
     def decode_into(self, sc: "_Scratch", depth: bool = False) -> None:
-        from master import parallel
+        from igi.master import parallel
 
         parallel.pmap(lambda r: self.convert(r[0], r[1], sc.values, sc.normals, sc.dp,
                                              sc.depth if depth else None),
@@ -496,7 +496,7 @@ def filter_weight(params: dict, index: int) -> float:
 
 
 def _asdict(params) -> dict:
-    from common.params import params_to_dict
+    from igi.common.params import params_to_dict
 
     return params_to_dict(params)
 

@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from common import bsdf
-from common.geometry import Geometry
-from common.lights import VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE, spot_falloff, to_local
-from worker.vpl import VPLSet
-from common.scene import DIFFUSE, NULL
+from igi.common import bsdf
+from igi.common.geometry import Geometry
+from igi.common.lights import VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE, spot_falloff, to_local
+from igi.worker.vpl import VPLSet
+from igi.common.scene import DIFFUSE, NULL
 
 
 def gather_vpls_numpy(geom, end, vpls, clamp_d2, max_depth, force_general=False):

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from common.camera import look_at
-from common.scene import AREA, DIFFUSE, Camera, Emitter, Material, Mesh, Scene, Texture
+from igi.common.camera import look_at
+from igi.common.scene import AREA, DIFFUSE, Camera, Emitter, Material, Mesh, Scene, Texture
 
 
 def quad(corner, e1, e2, flip=False):

@@ -4,15 +4,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common.camera import look_at
-from common.geometry import Geometry
-from common.lights import LightSampler
-from common.loader import load_scene
-from common.scene import DIELECTRIC, DIFFUSE, POINT, Camera, Emitter, Material, Mesh, Scene, Texture
+from igi.common.camera import look_at
+from igi.common.geometry import Geometry
+from igi.common.lights import LightSampler
+from igi.common.loader import load_scene
+from igi.common.scene import DIELECTRIC, DIFFUSE, POINT, Camera, Emitter, Material, Mesh, Scene, Texture
 from tests.support.paths import SHARED
 from tests.support.scenes_synthetic import box_faces, quad
-from worker.caustics import build_photon_set, specular_targets
-from worker.renderer import Renderer
+from igi.worker.caustics import build_photon_set, specular_targets
+from igi.worker.renderer import Renderer
 
 ETA = 1.5
 LIGHT_Y = 2.0
@@ -94,7 +94,7 @@ def test_no_specular_surface_means_no_photons_and_no_grid():
     scene = load_scene(SHARED / "scenes" / "cornell-box" / "scene.xml")
     r = Renderer(scene)
     assert not r.plan.caustics
-    from common.params import make_params
+    from igi.common.params import make_params
     ph = r.photon_set(0, 0, make_params())
     assert len(ph) == 0 and ph.grid is None
 
@@ -103,7 +103,7 @@ def test_caustic_scene_builds_photons_in_a_grid():
     scene = load_scene(SHARED / "scenes" / "cornell-box-sphere" / "scene.xml")
     r = Renderer(scene)
     assert r.plan.caustics
-    from common.params import make_params
+    from igi.common.params import make_params
     ph = r.photon_set(0, 0, make_params(photons=500))
     assert len(ph) > 0 and ph.grid is not None
     assert ph.shot == 500

@@ -22,12 +22,12 @@ import json
 import numpy as np
 import pytest
 
-from common.image_io import read_image
-from common.loader import load_scene
-from common.metrics import block_average, relmse
+from igi.common.image_io import read_image
+from igi.common.loader import load_scene
+from igi.common.metrics import block_average, relmse
 from tests.support.paths import SHARED
-from master.inprocess import render_local
-from worker.renderer import Renderer
+from igi.master.inprocess import render_local
+from igi.worker.renderer import Renderer
 
 CASES = {
     # scene: (block, frames per half)

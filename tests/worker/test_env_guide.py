@@ -6,14 +6,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from common import bundled
-from common.camera import camera_rays
-from common.loader import load_scene
-from common.sobol_stream import rng
-from worker.env_guide import BINS_PHI, BINS_Z, EnvGuide, build_guide, guide_environment_samples
-from worker.renderer import Renderer
-from worker.shading import bsdf_direct, gather_vpls, trace_eye
-from worker.vpl import build_vpl_set
+from igi.common import bundled
+from igi.common.camera import camera_rays
+from igi.common.loader import load_scene
+from igi.common.sobol_stream import rng
+from igi.worker.env_guide import BINS_PHI, BINS_Z, EnvGuide, build_guide, guide_environment_samples
+from igi.worker.renderer import Renderer
+from igi.worker.shading import bsdf_direct, gather_vpls, trace_eye
+from igi.worker.vpl import build_vpl_set
 
 
 def _guide(seed=0) -> EnvGuide:
@@ -84,8 +84,8 @@ def test_guided_sky_over_an_open_floor_is_exactly_the_sky_radiance():
     average to irradiance/π = 1 per unit albedo (within noise: a 1/q weight left out or a wrong
     pdf in the MIS is caught by this; the subtler bias of a uniform pdf in the BSDF ray's MIS,
     ~4%, is below this test's 4σ ≈ 9%)."""
-    from common.camera import look_at
-    from common.scene import CONSTANT, DIFFUSE, Camera, Emitter, Material, Mesh, Scene, Texture
+    from igi.common.camera import look_at
+    from igi.common.scene import CONSTANT, DIFFUSE, Camera, Emitter, Material, Mesh, Scene, Texture
 
     v = np.array([[-50, 0, -50], [50, 0, -50], [50, 0, 50], [-50, 0, 50]], float)
     f = np.array([[0, 2, 1], [0, 3, 2]], np.int32)

@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from bench.stress_scenes import load_shared
-from common.camera import camera_rays
-from common.scene import ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE
-from common.sobol_stream import rng
-from worker.renderer import Renderer
-from worker.shading import trace_eye
+from igi.bench.stress_scenes import load_shared
+from igi.common.camera import camera_rays
+from igi.common.scene import ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE
+from igi.common.sobol_stream import rng
+from igi.worker.renderer import Renderer
+from igi.worker.shading import trace_eye
 
 
 def _eye(r, alpha, w=32, h=24):
@@ -37,7 +37,7 @@ def test_smooth_rough_plastic_splits_into_diffuse_layer_and_lobe_branch():
 
 def test_smooth_rough_conductor_floor_has_no_vpl_lit_end_point():
     r = Renderer(load_shared("veach-ajar"))  # floor: roughconductor alpha 0.1
-    from common.scene import ROUGHCONDUCTOR
+    from igi.common.scene import ROUGHCONDUCTOR
 
     whole = _eye(r, 0.0).end
     split = _eye(r, 0.3).end

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from worker.hash_grid import HashGrid
+from igi.worker.hash_grid import HashGrid
 
 
 def _pairs(pidx, qidx):

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from common.camera import resolve_camera
-from common.frame import FrameSpec
-from common.interleave import make_tiles
-from common.params import make_params, params_to_dict
-from worker.kernels.warm import _tiny_scene
-from worker.renderer import Renderer
+from igi.common.camera import resolve_camera
+from igi.common.frame import FrameSpec
+from igi.common.interleave import make_tiles
+from igi.common.params import make_params, params_to_dict
+from igi.worker.kernels.warm import _tiny_scene
+from igi.worker.renderer import Renderer
 
 
 def _spec(scene):

@@ -15,9 +15,9 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from bench import stress_scenes as ss
-from common.metrics import relmse
-from master.accumulation import Accumulator
+from igi.bench import stress_scenes as ss
+from igi.common.metrics import relmse
+from igi.master.accumulation import Accumulator
 
 W = H = 48
 
@@ -53,7 +53,7 @@ def test_stress_case_renders_finite(case, tmp_path):
 # ------------------------------------------------------------------------- NaN / Inf vertices
 
 def test_nonfinite_vertices_in_memory_are_repaired_with_a_warning_naming_the_mesh():
-    from worker.renderer import Renderer
+    from igi.worker.renderer import Renderer
 
     scene, poisoned = ss.with_nonfinite_vertices(ss.load_shared("cornell-box"))
     assert len(poisoned) == 3
@@ -70,7 +70,7 @@ def test_nonfinite_vertices_in_memory_are_repaired_with_a_warning_naming_the_mes
 
 
 def test_nonfinite_obj_vertices_in_files_are_dropped_with_a_warning_naming_the_mesh(tmp_path):
-    from common.loader import load_scene
+    from igi.common.loader import load_scene
 
     (xml, mesh), (obj, _) = ss.nonfinite_obj_files(tmp_path)
     scene = load_scene(xml)
@@ -88,7 +88,7 @@ def test_nonfinite_obj_vertices_in_files_are_dropped_with_a_warning_naming_the_m
 
 @pytest.fixture(scope="module")
 def glossy_renderer():
-    from worker.renderer import Renderer
+    from igi.worker.renderer import Renderer
 
     return Renderer(ss.load_shared("cornell-box-glossy"))
 
@@ -98,9 +98,9 @@ def glossy_renderer():
     0.0,
 ])
 def test_vpl_exactly_on_the_shading_point_adds_light_and_stays_finite(glossy_renderer, clamp):
-    from common.params import make_params
-    from worker.renderer import clamp_distance2
-    from worker.shading import gather_vpls
+    from igi.common.params import make_params
+    from igi.worker.renderer import clamp_distance2
+    from igi.worker.shading import gather_vpls
 
     r = glossy_renderer
     end = ss.eye_end_points(r)
@@ -125,7 +125,7 @@ def test_vpl_exactly_on_the_shading_point_adds_light_and_stays_finite(glossy_ren
 
 def test_render_with_vpls_on_the_eye_hit_points_is_finite():
     """Whole frames whose VPL sets also hold VPLs on exactly the points the pixel centres see."""
-    from worker.renderer import Renderer
+    from igi.worker.renderer import Renderer
 
     class CoincidentVPLs(Renderer):
         def vpl_set(self, *args, **kwargs):  # whatever the signature: add the coincident VPLs
@@ -143,9 +143,9 @@ def test_render_with_vpls_on_the_eye_hit_points_is_finite():
 # ------------------------------------------------------- photons on grid-cell borders
 
 def _diffuse_end_points(positions: np.ndarray):
-    from common import bsdf
-    from common.scene import DIFFUSE, Material, Texture
-    from worker.shading import EndPoints
+    from igi.common import bsdf
+    from igi.common.scene import DIFFUSE, Material, Texture
+    from igi.worker.shading import EndPoints
 
     n = len(positions)
     sp = bsdf.SurfacePoints.constant(Material("white", DIFFUSE, diffuse=Texture.constant(0.5)), n)
@@ -155,7 +155,7 @@ def _diffuse_end_points(positions: np.ndarray):
 
 
 def test_photons_exactly_on_cell_borders_match_brute_force():
-    from worker.caustics import gather_photons
+    from igi.worker.caustics import gather_photons
 
     photons, queries = ss.lattice_photons(radius=0.25)
     r = photons.radius
@@ -173,8 +173,8 @@ def test_photons_exactly_on_cell_borders_match_brute_force():
 def test_caustic_photons_on_the_floor_plane_lie_on_a_cell_border():
     """cornell-box-sphere's floor is the plane y = 0, a cell border of the hashed grid for any
     radius: its caustic photons and the end points on it are exactly on the border."""
-    from common.params import make_params
-    from worker.renderer import Renderer
+    from igi.common.params import make_params
+    from igi.worker.renderer import Renderer
 
     r = Renderer(ss.load_shared("cornell-box-sphere"))
     ph = r.photon_set(0, 0, make_params())

@@ -7,12 +7,12 @@ import sys
 import numpy as np
 import pytest
 
-from common.frame import FrameSpec, Tile
-from common.params import make_params, params_to_dict
-from common.sobol_stream import SobolStream
+from igi.common.frame import FrameSpec, Tile
+from igi.common.params import make_params, params_to_dict
+from igi.common.sobol_stream import SobolStream
 from tests.support.scenes_synthetic import furnace_box
-from worker import vpl as vpl_mod
-from worker.renderer import Renderer
+from igi.worker import vpl as vpl_mod
+from igi.worker.renderer import Renderer
 
 from tests.support.paths import ROOT
 
@@ -76,8 +76,8 @@ _CHILD = """
 import sys, numpy as np
 sys.path[:0] = [{root!r}]
 from tests.support.scenes_synthetic import furnace_box
-from worker.renderer import Renderer
-from common.params import make_params
+from igi.worker.renderer import Renderer
+from igi.common.params import make_params
 s = Renderer(furnace_box(0.5, 1.0)).vpl_set(11, 5, make_params())
 sys.stdout.write(np.concatenate([s.position.ravel(), s.power.ravel()]).tobytes().hex())
 """

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from tests.support.oracle_vpl_gather import gather_vpls_numpy
-from bench.stress_scenes import eye_end_points, grazing_camera, load_shared, merge_vpl_sets, vpls_at, with_extra_lights
-from worker.renderer import Renderer
-from worker.shading import gather_vpls
-from worker.vpl import build_vpl_set
+from igi.bench.stress_scenes import eye_end_points, grazing_camera, load_shared, merge_vpl_sets, vpls_at, with_extra_lights
+from igi.worker.renderer import Renderer
+from igi.worker.shading import gather_vpls
+from igi.worker.vpl import build_vpl_set
 
 CLAMP = 1e-3
 
@@ -104,10 +104,10 @@ def test_empty_inputs():
 def test_kernel_matches_numpy_on_split_diffuse_layers():
     """End points of a rough plastic's diffuse layer alone (the first-hit split of smooth
     glossy surfaces) take the kernel's scalar path; the oracle evaluates their BSDF per pair."""
-    from common.camera import camera_rays
-    from common.scene import ROUGHPLASTIC_DIFFUSE
-    from common.sobol_stream import rng
-    from worker.shading import trace_eye
+    from igi.common.camera import camera_rays
+    from igi.common.scene import ROUGHPLASTIC_DIFFUSE
+    from igi.common.sobol_stream import rng
+    from igi.worker.shading import trace_eye
 
     for name in ("cornell-box-glossy", "grey-white-room"):
         r = Renderer(load_shared(name))

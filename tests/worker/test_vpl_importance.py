@@ -6,14 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common.camera import camera_rays
-from common.params import make_params
-from common.sobol_stream import rng
+from igi.common.camera import camera_rays
+from igi.common.params import make_params
+from igi.common.sobol_stream import rng
 from tests.support.scenes_synthetic import furnace_box, two_rooms
-from worker.renderer import Renderer, clamp_distance2
-from worker.shading import gather_vpls, trace_eye
-from worker.vpl import build_vpl_set
-from worker.vpl_importance import (View, acceptance, build_importance_vpl_set, effective_share)
+from igi.worker.renderer import Renderer, clamp_distance2
+from igi.worker.shading import gather_vpls, trace_eye
+from igi.worker.vpl import build_vpl_set
+from igi.worker.vpl_importance import (View, acceptance, build_importance_vpl_set, effective_share)
 
 
 def _view(scene) -> View:

@@ -3,7 +3,7 @@ warm_up, every kernel dispatcher of common.kernels and worker.kernels has a comp
 signature, so no first call inside a frame compiles or loads anything."""
 from __future__ import annotations
 
-from worker.kernels.warm import kernel_dispatchers, warm_up
+from igi.worker.kernels.warm import kernel_dispatchers, warm_up
 
 
 def test_after_warm_up_every_kernel_has_a_compiled_signature():
@@ -18,7 +18,7 @@ def test_after_warm_up_every_kernel_has_a_compiled_signature():
 def test_the_worker_warms_up_before_it_connects():
     import inspect
 
-    from worker import node
+    from igi.worker import node
 
     src = inspect.getsource(node.run_from_args)
     assert src.index("warm_up_before_hello(log)") < src.index("node.run()")
@@ -27,7 +27,7 @@ def test_the_worker_warms_up_before_it_connects():
 def test_a_failing_warm_up_is_logged_not_fatal(monkeypatch, caplog):
     import logging
 
-    from worker.kernels import warm
+    from igi.worker.kernels import warm
 
     def boom(*a, **k):
         raise RuntimeError("no scene today")
@@ -41,7 +41,7 @@ def test_a_failing_warm_up_is_logged_not_fatal(monkeypatch, caplog):
 def test_warm_up_logs_its_duration(caplog):
     import logging
 
-    from worker.kernels import warm
+    from igi.worker.kernels import warm
 
     with caplog.at_level(logging.INFO):
         warm.warm_up_before_hello(logging.getLogger("igi.worker"))

@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-KERNEL_PACKAGES = ("common.kernels", "worker.kernels")
+KERNEL_PACKAGES = ("igi.common.kernels", "igi.worker.kernels")
 
 
 def kernel_dispatchers() -> dict[str, object]:
@@ -39,8 +39,8 @@ def kernel_dispatchers() -> dict[str, object]:
 
 
 def _tiny_scene():
-    from common.camera import look_at
-    from common.scene import (AREA, CONDUCTOR, DIFFUSE, ROUGHCONDUCTOR, SPOT, Camera, Emitter, Material, Mesh,
+    from igi.common.camera import look_at
+    from igi.common.scene import (AREA, CONDUCTOR, DIFFUSE, ROUGHCONDUCTOR, SPOT, Camera, Emitter, Material, Mesh,
                               Scene, Texture)
 
     def quad(c, e1, e2):
@@ -70,12 +70,12 @@ def _tiny_scene():
 
 
 def _render_tiny() -> None:
-    from common.camera import resolve_camera
-    from common.codec import decode, encode
-    from common.frame import FrameSpec
-    from common.interleave import make_tiles
-    from common.params import make_params, params_to_dict
-    from worker.renderer import Renderer
+    from igi.common.camera import resolve_camera
+    from igi.common.codec import decode, encode
+    from igi.common.frame import FrameSpec
+    from igi.common.interleave import make_tiles
+    from igi.common.params import make_params, params_to_dict
+    from igi.worker.renderer import Renderer
 
     scene = _tiny_scene()
     cam, fov_x, w, h = resolve_camera(scene, None, None, None)
@@ -110,24 +110,24 @@ def _empty_args(disp) -> list:
 def _direct_calls() -> dict:
     """Tiny calls of the kernels the render does not register: the worker never decodes,
     and helpers that are loaded from the cache inside their caller keep no signature."""
-    from common.kernels import wire_decode
-    from worker.kernels import photon_query, vpl_gather
+    from igi.common.kernels import wire_decode
+    from igi.worker.kernels import photon_query, vpl_gather
 
     z = np.zeros(0, np.uint8)
     out1 = np.zeros(0, np.float32)
     return {
-        "worker.kernels.vpl_gather.spot_falloff": lambda: vpl_gather.spot_falloff(0.9, 30.0, 20.0),
-        "common.kernels.wire_decode.oct_decode_one": lambda: wire_decode.oct_decode_one(0, 0),
-        "common.kernels.wire_decode.f16_to_f32": lambda: wire_decode.f16_to_f32(z, z, out1.view(np.uint32), out1),
-        "common.kernels.wire_decode._u32": lambda: wire_decode._u32(z, z, z, z, out1.view(np.uint32)),
-        "common.kernels.wire_decode._oct": lambda: wire_decode._oct(z.view(np.uint16), z.view(np.uint16), out1, out1,
+        "igi.worker.kernels.vpl_gather.spot_falloff": lambda: vpl_gather.spot_falloff(0.9, 30.0, 20.0),
+        "igi.common.kernels.wire_decode.oct_decode_one": lambda: wire_decode.oct_decode_one(0, 0),
+        "igi.common.kernels.wire_decode.f16_to_f32": lambda: wire_decode.f16_to_f32(z, z, out1.view(np.uint32), out1),
+        "igi.common.kernels.wire_decode._u32": lambda: wire_decode._u32(z, z, z, z, out1.view(np.uint32)),
+        "igi.common.kernels.wire_decode._oct": lambda: wire_decode._oct(z.view(np.uint16), z.view(np.uint16), out1, out1,
                                                                    out1),
-        "common.kernels.wire_decode.oct_decode_into": lambda: wire_decode.oct_decode_into(
+        "igi.common.kernels.wire_decode.oct_decode_into": lambda: wire_decode.oct_decode_into(
             np.zeros(1, np.int16), np.zeros(1, np.int16), np.zeros((3, 1), np.float32)),
-        "worker.kernels.photon_query._cell": lambda: photon_query._cell(0.5, 2.0),
-        "worker.kernels.photon_query._find": lambda: photon_query._find(np.zeros(1, np.int64), 0),
+        "igi.worker.kernels.photon_query._cell": lambda: photon_query._cell(0.5, 2.0),
+        "igi.worker.kernels.photon_query._find": lambda: photon_query._find(np.zeros(1, np.int64), 0),
         # _visit: query's arguments (empty arrays of its types) plus the output arrays
-        "worker.kernels.photon_query._visit": lambda: photon_query._visit(
+        "igi.worker.kernels.photon_query._visit": lambda: photon_query._visit(
             *_empty_args(photon_query.query), np.zeros(0, np.int64), np.zeros(0, np.int64), False),
     }
 
