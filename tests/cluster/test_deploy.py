@@ -104,10 +104,12 @@ def test_dockerfile_fields():
     assert {"5555", "8000"} <= exposed
     # every package that pyproject installs is copied into the image and let through the
     # build-context filter (deploy/Dockerfile.dockerignore: BuildKit's per-Dockerfile ignore file)
-    m = re.search(r"\[tool\.setuptools\.packages\.find\][^\[]*include\s*=\s*\[([^\]]*)\]",
-                  (ROOT / "pyproject.toml").read_text())
-    assert m, "pyproject.toml: no [tool.setuptools.packages.find] include list"
-    packages = [p.strip().strip("\"'").rstrip("*") for p in m.group(1).split(",") if p.strip()]
+    import tomllib
+
+    # the folders pyproject maps to igi.<name> (installed under the one igi namespace)
+    package_dir = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"]
+    packages = sorted(set(package_dir.values()))
+    assert packages, "pyproject.toml: no [tool.setuptools.package-dir]"
     ignore = (DEPLOY / "Dockerfile.dockerignore").read_text().split()
     for pkg in packages:
         assert f"COPY {pkg} ./{pkg}" in lines, f"the Dockerfile does not copy the package {pkg}"
