@@ -42,6 +42,12 @@ PARAMS: tuple[Param, ...] = (
           "-1 auto (when a pilot set's contributions are uneven), 0 off, 1 on", "vpl", -1, 1),
     Param("vpl_oversample", int, 8, "candidate light walks per kept walk when VPLs are importance-sampled",
           "vpl", 1, 64),
+    Param("vpl_lobe_alpha", float, 0.5,
+          "glossy VPLs smoother than this roughness radiate through their lobe widened to it (path "
+          "regularization, Kaplanyan & Dachsbacher 2013; at 0.5 a GGX peak is within ~4x a Lambertian "
+          "VPL's, so no spikes where a smooth floor's VPL faces a wall); shrinks like the photon "
+          "radius while accumulating consistently; 0: off",
+          "vpl", 0.0, 1.0),
     Param("light_samples", int, 0,
           "emitters sampled per set in many-light scenes (0: all emitters share the direct VPLs by power)",
           "vpl", 0, 1024),

@@ -99,7 +99,7 @@ class Renderer:
         if params.vpl_importance == 1:
             return True
         key = ("pilot", self.scene_version, view.key, params.indirect_vpls, params.light_path_length,
-               params.vpl_oversample, params.max_depth, params.clamp)
+               params.vpl_oversample, params.max_depth, params.clamp, params.vpl_lobe_alpha)
         with self._lock:
             hit = self._pilot.get(key)
         if hit is None:
@@ -118,7 +118,7 @@ class Renderer:
             self.scene, self.geom, self.lights, seed, k, direct, indirect, length, view,
             params.vpl_oversample, clamp_distance2(params, self.geom.diagonal), params.max_depth,
             params.specular_depth, roulette=roulette and params.max_depth < 0,
-            glossy_split_alpha=params.filter_glossy_alpha)
+            glossy_split_alpha=params.filter_glossy_alpha, lobe_alpha=params.vpl_lobe_alpha)
 
     def _set_sizes(self, params: Params) -> tuple[int, int, int]:
         direct = params.direct_vpls
@@ -137,7 +137,8 @@ class Renderer:
         importance = self.importance_on(params, view)
         key = (self.scene_version, seed, k, params.direct_vpls, params.indirect_vpls,
                params.light_path_length, params.max_depth, roulette,
-               (view.key, params.vpl_oversample, params.clamp, params.specular_depth, params.filter_glossy_alpha)
+               (view.key, params.vpl_oversample, params.clamp, params.specular_depth, params.filter_glossy_alpha,
+                params.vpl_lobe_alpha)
                if importance else None)
         with self._lock:
             hit = self._sets.get(key)
@@ -200,15 +201,17 @@ class Renderer:
         with self._stage("VPL set"):
             vpls = self.vpl_set(spec.seed, tile.k, params, roulette=index > 0 and params.consistent, view=view)
         clamp_d2 = clamp_distance2(params, self.geom.diagonal)
+        # Regularized glossy senders: the bound shrinks like the photon radius (consistent)
+        lobe_alpha = params.vpl_lobe_alpha * radius_scale(index, params)
         with self._stage("VPL gather"):
             albedo, irr = gather_vpls(self.geom, eye.end, vpls, clamp_d2, params.max_depth,
-                                      force_general=self.plan is None)
+                                      force_general=self.plan is None, lobe_alpha=lobe_alpha)
         end = eye.end
         if index > 0 and params.consistent:
             # Accumulating: give back what the clamp took (not while the view moves).
             with self._stage("compensation"):
                 irr = irr + clamp_compensation(self.scene, self.geom, self.lights, end, albedo, vpls,
-                                               clamp_d2, params.max_depth, rng)
+                                               clamp_d2, params.max_depth, rng, lobe_alpha)
         with self._stage("BSDF direct"):
             irr = irr + bsdf_direct(self.scene, self.geom, self.lights, end, albedo, vpls.direct_count,
                                     params.max_depth, rng, vpls.env_guide)

@@ -19,6 +19,7 @@ import numpy as np
 
 from igi.common import bsdf
 from igi.common.geometry import Geometry
+from igi.common.microfacet import lerp_gather
 from igi.common.lights import (VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE, LightSampler, luminance,
                            to_local, to_world)
 from igi.common.scene import DIFFUSE, NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE, SPECULAR_KINDS, Scene
@@ -89,15 +90,8 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
     delta = np.isin(sp.kind, SPECULAR_KINDS)
     nd_mask = ~delta & (sp.kind != NULL)
     lobe = np.zeros(0, np.int64)
-    if glossy_split_alpha > 0 and specular_depth > 0 and _allowed(2, max_depth):
-        smooth = np.isin(sp.kind, (ROUGHCONDUCTOR, ROUGHPLASTIC)) & (sp.alpha < glossy_split_alpha)
-        if smooth.any():
-            lobe = np.nonzero(smooth)[0]
-            lobe_sp = sp.subset(lobe)  # the whole BSDF, for sampling the lobe below
-            kind = sp.kind.copy()
-            kind[lobe[kind[lobe] == ROUGHPLASTIC]] = ROUGHPLASTIC_DIFFUSE
-            sp = replace(sp, kind=kind)
-            nd_mask = nd_mask & ~(smooth & (sp.kind == ROUGHCONDUCTOR))
+    if specular_depth > 0 and _allowed(2, max_depth):
+        sp, lobe, lobe_sp, nd_mask = _split_smooth(sp, nd_mask, glossy_split_alpha)
     if nd_mask.all():  # the common case: no copies of the per-hit arrays
         n_all = len(idx)
         ends = [EndPoints(idx, pos, ns, ng, wi, sp, np.ones((n_all, 3)), np.ones(n_all, np.int32),
@@ -131,7 +125,8 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
                 branch(di[sel], wo[sel], weight[sel], best[sel] == ci)
     if branches:
         cat = [np.concatenate(col) for col in zip(*branches)]
-        ends.extend(_follow_chains(scene, geom, lights, *cat, unf, env, max_depth, specular_depth, rng))
+        ends.extend(_follow_chains(scene, geom, lights, *cat, unf, env, max_depth, specular_depth, rng,
+                                   glossy_split_alpha))
     end = _concat_ends(ends)
     m = end.main
     depth[end.pixel[m]] = end.distance[m]
@@ -140,7 +135,7 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
 
 
 def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, unf, env,
-                   max_depth, specular_depth, rng) -> list[EndPoints]:
+                   max_depth, specular_depth, rng, glossy_split_alpha=0.0) -> list[EndPoints]:
     out = []
     for bounce in range(1, specular_depth + 1):
         if len(pix) == 0:
@@ -162,22 +157,48 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, unf
         sp = bsdf.gather(scene.materials, hits.material[v], hits.uv[v])
         wi = to_local(-dirs, hns)
         delta = np.isin(sp.kind, SPECULAR_KINDS)
-        nd = np.nonzero(~delta & (sp.kind != NULL))[0]
+        nd_mask = ~delta & (sp.kind != NULL)
+        # Smooth glossy surfaces along a chain are split as at the first hit: a plastic's diffuse
+        # layer ends the path (VPL-lit), the lobe continues the chain by one sampled ray.
+        sp, lobe, lobe_sp, nd_mask = _split_smooth(sp, nd_mask, glossy_split_alpha)
+        nd = np.nonzero(nd_mask)[0]
         if len(nd):
             out.append(EndPoints(pix[nd], hpos[nd], hns[nd], hng[nd], wi[nd], sp.subset(nd), thr[nd],
                                  np.full(len(nd), seg, np.int32), main[nd], dist[nd]))
         di = np.nonzero(delta)[0]
-        if len(di) == 0 or not _allowed(seg + 1, max_depth):
+        if (len(di) == 0 and len(lobe) == 0) or not _allowed(seg + 1, max_depth):
             break
         n = len(di)
         wo, weight, _pdf, _dl = bsdf.sample(sp.subset(di), wi[di], rng.random(n), rng.random((n, 2)),
                                             mode="radiance")
+        lobe_main = main[lobe] & ~nd_mask[lobe]  # a plastic's layer keeps the pixel's main end point
+        if len(lobe):
+            wo_l, weight_l = bsdf.sample_lobe(lobe_sp, wi[lobe], rng.random((len(lobe), 2)))
+            di, wo, weight = np.concatenate([di, lobe]), np.concatenate([wo, wo_l]), np.concatenate([weight, weight_l])
         keep = np.any(weight > 0, axis=1) & np.all(np.isfinite(weight), axis=1)
+        new_main = np.concatenate([main[di[:n]], lobe_main])[keep]
         di = di[keep]
-        pix, thr, main, dist = pix[di], thr[di] * weight[keep], main[di], dist[di]
+        pix, thr, main, dist = pix[di], thr[di] * weight[keep], new_main, dist[di]
         dirs = to_world(wo[keep], hns[di])
         pos, ng = hpos[di], hng[di]
     return out
+
+
+def _split_smooth(sp, nd_mask: np.ndarray, alpha: float):
+    """The per-component split of smooth glossy hits (rough conductors and plastics smoother
+    than ``alpha``): ``(sp with the plastics relabelled ROUGHPLASTIC_DIFFUSE, lobe rows,
+    their whole BSDFs for sampling the lobe, end-point mask without the conductors)``."""
+    none = np.zeros(0, np.int64)
+    if alpha <= 0:
+        return sp, none, None, nd_mask
+    smooth = np.isin(sp.kind, (ROUGHCONDUCTOR, ROUGHPLASTIC)) & (sp.alpha < alpha)
+    if not smooth.any():
+        return sp, none, None, nd_mask
+    lobe = np.nonzero(smooth)[0]
+    lobe_sp = sp.subset(lobe)  # the whole BSDF, for sampling the lobe
+    kind = sp.kind.copy()
+    kind[lobe[kind[lobe] == ROUGHPLASTIC]] = ROUGHPLASTIC_DIFFUSE
+    return replace(sp, kind=kind), lobe, lobe_sp, nd_mask & ~(smooth & (kind == ROUGHCONDUCTOR))
 
 
 def _end_points_empty() -> EndPoints:
@@ -199,13 +220,15 @@ def _concat_ends(ends: list[EndPoints]) -> EndPoints:
 
 
 def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
-                max_depth: int, force_general: bool = False) -> tuple[np.ndarray, np.ndarray]:
+                max_depth: int, force_general: bool = False,
+                lobe_alpha: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Light from the VPL set at each end point, split as (albedo, irradiance).
 
     Radiance toward the eye = albedo · irradiance. For Lambertian end points the albedo is the
     diffuse reflectance and irradiance is E/π; for glossy ones the radiance is evaluated with
     the full BSDF and divided by the BSDF's albedo (a smooth demodulation), so the image-space
-    filter blurs lighting, never texture.
+    filter blurs lighting, never texture. ``lobe_alpha``: glossy VPLs radiate through lobes at
+    least this rough (:func:`regularized_senders`).
     """
     e = len(end)
     albedo = bsdf.albedo(end.sp, end.wi).astype(np.float64) if e else np.zeros((0, 3))
@@ -213,7 +236,7 @@ def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
     m = len(vpls)
     if e == 0 or m == 0:
         return albedo, irr
-    cols = _VPLColumns(vpls, geom, clamp_d2, force_general)
+    cols = _VPLColumns(vpls, geom, clamp_d2, force_general, lobe_alpha)
     for sl in _chunks(e, m):
         pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, albedo[sl])
         vg.accumulate(sl.stop - sl.start, pi, pj, w, blocked, cols.color, factor, irr[sl])
@@ -228,7 +251,7 @@ def _chunks(e: int, m: int):
 
 
 def contribution_per_vpl(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
-                         max_depth: int) -> np.ndarray:
+                         max_depth: int, lobe_alpha: float = 0.0) -> np.ndarray:
     """(M,) luminance each VPL sends toward the eye through the end points (radiance ×
     path throughput, summed over end points): the importance of a VPL to this view."""
     e, m = len(end), len(vpls)
@@ -236,7 +259,7 @@ def contribution_per_vpl(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2:
     if e == 0 or m == 0:
         return out
     albedo = bsdf.albedo(end.sp, end.wi).astype(np.float64)
-    cols = _VPLColumns(vpls, geom, clamp_d2)
+    cols = _VPLColumns(vpls, geom, clamp_d2, lobe_alpha=lobe_alpha)
     for sl in _chunks(e, m):
         pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, albedo[sl])
         rgb = cols.color[pj] * (albedo[sl][pi] * end.throughput[sl][pi])
@@ -247,10 +270,27 @@ def contribution_per_vpl(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2:
     return out
 
 
+def regularized_senders(surface: "bsdf.SurfacePoints", lobe_alpha: float) -> "bsdf.SurfacePoints":
+    """The surface VPLs' BSDFs with every microfacet lobe at least ``lobe_alpha`` rough.
+
+    A VPL on a smooth glossy surface sends its light into a narrow lobe: the pixels it hits get
+    a spike of ~1/(π α²) times what a Lambertian VPL would give them (the clamp bounds only the
+    1/d² term), one firefly per set that frames cannot average away quickly. Widening the lobe
+    (Kaplanyan & Dachsbacher 2013, path-space regularization) keeps the reflected energy and
+    blurs only its direction; with ``lobe_alpha`` shrinking as frames accumulate the estimate
+    stays consistent. Smooth *receivers* need nothing: they are split at the first hit."""
+    glossy = (surface.kind == ROUGHCONDUCTOR) | (surface.kind == ROUGHPLASTIC)
+    if lobe_alpha <= 0 or not np.any(glossy & (surface.alpha < lobe_alpha)):
+        return surface
+    alpha = np.where(glossy, np.maximum(surface.alpha, lobe_alpha), surface.alpha).astype(surface.alpha.dtype)
+    return replace(surface, alpha=alpha)
+
+
 class _VPLColumns:
     """Per-VPL constants of the gather as flat kernel arrays, computed once per set and call."""
 
-    def __init__(self, vpls: VPLSet, geom: Geometry, clamp_d2: float, force_general: bool = False):
+    def __init__(self, vpls: VPLSet, geom: Geometry, clamp_d2: float, force_general: bool = False,
+                 lobe_alpha: float = 0.0):
         kind = vpls.kind
         m = len(kind)
         f32 = np.float32
@@ -274,6 +314,7 @@ class _VPLColumns:
             self.side[rows] = np.where(vpls.wi_local[rows, 2] >= 0, 1.0, -1.0)
             color[rows[lam]] *= sp.diffuse[lam] / np.pi
             self.glossy[rows[~lam]] = True
+            self.surface = regularized_senders(sp, lobe_alpha)
         self.color = np.ascontiguousarray(color)
         # Spots carry (_, beam, cutoff) degrees in wi_local; cutoff < 0 marks "not a spot".
         self.spot_cutoff = np.where(spot, vpls.wi_local[:, 2], -1.0).astype(np.float64)
@@ -319,7 +360,11 @@ def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, c
         row[layer] = vg.ROW_LAYER
         tables, rt, t_avg = bsdf.coat_transmittance(end.sp.subset(sl.start + layer))
         row_tab[layer] = rt
-        inv_tavg[layer] = 1.0 / np.maximum(t_avg, 1e-12)
+        # albedo() took the coat's t(cos θ_i) at |cos θ_i| ≥ 0.05: undo that at grazing incidence
+        ci = np.abs(wz[layer])
+        t_ratio = lerp_gather(tables, rt, np.clip(ci, 0, 1)) / np.maximum(
+            lerp_gather(tables, rt, np.clip(ci, 0.05, 1)), 1e-12)
+        inv_tavg[layer] = t_ratio / np.maximum(t_avg, 1e-12)
     cap = n * m
     pi = np.empty(cap, np.int64)
     pj = np.empty(cap, np.int64)
@@ -365,7 +410,7 @@ def _bsdf_factors(end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns, ro
     if gc.any():
         sel = np.nonzero(gc)[0]
         j = pj[sel]
-        sub = vpls.surface.subset(np.searchsorted(cols.surf_rows, j))
+        sub = cols.surface.subset(np.searchsorted(cols.surf_rows, j))
         wo_y = to_local(-d[sel].astype(np.float64), vpls.normal[j])
         factor[sel] *= bsdf.eval(sub, vpls.wi_local[j], wo_y, mode="importance")
     return factor
@@ -420,7 +465,7 @@ def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoin
 
 def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints,
                        albedo: np.ndarray, vpls: VPLSet, clamp_d2: float, max_depth: int,
-                       rng: np.random.Generator) -> np.ndarray:
+                       rng: np.random.Generator, lobe_alpha: float = 0.0) -> np.ndarray:
     """Energy the VPL clamp removed, added back by short BSDF-sampled gather rays
     (Kollig & Keller 2004; pbrt-v2's igi integrator), per unit albedo.
 
@@ -461,7 +506,7 @@ def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: 
     keep = np.nonzero(nd)[0]
     y = EndPoints(y.pixel[keep], y.position[keep], y.ns[keep], y.ng[keep], y.wi[keep],
                   y.sp.subset(keep), y.throughput[keep], y.segments[keep], y.main[keep], y.distance[keep])
-    a_y, irr_y = gather_vpls(geom, y, vpls, clamp_d2, max_depth)
+    a_y, irr_y = gather_vpls(geom, y, vpls, clamp_d2, max_depth, lobe_alpha=lobe_alpha)
     irr_y = irr_y + bsdf_direct(scene, geom, lights, y, a_y, vpls.direct_count, max_depth, rng,
                                 vpls.env_guide)
     l_y = a_y * irr_y  # radiance leaving y toward x

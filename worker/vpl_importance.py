@@ -114,7 +114,8 @@ def build_importance_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler,
                              direct_vpls: int, indirect_vpls: int, max_length: int, view: View,
                              oversample: int, clamp_d2: float, max_depth: int, specular_depth: int,
                              roulette: bool = False, camera_points: int = CAMERA_POINTS,
-                             glossy_split_alpha: float = 0.0) -> tuple[VPLSet, ImportanceStats]:
+                             glossy_split_alpha: float = 0.0,
+                             lobe_alpha: float = 0.0) -> tuple[VPLSet, ImportanceStats]:
     """P_k with its indirect VPLs importance-sampled for ``view`` (see the module docstring)."""
     if direct_vpls > 0 and only_environment(scene, lights):
         direct_vpls = max(direct_vpls, ENV_SAMPLES)
@@ -130,7 +131,7 @@ def build_importance_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler,
         cand.env_guide = guide
     if len(surf) == 0:
         return cand, ImportanceStats(0, 0, 0.0)
-    phi = contribution_per_vpl(geom, end, subset_vpls(cand, surf), clamp_d2, max_depth)
+    phi = contribution_per_vpl(geom, end, subset_vpls(cand, surf), clamp_d2, max_depth, lobe_alpha)
     target = len(surf) / oversample
     p = acceptance(phi, target, MIX)
     u = make_rng(seed, k, "vpl acceptance").random(len(surf))
