@@ -13,7 +13,7 @@ specular bounces is s + 2 + d segments.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -42,9 +42,25 @@ class EndPoints:
     segments: np.ndarray  # (E,) eye segments to reach the point (1 + specular bounces)
     main: np.ndarray  # (E,) bool
     distance: np.ndarray  # (E,) eye-path length to the point
+    # (E,) bool or None: the point takes emitter samples only — a smooth glossy lobe's light
+    # sampling, MIS-weighted against the lobe's traced ray (its radiance stays unfiltered)
+    direct_only: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.pixel)
+
+    def subset(self, rows) -> "EndPoints":
+        return EndPoints(*(None if v is None else (v.subset(rows) if f.name == "sp" else v[rows])
+                           for f in fields(self) for v in (getattr(self, f.name),)))
+
+    def vpl_depth_limit(self, max_depth: int) -> np.ndarray:
+        """(E,) the deepest VPL each point may take: a VPL of light-path depth d lights a path
+        of segments + 1 + d segments; 0 (emitter samples) for direct-only points."""
+        big = np.iinfo(np.int64).max // 2
+        lim = (max_depth - 1 - self.segments.astype(np.int64)) if max_depth >= 0 else np.full(len(self), big)
+        if self.direct_only is not None:
+            lim = np.where(self.direct_only, np.minimum(lim, 0), lim)
+        return lim
 
 
 @dataclass
@@ -211,12 +227,16 @@ def _concat_ends(ends: list[EndPoints]) -> EndPoints:
     ends = [e for e in ends if len(e)]
     if not ends:
         return _end_points_empty()
+    direct = None
+    if any(e.direct_only is not None for e in ends):
+        direct = np.concatenate([np.zeros(len(e), bool) if e.direct_only is None else e.direct_only
+                                 for e in ends])
     return EndPoints(
         np.concatenate([e.pixel for e in ends]), np.concatenate([e.position for e in ends]),
         np.concatenate([e.ns for e in ends]), np.concatenate([e.ng for e in ends]),
         np.concatenate([e.wi for e in ends]), concat_surface([e.sp for e in ends]),
         np.concatenate([e.throughput for e in ends]), np.concatenate([e.segments for e in ends]),
-        np.concatenate([e.main for e in ends]), np.concatenate([e.distance for e in ends]))
+        np.concatenate([e.main for e in ends]), np.concatenate([e.distance for e in ends]), direct)
 
 
 def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
@@ -373,10 +393,10 @@ def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, c
     o = np.empty((cap, 3), f32)
     d = np.empty((cap, 3), f32)
     t = np.empty(cap, f32)
-    k = vg.pair_weights(x, ns, ng, off, side, row, end.segments[sl].astype(np.int64),
+    k = vg.pair_weights(x, ns, ng, off, side, row, end.vpl_depth_limit(max_depth)[sl],
                         cols.pos, cols.normal, cols.directional, cols.min_d2, cols.cos_y_factor,
                         cols.side, cols.spot_cutoff, cols.spot_beam, cols.depth, cols.mis,
-                        cols.light_pdf, cols.area, cols.direct_count, max_depth, f32(2 * geom.eps),
+                        cols.light_pdf, cols.area, cols.direct_count, f32(2 * geom.eps),
                         tables, row_tab, inv_tavg, pi, pj, w, pl, o, d, t)
     pi, pj, w, pl, o, d, t = pi[:k], pj[:k], w[:k], pl[:k], o[:k], d[:k], t[:k]
     blocked = geom.occluded_local(o, d, t) if k else np.zeros(0, bool)
@@ -504,8 +524,7 @@ def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: 
     if not nd.any():
         return out
     keep = np.nonzero(nd)[0]
-    y = EndPoints(y.pixel[keep], y.position[keep], y.ns[keep], y.ng[keep], y.wi[keep],
-                  y.sp.subset(keep), y.throughput[keep], y.segments[keep], y.main[keep], y.distance[keep])
+    y = y.subset(keep)
     a_y, irr_y = gather_vpls(geom, y, vpls, clamp_d2, max_depth, lobe_alpha=lobe_alpha)
     irr_y = irr_y + bsdf_direct(scene, geom, lights, y, a_y, vpls.direct_count, max_depth, rng,
                                 vpls.env_guide)

@@ -97,6 +97,8 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
     if max_depth >= 0:
         seg = end.segments[sl][:, None] + 1 + vpls.depth[None, :]
         em *= seg <= max_depth
+    if end.direct_only is not None:  # emitter samples only
+        em *= ~(end.direct_only[sl][:, None] & (vpls.depth[None, :] > 0))
     front_ok = end.sp.twosided[sl] | (end.wi[sl, 2] > 0)
     lam = (end.sp.kind[sl] == DIFFUSE) & front_ok
     gl = (end.sp.kind[sl] != DIFFUSE) & (end.sp.kind[sl] != NULL)

@@ -46,16 +46,17 @@ def spot_falloff(cos_theta: float, cutoff_deg: float, beam_deg: float) -> float:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def pair_weights(x, ns, ng, off, side, row, seg,
+def pair_weights(x, ns, ng, off, side, row, vmax,
                  vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam,
-                 vdepth, mis, light_pdf, area, direct_count, max_depth, eps2,
+                 vdepth, mis, light_pdf, area, direct_count, eps2,
                  tables, row_tab, inv_tavg,
                  out_i, out_j, out_w, out_pl, out_o, out_d, out_t):
     """Fill the live pairs of rows x (n, 3) × VPL columns; returns how many were written.
 
     x, ns, ng: float32 (n, 3) end points in Embree's centred frame; off: float32 (n,) offset
-    length along ng, signed to the eye's side (``side``); row: ROW_* per end point; seg: eye
-    segments. Per column: vpos/vnormal float32 (m, 3), directional/cos_factor/mis/area bool,
+    length along ng, signed to the eye's side (``side``); row: ROW_* per end point; vmax: the
+    deepest VPL (light-path depth) the row may take — the path-length limit, and 0 for points
+    that take emitter samples only. Per column: vpos/vnormal float32 (m, 3), directional/cos_factor/mis/area bool,
     min_d2/vside/light_pdf float32, spot_cutoff/spot_beam degrees (cutoff < 0: not a spot),
     vdepth int. ROW_LAYER rows read their coat-transmittance table ``tables[row_tab[i]]`` and
     1/t_avg ``inv_tavg[i]``. out_pl: the MIS light pdf of glossy-row pairs (0 elsewhere) — their BSDF pdf
@@ -77,7 +78,7 @@ def pair_weights(x, ns, ng, off, side, row, seg,
         o1 = xi1 + ng[i, 1] * off[i]
         o2 = xi2 + ng[i, 2] * off[i]
         for j in range(m):
-            if max_depth >= 0 and seg[i] + 1 + vdepth[j] > max_depth:
+            if vdepth[j] > vmax[i]:
                 continue
             if directional[j]:
                 d0, d1, d2_ = -vnormal[j, 0], -vnormal[j, 1], -vnormal[j, 2]
