@@ -1,7 +1,10 @@
-"""Vectorized BSDFs matching Mitsuba 3 (diffuse, conductor, roughconductor, dielectric,
-thindielectric, plastic, roughplastic, twosided, null).
+"""BSDFs matching Mitsuba 3 (diffuse, conductor, roughconductor, dielectric, thindielectric,
+plastic, roughplastic, twosided, null) over N points: per-point parameters
+(:class:`SurfacePoints`, :func:`gather`) and the array API, evaluated by the compiled scalar
+kernels of common.kernels.bsdf on the packed parameters (:func:`pack`), in float64; results
+come back in the inputs' float type.
 
-Everything works on N points at once in the local shading frame (z = shading normal).
+Everything works in the local shading frame (z = shading normal).
 ``wi`` points toward the viewer / previous path vertex and ``wo`` toward the light / next
 vertex; both point away from the surface. Values returned by :func:`eval` already include the
 cosine foreshortening ``|cos theta_o|`` (Mitsuba's convention).
@@ -19,22 +22,13 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from igi.common import microfacet as mf
-from igi.common.fresnel import (
-    fresnel_conductor,
-    fresnel_diffuse_reflectance,
-    fresnel_dielectric,
-    reflect,
-    reflect_m,
-    refract,
-)
+from igi.common import coat_tables
+from igi.common.kernels import bsdf as kb
 from igi.common.scene import (
     CONDUCTOR,
     DIELECTRIC,
-    DIFFUSE,
     NULL,
     PLASTIC,
-    ROUGHCONDUCTOR,
     ROUGHPLASTIC,
     ROUGHPLASTIC_DIFFUSE,
     THINDIELECTRIC,
@@ -42,6 +36,7 @@ from igi.common.scene import (
 )
 
 INV_PI = 1.0 / np.pi
+ROUGH_PLASTIC_KINDS = (ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE)  # the kinds that read coat tables
 
 DELTA_KINDS = (CONDUCTOR, DIELECTRIC, THINDIELECTRIC)  # no non-delta part at all
 HAS_DELTA_KINDS = (CONDUCTOR, DIELECTRIC, THINDIELECTRIC, PLASTIC)  # some delta component
@@ -70,6 +65,10 @@ class SurfacePoints:
     # (N,) plastics' specular sampling weight s_mean / (d_mean + s_mean) from the *texture means*
     # (Mitsuba computes it once per material); None -> from the per-point values.
     spec_weight: np.ndarray | None = None
+    # (N,) int64 rough-plastic coat table row (common.coat_tables; 0 elsewhere), set by gather
+    # so no evaluation looks coats up per point; None -> looked up from alpha/eta/beckmann.
+    # Stale if alpha, eta or beckmann are changed in place afterwards.
+    coat_row: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.kind)
@@ -80,6 +79,10 @@ class SurfacePoints:
             v = getattr(self, f.name)
             kw[f.name] = None if v is None else v[mask_or_index]
         return SurfacePoints(**kw)
+
+    def packed(self) -> tuple:
+        """The per-point parameter tuple ``P`` of the compiled kernels (see :func:`pack`)."""
+        return pack(self)
 
     @staticmethod
     def constant(material: Material, n: int) -> "SurfacePoints":
@@ -142,6 +145,11 @@ def _material_tables(materials: list[Material]) -> dict:
         "twos": table(lambda t: bool(t.twosided), dtype=bool, null=False),
         "spec_weight": table(sw, null=0.5),
     }
+    rough = np.isin(tables["kind"], ROUGH_PLASTIC_KINDS)
+    coat = np.zeros(m + 1, np.int64)
+    if rough.any():  # tables of every rough plastic of the list, computed once per process
+        coat[rough] = coat_tables.rows(tables["alpha"][rough], tables["eta"][rough], tables["beck"][rough])
+    tables["coat"] = coat
     if len(_TABLES) > 16:
         _TABLES.clear()
     _TABLES[key] = (tuple(materials), tables)
@@ -171,6 +179,7 @@ def gather(materials: list[Material], mat_ids: np.ndarray, uv: np.ndarray | None
     nonlin = t["nonlin"][ids]
     twos = t["twos"][ids]
     spec_weight = t["spec_weight"][ids]
+    coat = t["coat"][ids]
 
     textured = [i for i, mat in enumerate(materials) if mat.has_texture or not mat.specular_transmittance.is_constant]
     if textured and n:
@@ -186,7 +195,8 @@ def gather(materials: list[Material], mat_ids: np.ndarray, uv: np.ndarray | None
                     arr[sel] = tex.eval(uvs[sel])
     return SurfacePoints(kind=kind, diffuse=diffuse, specular=specular, transmittance=transm,
                          alpha=alpha, eta=eta, cond_eta=cond_eta, cond_k=cond_k, beckmann=beck,
-                         nonlinear=nonlin, twosided=twos, spec_weight=spec_weight)
+                         nonlinear=nonlin, twosided=twos, spec_weight=spec_weight,
+                         coat_row=coat)
 
 
 def is_delta(kind) -> np.ndarray:
@@ -200,380 +210,101 @@ def has_delta(sp: SurfacePoints) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------------------------
-# helpers
+# packing for the compiled kernels
 
 
-def _dtype(*arrays):
+def _f64(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def _coat_rows(sp: SurfacePoints) -> np.ndarray:
+    """Per-point coat table rows: gather's when present, else one lookup per distinct coat."""
+    if sp.coat_row is not None:
+        return np.ascontiguousarray(sp.coat_row, dtype=np.int64)
+    return _lookup_coat_rows(sp, np.zeros(len(sp), np.int64))
+
+
+def _lookup_coat_rows(sp: SurfacePoints, rows: np.ndarray) -> np.ndarray:
+    """``rows`` with every rough-plastic point lacking a row (row 0) filled in (a copy)."""
+    need = np.isin(sp.kind, ROUGH_PLASTIC_KINDS) & (rows == 0)
+    rows = rows.copy()
+    if need.any():
+        rows[need] = coat_tables.rows(sp.alpha[need], sp.eta[need], sp.beckmann[need])
+    return rows
+
+
+def pack(sp: SurfacePoints) -> tuple:
+    """The kernels' per-point parameter tuple (common.kernels.bsdf documents the layout)::
+
+        (kind int8[n], diffuse f64[n,3], specular f64[n,3], transm f64[n,3], alpha f64[n],
+         eta f64[n], cond_eta f64[n,3], cond_k f64[n,3], beck bool[n], nonlin bool[n],
+         twos bool[n], spec_weight f64[n], rtabs f64[G,R], rrefl f64[G,R], rrow int64[n],
+         fdr_int f64[n], tavg f64[n])
+    """
+    kind = np.ascontiguousarray(sp.kind, dtype=np.int8)
+    eta = _f64(sp.eta)
+    rows = _coat_rows(sp)
+    n = len(kind)
+    fdr_int = np.empty(n)
+    tavg = np.empty(n)
+    rtabs, rrefl, reg_fdr, reg_tavg = coat_tables.tables()  # after the rows: covers them
+    if kb.coat_columns(kind, eta, rows, reg_fdr, reg_tavg, fdr_int, tavg):
+        # rough plastics without a row (relabelled or hand-built points): look them up
+        rows = _lookup_coat_rows(sp, rows)
+        rtabs, rrefl, reg_fdr, reg_tavg = coat_tables.tables()
+        kb.coat_columns(kind, eta, rows, reg_fdr, reg_tavg, fdr_int, tavg)
+    return (kind, _f64(sp.diffuse), _f64(sp.specular), _f64(sp.transmittance), _f64(sp.alpha), eta,
+            _f64(sp.cond_eta), _f64(sp.cond_k), np.ascontiguousarray(sp.beckmann, dtype=bool),
+            np.ascontiguousarray(sp.nonlinear, dtype=bool), np.ascontiguousarray(sp.twosided, dtype=bool),
+            _f64(sp.sampling_weight()), rtabs, rrefl, rows, fdr_int, tavg)
+
+
+def _dtype(*arrays) -> np.dtype:
+    """The float type results are returned in: the inputs' (float32 stays float32)."""
     return np.result_type(*[np.asarray(a).dtype for a in arrays], np.float32)
 
 
-def _groups(kind):
-    """[(kind, selector)]: selector is slice(None) when every point has the same kind."""
-    if len(kind) == 0:
-        return []
-    k0 = kind[0]
-    if np.all(kind == k0):
-        return [(int(k0), slice(None))]
-    return [(int(k), np.nonzero(kind == k)[0]) for k in np.unique(kind)]
-
-
-def _flip_mask(sp, wi):
-    """Twosided points seen from the back (non-transmissive kinds only)."""
-    return sp.twosided & (wi[:, 2] < 0) & ~np.isin(sp.kind, TRANSMISSIVE_KINDS)
-
-
-def _flipz(w, mask):
-    if not mask.any():
-        return w
-    w = w.copy()
-    w[mask, 2] = -w[mask, 2]
+def _dirs(w, n_points: int) -> np.ndarray:
+    w = _f64(w).reshape(-1, 3)
+    if len(w) != n_points:
+        raise ValueError(f"{len(w)} directions for {n_points} surface points")
     return w
-
-
-def _finite(x):
-    return np.where(np.isfinite(x), x, 0.0).astype(x.dtype, copy=False)
-
-
-def _rough_tables(sp, with_reflectance=False):
-    """Roughplastic tables for the points of ``sp``: ``(tables (G, 64), rows (n,) or None,
-    fdr_int (n,))``, plus the coat reflectance tables (G, 64) when ``with_reflectance``."""
-    n = len(sp)
-    a = np.maximum(sp.alpha.astype(np.float64), 1e-4)
-    e = sp.eta.astype(np.float64)
-    b = sp.beckmann.astype(bool)
-    if n == 0 or (np.all(a == a[0]) and np.all(e == e[0]) and np.all(b == b[0])):
-        if n == 0:
-            ones = np.ones((1, mf.ROUGH_TRANSMITTANCE_RES))
-            return (ones, None, np.zeros(0)) + ((ones,) if with_reflectance else ())
-        t, r, rr = mf.rough_plastic_tables(a[0], e[0], b[0])
-        res = (t[None, :], None, np.full(n, r))
-        return res + ((rr[None, :],) if with_reflectance else ())
-    # Distinct (alpha, eta, beckmann) triples via 1-D uniques (a row-wise np.unique sorts
-    # structured rows: ~10x slower, and this runs for every rough-plastic evaluation).
-    ua_, ia = np.unique(a, return_inverse=True)
-    ue_, ie = np.unique(e, return_inverse=True)
-    code = (ia.ravel().astype(np.int64) * len(ue_) + ie.ravel()) * 2 + b.astype(np.int64)
-    ucode, inv = np.unique(code, return_inverse=True)
-    uniq = [(ua_[c // 2 // len(ue_)], ue_[c // 2 % len(ue_)], c % 2) for c in ucode.tolist()]
-    tabs, rints, refl = [], [], []
-    for ua, ue, ub in uniq:
-        t, r, rr = mf.rough_plastic_tables(ua, ue, bool(ub))
-        tabs.append(t)
-        rints.append(r)
-        refl.append(rr)
-    inv = inv.ravel()
-    res = (np.stack(tabs), inv, np.asarray(rints)[inv])
-    return res + ((np.stack(refl),) if with_reflectance else ())
 
 
 def coat_transmittance(sp: SurfacePoints) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rough plastics' coat transmittance tables t(cos θ) for a compiled evaluation:
     ``(tables (G, R) float64, row (n,) int64, t_avg (n,))`` with t_avg the cosine-weighted mean
-    (as :func:`albedo` uses), so the diffuse layer per unit albedo is cos/π · t(cos)/t_avg."""
-    tabs, rows, _ = _rough_tables(sp)
-    tabs = np.ascontiguousarray(tabs, dtype=np.float64)
-    rows = np.zeros(len(sp), np.int64) if rows is None else np.asarray(rows, np.int64)
-    return tabs, rows, _cosine_mean(tabs)[rows]
-
-
-def _cosine_mean(tabs):
-    """Cosine-weighted mean over the hemisphere of tables sampled at linspace(0, 1, R): 2∫t(μ)μdμ."""
-    mu = np.linspace(0.0, 1.0, tabs.shape[1])
-    return 2.0 * np.mean(tabs * mu, axis=1)
-
-
-def _cos_hemisphere_pdf(w):
-    return INV_PI * w[:, 2]
+    (as :func:`albedo` uses), so the diffuse layer per unit albedo is cos/π · t(cos)/t_avg.
+    Points that are not rough plastics get row 0 (t = 1)."""
+    P = pack(sp)
+    return P[12], P[14], P[16]
 
 
 # ----------------------------------------------------------------------------------------------
-# per-kind evaluation (inputs already twosided-flipped; ``sp`` already the kind's subset)
-
-
-def _eval_diffuse(sp, wi, wo):
-    ok = (wi[:, 2] > 0) & (wo[:, 2] > 0)
-    return np.where(ok[:, None], sp.diffuse * (INV_PI * wo[:, 2])[:, None], 0.0)
-
-
-def _eval_roughconductor(sp, wi, wo):
-    ci, co = wi[:, 2], wo[:, 2]
-    ok = (ci > 0) & (co > 0)
-    h = wi + wo
-    with np.errstate(invalid="ignore", divide="ignore"):
-        h = h / np.linalg.norm(h, axis=-1, keepdims=True)
-        d = mf.D(h, sp.alpha, sp.beckmann)
-        g = mf.G(wi, wo, h, sp.alpha, sp.beckmann)
-        val = d * g / (4.0 * ci)
-    F = fresnel_conductor(np.sum(wi * h, axis=-1), sp.cond_eta, sp.cond_k)
-    res = (F * sp.specular) * val[:, None]
-    return np.where((ok & (d != 0))[:, None], res, 0.0)
-
-
-def _pdf_roughconductor(sp, wi, wo):
-    ci, co = wi[:, 2], wo[:, 2]
-    h = wi + wo
-    with np.errstate(invalid="ignore", divide="ignore"):
-        h = h / np.linalg.norm(h, axis=-1, keepdims=True)
-        ok = (ci > 0) & (co > 0) & (np.sum(wi * h, -1) > 0) & (np.sum(wo * h, -1) > 0)
-        p = mf.D(h, sp.alpha, sp.beckmann) * mf.smith_g1(wi, h, sp.alpha, sp.beckmann) / (4.0 * ci)
-    return np.where(ok, p, 0.0)
-
-
-def _plastic_probs(f_i, sw):
-    ps = f_i * sw
-    pd = (1.0 - f_i) * (1.0 - sw)
-    tot = ps + pd
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ps = np.where(tot > 0, ps / tot, 0.0)
-    return ps, 1.0 - ps
-
-
-def _plastic_diffuse_coef(sp, fdr_int):
-    diff = sp.diffuse
-    denom = 1.0 - np.where(sp.nonlinear[:, None], diff * fdr_int[:, None], fdr_int[:, None])
-    return diff / denom
-
-
-def _eval_plastic(sp, wi, wo):
-    ci, co = wi[:, 2], wo[:, 2]
-    ok = (ci > 0) & (co > 0)
-    eta = sp.eta
-    f_i = fresnel_dielectric(ci, eta)[0]
-    f_o = fresnel_dielectric(co, eta)[0]
-    fdr_int = np.asarray(fresnel_diffuse_reflectance(1.0 / eta.astype(np.float64)), dtype=ci.dtype)
-    diff = _plastic_diffuse_coef(sp, fdr_int)
-    s = INV_PI * co / (eta * eta) * (1.0 - f_i) * (1.0 - f_o)
-    return np.where(ok[:, None], diff * s[:, None], 0.0)
-
-
-def _pdf_plastic(sp, wi, wo):
-    ci, co = wi[:, 2], wo[:, 2]
-    ok = (ci > 0) & (co > 0)
-    f_i = fresnel_dielectric(ci, sp.eta)[0]
-    _, pd = _plastic_probs(f_i, sp.sampling_weight())
-    return np.where(ok, _cos_hemisphere_pdf(wo) * pd, 0.0)
-
-
-def _layer_term(sp, co, t_i, tabs, rows, fdr_int):
-    """A rough plastic's diffuse-layer value × cos θ_o, given the coat transmittance t_i toward
-    the incident side (no masking of invalid directions)."""
-    t_o = mf.lerp_gather(tabs, rows, np.clip(co, 0, 1))
-    diff = _plastic_diffuse_coef(sp, fdr_int)
-    s = INV_PI / (sp.eta * sp.eta) * co * t_i * t_o
-    return diff * s[:, None]
-
-
-def _roughplastic_diffuse(sp, wi, wo):
-    """The diffuse-layer term of a rough plastic alone (ROUGHPLASTIC_DIFFUSE), with its cos θ_o."""
-    ci, co = wi[:, 2], wo[:, 2]
-    ok = (ci > 0) & (co > 0)
-    tabs, rows, fdr_int = _rough_tables(sp)
-    dt = ci.dtype
-    tabs = tabs.astype(dt, copy=False)
-    t_i = mf.lerp_gather(tabs, rows, np.clip(ci, 0, 1))
-    return np.where(ok[:, None], _finite(_layer_term(sp, co, t_i, tabs, rows, fdr_int.astype(dt, copy=False))), 0.0)
-
-
-def _roughplastic_parts(sp, wi, wo, want_eval=True, want_pdf=True):
-    ci, co = wi[:, 2], wo[:, 2]
-    ok = (ci > 0) & (co > 0)
-    tabs, rows, fdr_int = _rough_tables(sp)
-    dt = ci.dtype
-    tabs = tabs.astype(dt, copy=False)
-    fdr_int = fdr_int.astype(dt, copy=False)
-    t_i = mf.lerp_gather(tabs, rows, np.clip(ci, 0, 1))
-    sw = sp.sampling_weight()
-    ps = (1.0 - t_i) * sw
-    pd = t_i * (1.0 - sw)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ps = np.where(ps + pd > 0, ps / (ps + pd), 0.0)
-    pd = 1.0 - ps
-    h = wi + wo
-    with np.errstate(invalid="ignore", divide="ignore"):
-        h = h / np.linalg.norm(h, axis=-1, keepdims=True)
-        d = mf.D(h, sp.alpha, sp.beckmann)
-        g1i = mf.smith_g1(wi, h, sp.alpha, sp.beckmann)
-    val = pdf = None
-    if want_pdf:
-        with np.errstate(invalid="ignore", divide="ignore"):
-            pdf = ps * (d * g1i / (4.0 * ci)) + pd * _cos_hemisphere_pdf(wo)
-        pdf = np.where(ok, _finite(pdf), 0.0)
-    if want_eval:
-        eta = sp.eta
-        with np.errstate(invalid="ignore", divide="ignore"):
-            F = fresnel_dielectric(np.sum(wi * h, axis=-1), eta)[0]
-            g = g1i * mf.smith_g1(wo, h, sp.alpha, sp.beckmann)
-            spec = F * d * g / (4.0 * ci)
-        val = sp.specular * spec[:, None] + _layer_term(sp, co, t_i, tabs, rows, fdr_int)
-        val = np.where(ok[:, None], _finite(val), 0.0)
-    return val, pdf
-
-
-def _eval_kind(k, sp, wi, wo):
-    if k == DIFFUSE:
-        return _eval_diffuse(sp, wi, wo)
-    if k == ROUGHCONDUCTOR:
-        return _eval_roughconductor(sp, wi, wo)
-    if k == PLASTIC:
-        return _eval_plastic(sp, wi, wo)
-    if k == ROUGHPLASTIC:
-        return _roughplastic_parts(sp, wi, wo, want_pdf=False)[0]
-    if k == ROUGHPLASTIC_DIFFUSE:
-        return _roughplastic_diffuse(sp, wi, wo)
-    return None  # delta kinds and NULL: 0
-
-
-def _pdf_kind(k, sp, wi, wo):
-    if k in (DIFFUSE, ROUGHPLASTIC_DIFFUSE):
-        ok = (wi[:, 2] > 0) & (wo[:, 2] > 0)
-        return np.where(ok, _cos_hemisphere_pdf(wo), 0.0)
-    if k == ROUGHCONDUCTOR:
-        return _pdf_roughconductor(sp, wi, wo)
-    if k == PLASTIC:
-        return _pdf_plastic(sp, wi, wo)
-    if k == ROUGHPLASTIC:
-        return _roughplastic_parts(sp, wi, wo, want_eval=False)[1]
-    return None
-
-
-# ----------------------------------------------------------------------------------------------
-# public API
+# public API (the math: common.kernels.bsdf)
 
 
 def eval(sp: SurfacePoints, wi: np.ndarray, wo: np.ndarray, mode: str = "radiance") -> np.ndarray:  # noqa: A001
     """f(wi, wo) |cos theta_o| for the non-delta components; (N, 3).
 
     ``mode`` is accepted for symmetry: none of the non-delta lobes here is non-symmetric."""
-    dt = _dtype(wi, wo)
-    wi = np.asarray(wi, dt)
-    wo = np.asarray(wo, dt)
-    out = np.zeros((len(wi), 3), dt)
-    flip = _flip_mask(sp, wi)
-    wi = _flipz(wi, flip)
-    wo = _flipz(wo, flip)
-    for k, sel in _groups(sp.kind):
-        sub = sp if isinstance(sel, slice) else sp.subset(sel)
-        r = _eval_kind(k, sub, wi[sel], wo[sel])
-        if r is not None:
-            out[sel] = _finite(r)
-    return out
+    return _eval_pdf(sp, wi, wo)[0]
 
 
 def pdf(sp: SurfacePoints, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
     """Solid-angle density with which :func:`sample` draws ``wo`` through a non-delta component
     (component selection included, so it integrates to the non-delta share); (N,)."""
+    return _eval_pdf(sp, wi, wo)[1]
+
+
+def _eval_pdf(sp, wi, wo):
     dt = _dtype(wi, wo)
-    wi = np.asarray(wi, dt)
-    wo = np.asarray(wo, dt)
-    out = np.zeros(len(wi), dt)
-    flip = _flip_mask(sp, wi)
-    wi = _flipz(wi, flip)
-    wo = _flipz(wo, flip)
-    for k, sel in _groups(sp.kind):
-        sub = sp if isinstance(sel, slice) else sp.subset(sel)
-        r = _pdf_kind(k, sub, wi[sel], wo[sel])
-        if r is not None:
-            out[sel] = _finite(r)
-    return out
-
-
-def _sample_kind(k, sp, wi, u1, u2, mode):
-    n = len(wi)
-    dt = wi.dtype
-    wo = np.zeros((n, 3), dt)
-    wo[:, 2] = 1.0
-    weight = np.zeros((n, 3), dt)
-    p = np.zeros(n, dt)
-    delta = np.zeros(n, bool)
-    ci = wi[:, 2]
-    if k == DIFFUSE:
-        wo = mf.square_to_cosine_hemisphere(u2).astype(dt, copy=False)
-        ok = (ci > 0) & (wo[:, 2] > 0)
-        p = np.where(ok, _cos_hemisphere_pdf(wo), 0.0)
-        weight = np.where(ok[:, None], sp.diffuse, 0.0)
-    elif k == ROUGHPLASTIC_DIFFUSE:
-        wo = mf.square_to_cosine_hemisphere(u2).astype(dt, copy=False)
-        ok = (ci > 0) & (wo[:, 2] > 0)
-        p = np.where(ok, _cos_hemisphere_pdf(wo), 0.0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            weight = np.where((ok & (p > 0))[:, None], _roughplastic_diffuse(sp, wi, wo) / p[:, None], 0.0)
-    elif k == CONDUCTOR:
-        ok = ci > 0
-        wo = reflect(wi)
-        F = fresnel_conductor(ci, sp.cond_eta, sp.cond_k)
-        weight = np.where(ok[:, None], F * sp.specular, 0.0)
-        p = np.where(ok, 1.0, 0.0)
-        delta = ok
-    elif k == ROUGHCONDUCTOR:
-        ok = ci > 0
-        m, pm = mf.sample_visible(wi, u2, sp.alpha, sp.beckmann)
-        wo = reflect_m(wi, m)
-        dwm = np.sum(wo * m, axis=-1)
-        ok &= (pm != 0) & (wo[:, 2] > 0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            p = pm / (4.0 * dwm)
-        g = mf.smith_g1(wo, m, sp.alpha, sp.beckmann)
-        F = fresnel_conductor(np.sum(wi * m, axis=-1), sp.cond_eta, sp.cond_k)
-        weight = np.where(ok[:, None], F * sp.specular * g[:, None], 0.0)
-        p = np.where(ok, p, 0.0)
-    elif k == DIELECTRIC:
-        r, cos_t, eta_it, eta_ti = fresnel_dielectric(ci, sp.eta)
-        sel_r = u1 <= r
-        wo = np.where(sel_r[:, None], reflect(wi), refract(wi, cos_t, eta_ti))
-        tw = sp.transmittance * ((eta_ti * eta_ti)[:, None] if mode == "radiance" else 1.0)
-        weight = np.where(sel_r[:, None], sp.specular, tw)
-        p = np.where(sel_r, r, 1.0 - r)
-        ok = p > 0
-        weight = np.where(ok[:, None], weight, 0.0)
-        delta = ok
-    elif k == THINDIELECTRIC:
-        r = _thin_r(ci, sp.eta)
-        sel_r = u1 <= r
-        wo = np.where(sel_r[:, None], reflect(wi), -wi)
-        weight = np.where(sel_r[:, None], sp.specular, sp.transmittance)
-        p = np.where(sel_r, r, 1.0 - r)
-        ok = p > 0
-        weight = np.where(ok[:, None], weight, 0.0)
-        delta = ok
-    elif k == PLASTIC:
-        ok = ci > 0
-        f_i = fresnel_dielectric(ci, sp.eta)[0]
-        ps, pd = _plastic_probs(f_i, sp.sampling_weight())
-        sel_s = ok & (u1 < ps)
-        wo_d = mf.square_to_cosine_hemisphere(u2).astype(dt, copy=False)
-        wo = np.where(sel_s[:, None], reflect(wi), wo_d)
-        ev = _eval_plastic(sp, wi, wo_d)
-        pdf_d = pd * _cos_hemisphere_pdf(wo_d)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            w_d = ev / pdf_d[:, None]
-            w_s = sp.specular * (f_i / ps)[:, None]
-        ok_d = ok & ~sel_s & (pdf_d > 0)
-        weight = np.where(sel_s[:, None], w_s, np.where(ok_d[:, None], w_d, 0.0))
-        p = np.where(sel_s, ps, np.where(ok_d, pdf_d, 0.0))
-        delta = sel_s
-    elif k == ROUGHPLASTIC:
-        ok = ci > 0
-        tabs, rows, _ = _rough_tables(sp)
-        t_i = mf.lerp_gather(tabs.astype(dt, copy=False), rows, np.clip(ci, 0, 1))
-        sw = sp.sampling_weight()
-        ps = (1.0 - t_i) * sw
-        pd = t_i * (1.0 - sw)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            ps = np.where(ps + pd > 0, ps / (ps + pd), 0.0)
-        sel_s = u1 < ps
-        wo = mf.square_to_cosine_hemisphere(u2).astype(dt, copy=False)
-        if sel_s.any():
-            ss = np.nonzero(sel_s)[0]
-            sub = sp.subset(ss)
-            m, _ = mf.sample_visible(wi[ss], u2[ss], sub.alpha, sub.beckmann)
-            wo[ss] = reflect_m(wi[ss], m)
-        val, p = _roughplastic_parts(sp, wi, wo)
-        ok &= p > 0
-        with np.errstate(invalid="ignore", divide="ignore"):
-            weight = np.where(ok[:, None], val / p[:, None], 0.0)
-        p = np.where(ok, p, 0.0)
-    # NULL: black, never samples
-    return wo, _finite(weight), _finite(p), delta
+    n = len(sp)
+    wi, wo = _dirs(wi, n), _dirs(wo, n)
+    rgb = np.empty((n, 3))
+    p = np.empty(n)
+    kb.eval_many(pack(sp), wi, wo, rgb, p)
+    return rgb.astype(dt, copy=False), p.astype(dt, copy=False)
 
 
 def sample(sp: SurfacePoints, wi: np.ndarray, u1: np.ndarray, u2: np.ndarray, mode: str = "radiance"):
@@ -585,22 +316,16 @@ def sample(sp: SurfacePoints, wi: np.ndarray, u1: np.ndarray, u2: np.ndarray, mo
     Failed samples (and NULL) have weight 0, pdf 0, delta False.
     """
     dt = _dtype(wi)
-    wi = np.asarray(wi, dt)
-    u1 = np.asarray(u1, dt).ravel()
-    u2 = np.asarray(u2, dt).reshape(-1, 2)
-    n = len(wi)
-    wo = np.zeros((n, 3), dt)
-    weight = np.zeros((n, 3), dt)
-    p = np.zeros(n, dt)
-    delta = np.zeros(n, bool)
-    flip = _flip_mask(sp, wi)
-    wi = _flipz(wi, flip)
-    for k, sel in _groups(sp.kind):
-        sub = sp if isinstance(sel, slice) else sp.subset(sel)
-        r = _sample_kind(k, sub, wi[sel], u1[sel], u2[sel], mode)
-        wo[sel], weight[sel], p[sel], delta[sel] = r
-    wo = _flipz(wo, flip)
-    return wo, weight, p, delta
+    n = len(sp)
+    wi = _dirs(wi, n)
+    u1 = _f64(u1).ravel()
+    u2 = _f64(u2).reshape(-1, 2)
+    wo = np.empty((n, 3))
+    weight = np.empty((n, 3))
+    p = np.empty(n)
+    delta = np.empty(n, bool)
+    kb.sample_many(pack(sp), wi, u1, u2, mode == "radiance", wo, weight, p, delta)
+    return wo.astype(dt, copy=False), weight.astype(dt, copy=False), p.astype(dt, copy=False), delta
 
 
 def sample_lobe(sp: SurfacePoints, wi: np.ndarray, u2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -609,36 +334,13 @@ def sample_lobe(sp: SurfacePoints, wi: np.ndarray, u2: np.ndarray) -> tuple[np.n
     cos / lobe pdf; the diffuse layer of a plastic is left to ROUGHPLASTIC_DIFFUSE. Other kinds
     give weight 0."""
     dt = _dtype(wi)
-    wi = np.asarray(wi, dt)
-    u2 = np.asarray(u2, dt).reshape(-1, 2)
-    n = len(wi)
-    wo = np.zeros((n, 3), dt)
-    wo[:, 2] = 1.0
-    weight = np.zeros((n, 3), dt)
-    flip = _flip_mask(sp, wi)
-    wif = _flipz(wi, flip)
-    for k, sel in _groups(sp.kind):
-        sub = sp if isinstance(sel, slice) else sp.subset(sel)
-        w = wif[sel]
-        if k == ROUGHCONDUCTOR:
-            o, wt, _p, _d = _sample_kind(k, sub, w, np.zeros(len(w), dt), u2[sel], "radiance")
-            wo[sel], weight[sel] = o, wt
-        elif k == ROUGHPLASTIC:
-            ok = w[:, 2] > 0
-            m, _ = mf.sample_visible(w, u2[sel], sub.alpha, sub.beckmann)
-            o = reflect_m(w, m)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                F = fresnel_dielectric(np.sum(w * m, axis=-1), sub.eta)[0]
-                g1o = mf.smith_g1(o, m, sub.alpha, sub.beckmann)
-            ok &= o[:, 2] > 0
-            wo[sel] = o
-            weight[sel] = np.where(ok[:, None], _finite(sub.specular * (F * g1o)[:, None]), 0.0)
-    return _flipz(wo, flip), _finite(weight)
-
-
-def _thin_r(cos_i, eta):
-    r = fresnel_dielectric(np.abs(cos_i), eta)[0]
-    return r * 2.0 / (1.0 + r)  # R + TRT + TR^3T + ...
+    n = len(sp)
+    wi = _dirs(wi, n)
+    u2 = _f64(u2).reshape(-1, 2)
+    wo = np.empty((n, 3))
+    weight = np.empty((n, 3))
+    kb.sample_lobe_many(pack(sp), wi, u2, wo, weight)
+    return wo.astype(dt, copy=False), weight.astype(dt, copy=False)
 
 
 def specular_components(sp: SurfacePoints, wi: np.ndarray, mode: str = "radiance"):
@@ -650,46 +352,14 @@ def specular_components(sp: SurfacePoints, wi: np.ndarray, mode: str = "radiance
     transmission is scaled by eta_ti^2 in radiance mode, as Mitsuba does.
     """
     dt = _dtype(wi)
-    wi = np.asarray(wi, dt)
-    n = len(wi)
-    flip = _flip_mask(sp, wi)
-    wif = _flipz(wi, flip)
-    ci = wif[:, 2]
-    kind = sp.kind
-    r_wo = _flipz(reflect(wif), flip)
-    r_w = np.zeros((n, 3), dt)
-    t_wo = -wi.copy()
-    t_w = np.zeros((n, 3), dt)
-
-    m = kind == CONDUCTOR
-    if m.any():
-        s = sp.subset(m)
-        F = fresnel_conductor(ci[m], s.cond_eta, s.cond_k)
-        r_w[m] = np.where((ci[m] > 0)[:, None], F * s.specular, 0.0)
-    m = kind == PLASTIC
-    if m.any():
-        s = sp.subset(m)
-        f = fresnel_dielectric(ci[m], s.eta)[0]
-        r_w[m] = np.where((ci[m] > 0)[:, None], f[:, None] * s.specular, 0.0)
-    m = kind == DIELECTRIC
-    if m.any():
-        s = sp.subset(m)
-        r, cos_t, _eta_it, eta_ti = fresnel_dielectric(ci[m], s.eta)
-        r_w[m] = r[:, None] * s.specular
-        scale = (eta_ti * eta_ti)[:, None] if mode == "radiance" else 1.0
-        t_w[m] = ((1.0 - r)[:, None] * s.transmittance) * scale
-        t_wo[m] = refract(wi[m], cos_t, eta_ti)
-    m = kind == THINDIELECTRIC
-    if m.any():
-        s = sp.subset(m)
-        r = _thin_r(ci[m], s.eta)
-        r_w[m] = r[:, None] * s.specular
-        t_w[m] = (1.0 - r)[:, None] * s.transmittance
-    r_w = _finite(r_w)
-    t_w = _finite(t_w)
-    r_valid = np.any(r_w > 0, axis=-1)
-    t_valid = np.any(t_w > 0, axis=-1)
-    return [(r_wo, r_w, r_valid), (t_wo, t_w, t_valid)]
+    n = len(sp)
+    wi = _dirs(wi, n)
+    r_wo, r_w, t_wo, t_w = (np.empty((n, 3)) for _ in range(4))
+    kb.specular_many(pack(sp), wi, mode == "radiance", r_wo, r_w, t_wo, t_w)
+    r_w = r_w.astype(dt, copy=False)
+    t_w = t_w.astype(dt, copy=False)
+    return [(r_wo.astype(dt, copy=False), r_w, np.any(r_w > 0, axis=-1)),
+            (t_wo.astype(dt, copy=False), t_w, np.any(t_w > 0, axis=-1))]
 
 
 def albedo(sp: SurfacePoints, wi: np.ndarray) -> np.ndarray:
@@ -702,37 +372,8 @@ def albedo(sp: SurfacePoints, wi: np.ndarray) -> np.ndarray:
     grazing angles wherever the material has any nonzero reflectance.
     """
     dt = _dtype(wi)
-    wi = np.asarray(wi, dt)
-    n = len(wi)
-    out = np.zeros((n, 3), dt)
-    ci = np.clip(np.abs(wi[:, 2]), 0.05, 1.0).astype(dt, copy=False)
-    for k, sel in _groups(sp.kind):
-        s = sp if isinstance(sel, slice) else sp.subset(sel)
-        c = ci[sel]
-        if k == DIFFUSE:
-            out[sel] = s.diffuse
-        elif k in (CONDUCTOR, ROUGHCONDUCTOR):
-            out[sel] = fresnel_conductor(np.ones_like(c), s.cond_eta, s.cond_k) * s.specular
-        elif k in (DIELECTRIC, THINDIELECTRIC):
-            r0 = fresnel_dielectric(np.ones_like(c), s.eta)[0][:, None]
-            out[sel] = r0 * s.specular + (1.0 - r0) * s.transmittance
-        elif k == PLASTIC:
-            eta = s.eta.astype(np.float64)
-            f_i = fresnel_dielectric(c, s.eta)[0]
-            fdr_int = np.asarray(fresnel_diffuse_reflectance(1.0 / eta), dt)
-            fdr_ext = np.asarray(fresnel_diffuse_reflectance(eta), dt)
-            diff = _plastic_diffuse_coef(s, fdr_int)
-            dscale = (1.0 - f_i) * (1.0 - fdr_ext) / (s.eta * s.eta)
-            out[sel] = diff * dscale[:, None] + f_i[:, None] * s.specular
-        elif k in (ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE):
-            tabs, rows, fdr_int, refl = _rough_tables(s, with_reflectance=True)
-            t_i = mf.lerp_gather(tabs.astype(dt), rows, c)
-            r_i = mf.lerp_gather(refl.astype(dt), rows, c)
-            t_avg = _cosine_mean(tabs).astype(dt)  # cosine-weighted mean of t_o
-            t_avg = t_avg[0] if rows is None else t_avg[rows]
-            diff = _plastic_diffuse_coef(s, fdr_int.astype(dt))
-            dscale = t_i * t_avg / (s.eta * s.eta)
-            out[sel] = diff * dscale[:, None]
-            if k == ROUGHPLASTIC:
-                out[sel] += r_i[:, None] * s.specular
-    return _finite(out)
+    n = len(sp)
+    wi = _dirs(wi, n)
+    out = np.empty((n, 3))
+    kb.albedo_many(pack(sp), wi, out)
+    return out.astype(dt, copy=False)

@@ -1,7 +1,9 @@
 """Fresnel terms and mirror/refraction directions in the local shading frame (z = normal).
 
 Vectorized numpy re-derivations of Mitsuba 3's ``fresnel.h``: every function takes arrays of
-N points (directions as (N, 3)) and works in the floating type of its inputs.
+N points (directions as (N, 3)) and works in the floating type of its inputs. The BSDFs use
+the compiled scalar versions in common.kernels.bsdf; these serve the rough-plastic table
+precomputation (common.microfacet).
 """
 from __future__ import annotations
 
@@ -78,29 +80,10 @@ def fresnel_diffuse_reflectance(eta):
     return out if out.ndim else float(out)
 
 
-def reflect(w):
-    """Mirror about the shading normal (local frame): (-x, -y, z)."""
-    out = np.empty_like(w)
-    out[:, 0] = -w[:, 0]
-    out[:, 1] = -w[:, 1]
-    out[:, 2] = w[:, 2]
-    return out
-
-
 def reflect_m(w, m):
     """Mirror ``w`` about the (unit) microfacet normal ``m``."""
     d = np.sum(w * m, axis=-1, keepdims=True)
     return 2.0 * d * m - w
-
-
-def refract(w, cos_theta_t, eta_ti):
-    """Refract about the shading normal; ``cos_theta_t``/``eta_ti`` from :func:`fresnel_dielectric`."""
-    e = np.asarray(eta_ti)
-    out = np.empty(np.broadcast_shapes(w.shape), dtype=np.result_type(w, cos_theta_t, e))
-    out[:, 0] = -e * w[:, 0]
-    out[:, 1] = -e * w[:, 1]
-    out[:, 2] = cos_theta_t
-    return out
 
 
 def refract_m(w, m, cos_theta_t, eta_ti):

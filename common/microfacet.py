@@ -8,6 +8,9 @@ Beckmann inversion, Heitz's 2017 GGX routine).
 Also the rough-dielectric reflectance/transmittance integrals that Mitsuba's roughplastic
 precomputes (``eval_reflectance`` / ``eval_transmittance``), with a per-(alpha, eta,
 distribution) cache (:func:`rough_plastic_tables`).
+
+The BSDFs themselves evaluate the compiled scalar versions in common.kernels.bsdf; these
+vectorized ones serve the table precomputation (in float32, as Mitsuba's scalar variants).
 """
 from __future__ import annotations
 
@@ -87,13 +90,6 @@ def square_to_uniform_disk_concentric(u):
     phi = np.where(q13, 0.5 * np.pi - phi, phi)
     phi = np.where((x == 0) & (y == 0), 0.0, phi)
     return r * np.cos(phi), r * np.sin(phi)
-
-
-def square_to_cosine_hemisphere(u):
-    """Cosine-weighted hemisphere sample (Malley's method over the concentric disk)."""
-    px, py = square_to_uniform_disk_concentric(u)
-    z = np.sqrt(np.maximum(1.0 - px * px - py * py, 0.0))
-    return np.stack([px, py, z], axis=-1)
 
 
 def _sample_visible_11_ggx(cos_theta_i, u):
