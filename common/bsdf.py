@@ -18,7 +18,7 @@ Component layout of :func:`specular_components` (always two entries, masks say w
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -31,12 +31,13 @@ from igi.common.scene import (
     PLASTIC,
     ROUGHPLASTIC,
     ROUGHPLASTIC_DIFFUSE,
+    ROUGHPLASTIC_LOBE,
     THINDIELECTRIC,
     Material,
 )
 
 INV_PI = 1.0 / np.pi
-ROUGH_PLASTIC_KINDS = (ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE)  # the kinds that read coat tables
+ROUGH_PLASTIC_KINDS = (ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE, ROUGHPLASTIC_LOBE)  # the kinds that read coat tables
 
 DELTA_KINDS = (CONDUCTOR, DIELECTRIC, THINDIELECTRIC)  # no non-delta part at all
 HAS_DELTA_KINDS = (CONDUCTOR, DIELECTRIC, THINDIELECTRIC, PLASTIC)  # some delta component
@@ -341,6 +342,17 @@ def sample_lobe(sp: SurfacePoints, wi: np.ndarray, u2: np.ndarray) -> tuple[np.n
     weight = np.empty((n, 3))
     kb.sample_lobe_many(pack(sp), wi, u2, wo, weight)
     return wo.astype(dt, copy=False), weight.astype(dt, copy=False)
+
+
+def lobe_only(sp: SurfacePoints) -> SurfacePoints:
+    """The glossy lobes that :func:`sample_lobe` samples, as BSDFs of their own: a rough
+    plastic's coat reflection (ROUGHPLASTIC_LOBE), a rough conductor whole. eval/pdf/albedo of
+    the result are the lobe's alone, its pdf the density of :func:`sample_lobe`'s directions
+    (MIS between a split lobe's traced ray and its light samples)."""
+    rp = sp.kind == ROUGHPLASTIC
+    if not rp.any():
+        return sp
+    return replace(sp, kind=np.where(rp, ROUGHPLASTIC_LOBE, sp.kind).astype(sp.kind.dtype))
 
 
 def specular_components(sp: SurfacePoints, wi: np.ndarray, mode: str = "radiance"):

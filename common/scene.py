@@ -86,6 +86,9 @@ NULL = 7  # black / absorbing (e.g. an emitter's own black BSDF)
 # Internal, never from a file: the diffuse layer of a rough plastic alone. The renderer splits a
 # smooth rough plastic at the first hit into this end point and a traced glossy lobe.
 ROUGHPLASTIC_DIFFUSE = 8
+# Internal: the coat's glossy lobe of a rough plastic alone (its microfacet reflection), for the
+# light samples of a split lobe, MIS-weighted against the lobe's own traced ray.
+ROUGHPLASTIC_LOBE = 9
 
 KIND_NAMES = {
     "diffuse": DIFFUSE,

@@ -23,7 +23,7 @@ from igi.common.scene import DIFFUSE, GLOSSY_KINDS, PLASTIC, ROUGHPLASTIC_DIFFUS
 from igi.common.sobol_stream import rng as make_rng
 
 from .caustics import PhotonSet, build_photon_set, default_radius, gather_photons
-from .shading import bsdf_direct, clamp_compensation, gather_vpls, trace_eye
+from .shading import LightMIS, bsdf_direct, clamp_compensation, gather_vpls, trace_eye
 from .vpl import VPLSet, build_vpl_set
 from .vpl_importance import AUTO_ESS, View, build_importance_vpl_set
 
@@ -189,17 +189,18 @@ class Renderer:
         n = params.interleave
         xs, ys = tile.pixels(n, spec.width, spec.height)
         p = len(xs)
-        with self._stage("eye paths"):
-            o, d = camera_rays(np.asarray(spec.camera_to_world).reshape(4, 4), spec.fov_x, spec.width,
-                               spec.height, xs, ys, spec.jitter)
-            rng = make_rng(spec.seed, tile.k, tile.sx0, tile.sy0)
-            eye = trace_eye(self.scene, self.geom, self.lights, o, d, params.max_depth,
-                            params.specular_depth, rng, params.filter_glossy_alpha)
         index = accumulation_index(spec)
         view = View(tuple(np.asarray(spec.camera_to_world, np.float64).ravel()), spec.fov_x, spec.width,
                     spec.height)
         with self._stage("VPL set"):
             vpls = self.vpl_set(spec.seed, tile.k, params, roulette=index > 0 and params.consistent, view=view)
+        with self._stage("eye paths"):
+            o, d = camera_rays(np.asarray(spec.camera_to_world).reshape(4, 4), spec.fov_x, spec.width,
+                               spec.height, xs, ys, spec.jitter)
+            rng = make_rng(spec.seed, tile.k, tile.sx0, tile.sy0)
+            eye = trace_eye(self.scene, self.geom, self.lights, o, d, params.max_depth,
+                            params.specular_depth, rng, params.filter_glossy_alpha,
+                            LightMIS(vpls.direct_count, vpls.env_guide))
         clamp_d2 = clamp_distance2(params, self.geom.diagonal)
         # Regularized glossy senders: the bound shrinks like the photon radius (consistent)
         lobe_alpha = params.vpl_lobe_alpha * radius_scale(index, params)
@@ -219,7 +220,10 @@ class Renderer:
             photons = self.photon_set(spec.seed, tile.k, params, index)
         if len(photons):
             with self._stage("photon gather"):
-                irr = irr + gather_photons(end, photons, albedo, params.max_depth)
+                caustic = gather_photons(end, photons, albedo, params.max_depth)
+                if end.direct_only is not None:
+                    caustic[end.direct_only] = 0.0  # a lobe's light samples: emitters only
+                irr = irr + caustic
         refl = np.zeros((p, 3))
         irr_buf = np.zeros((p, 3))
         unf = eye.unfiltered

@@ -76,13 +76,28 @@ def _allowed(segments: int, max_depth: int) -> bool:
     return max_depth < 0 or int(segments) <= max_depth
 
 
+@dataclass
+class LightMIS:
+    """The set's emitter sampling, for weighting emission that a sampled glossy-lobe ray hits
+    against the lobe's own light samples (``direct_count`` emitter samples per set, the
+    environment's guided pdf when the set has one)."""
+
+    direct_count: int
+    env_guide: object = None
+
+
 def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.ndarray,
               dirs: np.ndarray, max_depth: int, specular_depth: int,
-              rng: np.random.Generator, glossy_split_alpha: float = 0.0) -> EyeResult:
+              rng: np.random.Generator, glossy_split_alpha: float = 0.0,
+              light_mis: LightMIS | None = None) -> EyeResult:
     """``glossy_split_alpha``: rough conductors and plastics smoother than this are split at
     the first hit per BSDF component (paper §4): the plastic's diffuse layer is an end point
     (filtered irradiance), the glossy lobe is followed by one sampled ray like a mirror chain,
-    so VPLs never light a near-specular lobe (no spikes, no interleaving pattern)."""
+    so VPLs never light a near-specular lobe (no spikes, no interleaving pattern).
+
+    ``light_mis``: the lobe also takes the set's emitter samples (a direct-only end point, its
+    lobe evaluated per sample) and the emission its ray hits is MIS-weighted against them, so
+    a small bright light seen in a smooth floor is not a firefly (without: the ray alone)."""
     p = len(origins)
     unf = np.zeros((p, 3))
     env = lights.environment()
@@ -118,18 +133,25 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
                           np.ones((len(nd), 3)), np.ones(len(nd), np.int32), np.ones(len(nd), bool),
                           hits.t[v][nd])]
     di = np.nonzero(delta)[0]
-    branches: list[tuple] = []  # (pixel, origin, ng, direction, throughput, main, distance) per batch
+    # (pixel, origin, ng, direction, throughput, main, distance, lobe pdf or 0: no MIS) per batch
+    branches: list[tuple] = []
     t_hit = hits.t[v]
 
-    def branch(g: np.ndarray, wo_local: np.ndarray, weight: np.ndarray, main: np.ndarray) -> None:
-        branches.append((idx[g], pos[g], ng[g], to_world(wo_local, ns[g]), weight, main, t_hit[g]))
+    def branch(g: np.ndarray, wo_local: np.ndarray, weight: np.ndarray, main: np.ndarray,
+               mis_pdf: np.ndarray | None = None) -> None:
+        mis_pdf = np.zeros(len(g)) if mis_pdf is None else mis_pdf
+        branches.append((idx[g], pos[g], ng[g], to_world(wo_local, ns[g]), weight, main, t_hit[g], mis_pdf))
 
     if len(lobe):
         # The glossy lobe: one sampled ray, its radiance unfiltered (the pixel's main end
         # point, if any, is the plastic's diffuse layer).
-        wo, weight = bsdf.sample_lobe(lobe_sp, wi[lobe], rng.random((len(lobe), 2)))
+        wo, weight, pdf, lobe_end = _sample_lobe(lobe_sp, wi[lobe], rng, light_mis)
+        if lobe_end is not None:
+            ends.append(EndPoints(idx[lobe], pos[lobe], ns[lobe], ng[lobe], wi[lobe], lobe_end,
+                                  np.ones((len(lobe), 3)), np.ones(len(lobe), np.int32),
+                                  np.zeros(len(lobe), bool), t_hit[lobe], np.ones(len(lobe), bool)))
         sel = np.nonzero(np.any(weight > 0, axis=1))[0]
-        branch(lobe[sel], wo[sel], weight[sel], np.zeros(len(sel), bool))
+        branch(lobe[sel], wo[sel], weight[sel], np.zeros(len(sel), bool), pdf[sel])
     if len(di) and specular_depth > 0 and _allowed(2, max_depth):
         sp_d = sp.subset(di)
         comps = bsdf.specular_components(sp_d, wi[di], mode="radiance")
@@ -142,7 +164,7 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
     if branches:
         cat = [np.concatenate(col) for col in zip(*branches)]
         ends.extend(_follow_chains(scene, geom, lights, *cat, unf, env, max_depth, specular_depth, rng,
-                                   glossy_split_alpha))
+                                   glossy_split_alpha, light_mis))
     end = _concat_ends(ends)
     m = end.main
     depth[end.pixel[m]] = end.distance[m]
@@ -150,8 +172,45 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
     return EyeResult(end, unf, depth, normal)
 
 
-def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, unf, env,
-                   max_depth, specular_depth, rng, glossy_split_alpha=0.0) -> list[EndPoints]:
+def _sample_lobe(lobe_sp, wi, rng, light_mis):
+    """One sampled ray of each smooth lobe: ``(wo, weight, pdf for MIS (0: none), the lobe's
+    direct-only end-point BSDFs or None)``."""
+    wo, weight = bsdf.sample_lobe(lobe_sp, wi, rng.random((len(wi), 2)))
+    if light_mis is None or light_mis.direct_count <= 0:
+        return wo, weight, np.zeros(len(wi)), None
+    lobe_end = bsdf.lobe_only(lobe_sp)
+    return wo, weight, bsdf.pdf(lobe_end, wi, wo), lobe_end
+
+
+def _mis_emission(lights, hits, valid, dirs, mis_pdf, light_mis) -> np.ndarray:
+    """(n,) MIS weight of the emission (or environment, where not ``valid``) that rays with
+    sampling pdf ``mis_pdf`` hit, against the set's emitter samples; 1 where mis_pdf is 0."""
+    w = np.ones(len(dirs))
+    if light_mis is None or not np.any(mis_pdf > 0):
+        return w
+    pl = emitter_pdf(lights, hits, valid, dirs, light_mis)
+    m = mis_pdf > 0
+    w[m] = mis_pdf[m] ** 2 / np.maximum(mis_pdf[m] ** 2 + pl[m] ** 2, 1e-300)
+    return w
+
+
+def emitter_pdf(lights, hits, valid, dirs, light_mis) -> np.ndarray:
+    """(n,) solid-angle density with which the set's ``direct_count`` emitter samples pick what
+    each ray hits: the emitter at a valid hit, the environment along a miss."""
+    pl = np.zeros(len(dirs))
+    if valid.any():
+        cos_front = -np.einsum("ij,ij->i", dirs[valid], hits.ns[valid])
+        pl[valid] = lights.area_pdf(hits.emitter[valid]) * hits.t[valid] ** 2 / np.maximum(np.abs(cos_front), 1e-7)
+    miss = ~valid
+    if miss.any() and np.any(lights.environment() > 0):
+        g = light_mis.env_guide
+        pl[miss] = g.pmf * g.pdf(dirs[miss]) if g is not None else lights.environment_pdf()
+    return pl * light_mis.direct_count
+
+
+def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis_pdf, unf, env,
+                   max_depth, specular_depth, rng, glossy_split_alpha=0.0,
+                   light_mis: LightMIS | None = None) -> list[EndPoints]:
     out = []
     for bounce in range(1, specular_depth + 1):
         if len(pix) == 0:
@@ -161,7 +220,9 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, unf
         hits = geom.intersect(o, dirs)
         v = hits.valid
         if _allowed(seg, max_depth):
-            np.add.at(unf, pix[~v], thr[~v] * env)
+            w_mis = _mis_emission(lights, hits, v, dirs, mis_pdf, light_mis)
+            np.add.at(unf, pix[~v], thr[~v] * env * w_mis[~v, None])
+            w_mis = w_mis[v]
         pix, thr, main, dirs = pix[v], thr[v], main[v], dirs[v]
         dist = dist[v] + hits.t[v]
         hpos, hns, hng = hits.position[v], hits.ns[v], hits.ng[v]
@@ -169,7 +230,7 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, unf
             break
         if _allowed(seg, max_depth):
             cos_front = -np.einsum("ij,ij->i", dirs, hns)
-            np.add.at(unf, pix, thr * lights.emitted_radiance(hits.emitter[v], cos_front))
+            np.add.at(unf, pix, thr * lights.emitted_radiance(hits.emitter[v], cos_front) * w_mis[:, None])
         sp = bsdf.gather(scene.materials, hits.material[v], hits.uv[v])
         wi = to_local(-dirs, hns)
         delta = np.isin(sp.kind, SPECULAR_KINDS)
@@ -188,11 +249,18 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, unf
         wo, weight, _pdf, _dl = bsdf.sample(sp.subset(di), wi[di], rng.random(n), rng.random((n, 2)),
                                             mode="radiance")
         lobe_main = main[lobe] & ~nd_mask[lobe]  # a plastic's layer keeps the pixel's main end point
+        pdf = np.zeros(n)
         if len(lobe):
-            wo_l, weight_l = bsdf.sample_lobe(lobe_sp, wi[lobe], rng.random((len(lobe), 2)))
+            wo_l, weight_l, pdf_l, lobe_end = _sample_lobe(lobe_sp, wi[lobe], rng, light_mis)
+            if lobe_end is not None:
+                out.append(EndPoints(pix[lobe], hpos[lobe], hns[lobe], hng[lobe], wi[lobe], lobe_end, thr[lobe],
+                                     np.full(len(lobe), seg, np.int32), np.zeros(len(lobe), bool), dist[lobe],
+                                     np.ones(len(lobe), bool)))
             di, wo, weight = np.concatenate([di, lobe]), np.concatenate([wo, wo_l]), np.concatenate([weight, weight_l])
+            pdf = np.concatenate([pdf, pdf_l])
         keep = np.any(weight > 0, axis=1) & np.all(np.isfinite(weight), axis=1)
         new_main = np.concatenate([main[di[:n]], lobe_main])[keep]
+        mis_pdf = pdf[keep]
         di = di[keep]
         pix, thr, main, dist = pix[di], thr[di] * weight[keep], new_main, dist[di]
         dirs = to_world(wo[keep], hns[di])
@@ -446,7 +514,10 @@ def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoin
     out = np.zeros((e, 3))
     if e == 0 or not lights.has_light:
         return out
-    ok = np.nonzero(end.segments + 1 <= max_depth if max_depth >= 0 else np.ones(e, bool))[0]
+    ok = end.segments + 1 <= max_depth if max_depth >= 0 else np.ones(e, bool)
+    if end.direct_only is not None:
+        ok &= ~end.direct_only  # a glossy lobe's own sampled ray is its BSDF sample
+    ok = np.nonzero(ok)[0]
     if len(ok) == 0:
         return out
     sp = end.sp if len(ok) == e else end.sp.subset(ok)
@@ -464,19 +535,15 @@ def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoin
         return out
     hits = geom.intersect(o, d)
     le = np.zeros((len(ok), 3))
-    pl = np.zeros(len(ok))
     v = hits.valid
     if v.any():
         cos_front = -np.einsum("ij,ij->i", d[v], hits.ns[v])
         le[v] = lights.emitted_radiance(hits.emitter[v], cos_front)
-        # Solid-angle pdf of the emitter sampler for the same point.
-        pl[v] = lights.area_pdf(hits.emitter[v]) * hits.t[v] ** 2 / np.maximum(np.abs(cos_front), 1e-7)
     env = lights.environment()
     if np.any(env > 0) and (~v).any():
         le[~v] = env
-        pl[~v] = (env_guide.pmf * env_guide.pdf(d[~v]) if env_guide is not None
-                  else lights.environment_pdf())
-    pl *= direct_count
+    # Solid-angle pdf of the emitter sampler for the same point.
+    pl = emitter_pdf(lights, hits, v, d, LightMIS(direct_count, env_guide))
     w_mis = np.where(delta, 1.0, pdf_b ** 2 / np.maximum(pdf_b ** 2 + pl ** 2, 1e-300))
     contrib = weight * le * w_mis[:, None] / np.maximum(albedo[ok], 1e-6)
     out[ok] = np.nan_to_num(contrib, nan=0.0, posinf=0.0, neginf=0.0)
@@ -498,7 +565,10 @@ def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: 
     out = np.zeros((e, 3))
     if e == 0 or clamp_d2 <= 0 or not np.any(vpls.kind == VPL_SURFACE):
         return out
-    ok = np.nonzero((end.segments + 2 <= max_depth) if max_depth >= 0 else np.ones(e, bool))[0]
+    ok = (end.segments + 2 <= max_depth) if max_depth >= 0 else np.ones(e, bool)
+    if end.direct_only is not None:
+        ok &= ~end.direct_only  # they take no surface VPL: nothing was clamped
+    ok = np.nonzero(ok)[0]
     if len(ok) == 0:
         return out
     sp = end.sp if len(ok) == e else end.sp.subset(ok)

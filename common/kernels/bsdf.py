@@ -37,6 +37,7 @@ from igi.common.scene import (
     ROUGHCONDUCTOR,
     ROUGHPLASTIC,
     ROUGHPLASTIC_DIFFUSE,
+    ROUGHPLASTIC_LOBE,
     THINDIELECTRIC,
 )
 
@@ -428,7 +429,7 @@ def _eval_pdf_kind(P, i: int, k: int, wix, wiy, wiz, wox, woy, woz) -> tuple:
             return d[i, 0] * p, d[i, 1] * p, d[i, 2] * p, p
         lr, lg, lb = _layer(P, i, _coat_t(P, i, ci), co)
         return _fin(lr), _fin(lg), _fin(lb), p
-    if k == ROUGHCONDUCTOR:
+    if k == ROUGHCONDUCTOR or k == ROUGHPLASTIC_LOBE:
         hx, hy, hz = _half(wix, wiy, wiz, wox, woy, woz)
         a = P[4][i]
         beck = P[8][i]
@@ -442,6 +443,9 @@ def _eval_pdf_kind(P, i: int, k: int, wix, wiy, wiz, wox, woy, woz) -> tuple:
             return 0.0, 0.0, 0.0, p
         val = d * (g1i * smith_g1(wox, woy, woz, hx, hy, hz, a, beck)) / (4.0 * ci)
         s, ce, ck = P[2], P[6], P[7]
+        if k == ROUGHPLASTIC_LOBE:
+            fv = fresnel_dielectric(dwi, P[5][i])[0] * val
+            return s[i, 0] * fv, s[i, 1] * fv, s[i, 2] * fv, p
         return (fresnel_conductor(dwi, ce[i, 0], ck[i, 0]) * s[i, 0] * val,
                 fresnel_conductor(dwi, ce[i, 1], ck[i, 1]) * s[i, 1] * val,
                 fresnel_conductor(dwi, ce[i, 2], ck[i, 2]) * s[i, 2] * val, p)
@@ -494,6 +498,24 @@ def _sample_rough_conductor(P, i: int, wix, wiy, wiz, u2a, u2b) -> tuple:
             fresnel_conductor(c, ce[i, 2], ck[i, 2]) * s[i, 2] * g, p)
 
 
+@njit(**_KERNEL, inline="always")
+def _sample_coat_lobe(P, i: int, wix, wiy, wiz, u2a, u2b) -> tuple:
+    """A rough plastic's coat lobe alone: visible-normal sample, weight F · G1(wo) · specular,
+    the lobe's own solid-angle pdf (ROUGHPLASTIC_LOBE's pdf)."""
+    a = P[4][i]
+    beck = P[8][i]
+    mx, my, mz = sample_visible(wix, wiy, wiz, u2a, u2b, a, beck)
+    wox, woy, woz = _reflect_m(wix, wiy, wiz, mx, my, mz)
+    pm = pdf_visible(wix, wiy, wiz, mx, my, mz, a, beck)
+    if not (wiz > 0.0 and woz > 0.0 and pm != 0.0):
+        return wox, woy, woz, 0.0, 0.0, 0.0, 0.0
+    f = fresnel_dielectric(wix * mx + wiy * my + wiz * mz, P[5][i])[0]
+    fg = f * smith_g1(wox, woy, woz, mx, my, mz, a, beck)
+    s = P[2]
+    p = pm / (4.0 * (wox * mx + woy * my + woz * mz))
+    return wox, woy, woz, s[i, 0] * fg, s[i, 1] * fg, s[i, 2] * fg, p
+
+
 @njit(**_KERNEL)
 def _thin_r(ci: float, eta: float) -> float:
     r = fresnel_dielectric(abs(ci), eta)[0]
@@ -525,6 +547,9 @@ def _sample_kind(P, i: int, k: int, wix, wiy, wiz, u1, u2a, u2b, radiance: bool)
                 fresnel_conductor(ci, ce[i, 2], ck[i, 2]) * s[i, 2], 1.0, True)
     if k == ROUGHCONDUCTOR:
         wox, woy, woz, wr, wg, wb, p = _sample_rough_conductor(P, i, wix, wiy, wiz, u2a, u2b)
+        return wox, woy, woz, wr, wg, wb, p, False
+    if k == ROUGHPLASTIC_LOBE:
+        wox, woy, woz, wr, wg, wb, p = _sample_coat_lobe(P, i, wix, wiy, wiz, u2a, u2b)
         return wox, woy, woz, wr, wg, wb, p, False
     if k == DIELECTRIC or k == THINDIELECTRIC:
         if k == DIELECTRIC:
@@ -603,16 +628,8 @@ def sample_lobe(P, i: int, wix: float, wiy: float, wiz: float, u2a: float, u2b: 
     wox, woy, woz, wr, wg, wb = 0.0, 0.0, 1.0, 0.0, 0.0, 0.0
     if k == ROUGHCONDUCTOR:
         wox, woy, woz, wr, wg, wb, _p = _sample_rough_conductor(P, i, wix, wiy, wiz, u2a, u2b)
-    elif k == ROUGHPLASTIC:
-        a = P[4][i]
-        beck = P[8][i]
-        mx, my, mz = sample_visible(wix, wiy, wiz, u2a, u2b, a, beck)
-        wox, woy, woz = _reflect_m(wix, wiy, wiz, mx, my, mz)
-        if wiz > 0.0 and woz > 0.0:
-            f = fresnel_dielectric(wix * mx + wiy * my + wiz * mz, P[5][i])[0]
-            fg = f * smith_g1(wox, woy, woz, mx, my, mz, a, beck)
-            s = P[2]
-            wr, wg, wb = s[i, 0] * fg, s[i, 1] * fg, s[i, 2] * fg
+    elif k == ROUGHPLASTIC or k == ROUGHPLASTIC_LOBE:
+        wox, woy, woz, wr, wg, wb, _p = _sample_coat_lobe(P, i, wix, wiy, wiz, u2a, u2b)
     if flip:
         woz = -woz
     return wox, woy, woz, _fin(wr), _fin(wg), _fin(wb)
@@ -658,6 +675,9 @@ def albedo(P, i: int, wiz: float) -> tuple:
             r += r_i * s[i, 0]
             g += r_i * s[i, 1]
             b += r_i * s[i, 2]
+    elif k == ROUGHPLASTIC_LOBE:
+        r_i = lerp_table(P[13], P[14][i], c)
+        r, g, b = r_i * s[i, 0], r_i * s[i, 1], r_i * s[i, 2]
     return _fin(r), _fin(g), _fin(b)
 
 
@@ -775,7 +795,7 @@ def coat_columns(kind, eta, rrow, reg_fdr, reg_tavg, out_fdr, out_tavg) -> int:
         row = rrow[i]
         out_tavg[i] = reg_tavg[row]
         out_fdr[i] = 0.0
-        if k == ROUGHPLASTIC or k == ROUGHPLASTIC_DIFFUSE:
+        if k == ROUGHPLASTIC or k == ROUGHPLASTIC_DIFFUSE or k == ROUGHPLASTIC_LOBE:
             out_fdr[i] = reg_fdr[row]
             if row == 0:
                 missing += 1

@@ -1,6 +1,8 @@
 """Properties of the Mitsuba-3-matching BSDFs in common/bsdf.py (MC with fixed seeds)."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -546,3 +548,46 @@ def test_diffuse_layer_plus_sampled_lobe_equal_the_whole_bsdf(mat, theta):
     m1, e1 = _mean_and_err(whole)
     m2, e2 = _mean_and_err(parts)
     assert np.all(np.abs(m1 - m2) <= e1 + e2), (m1, m2)
+
+
+# ---- a rough plastic's parts: diffuse layer + coat lobe = the whole BSDF ----------------------
+
+
+@pytest.mark.parametrize("dist", ["ggx", "beckmann"])
+def test_rough_plastic_is_its_diffuse_layer_plus_its_coat_lobe(dist):
+    from igi.common.scene import ROUGHPLASTIC_DIFFUSE, ROUGHPLASTIC_LOBE
+
+    rng = _rng(7)
+    mat = Material("p", ROUGHPLASTIC, diffuse=Texture.constant([0.6, 0.3, 0.1]), alpha=0.15, distribution=dist)
+    sp = _sp(mat)
+    wi = _wi(0.7)
+    wo = rng.normal(size=(N, 3))
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    wo[:, 2] = np.abs(wo[:, 2])
+    layer = bsdf.eval(dataclasses.replace(sp, kind=np.full(N, ROUGHPLASTIC_DIFFUSE, np.int8)), wi, wo)
+    lobe_sp = bsdf.lobe_only(sp)
+    assert np.all(lobe_sp.kind == ROUGHPLASTIC_LOBE)
+    np.testing.assert_allclose(layer + bsdf.eval(lobe_sp, wi, wo), bsdf.eval(sp, wi, wo), rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("kind", [ROUGHCONDUCTOR, ROUGHPLASTIC])
+def test_a_lobes_pdf_is_the_density_of_its_sampled_directions(kind):
+    # sample_lobe's weight is the lobe's value over the pdf lobe_only() reports, so the light
+    # samples of a split lobe and its traced ray weigh each other correctly (MIS)
+    rng = _rng(8)
+    mat = Material("g", kind, diffuse=Texture.constant(0.5), alpha=0.12)
+    sp = bsdf.lobe_only(_sp(mat))
+    wi = _wi(0.9)
+    wo, weight = bsdf.sample_lobe(_sp(mat), wi, rng.random((N, 2)))
+    f, p = bsdf.eval(sp, wi, wo), bsdf.pdf(sp, wi, wo)
+    ok = p > 0
+    assert ok.mean() > 0.9
+    np.testing.assert_allclose(weight[ok], f[ok] / p[ok][:, None], rtol=1e-9)
+    # and it integrates to one over the hemisphere's directions it can reach (MC, uniform)
+    u = rng.random((200_000, 2))
+    z = u[:, 0]
+    r = np.sqrt(1 - z * z)
+    d = np.stack([r * np.cos(2 * np.pi * u[:, 1]), r * np.sin(2 * np.pi * u[:, 1]), z], axis=1)
+    big = bsdf.lobe_only(_sp(mat, len(d)))
+    total = bsdf.pdf(big, np.repeat(wi[:1], len(d), axis=0), d).mean() * 2 * np.pi
+    assert 0.85 < total < 1.05  # (uniform MC of a peaked density: ~2% noise)

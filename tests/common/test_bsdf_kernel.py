@@ -30,6 +30,7 @@ from igi.common.scene import (
     ROUGHCONDUCTOR,
     ROUGHPLASTIC,
     ROUGHPLASTIC_DIFFUSE,
+    ROUGHPLASTIC_LOBE,
     THINDIELECTRIC,
     Material,
     Texture,
@@ -41,7 +42,8 @@ ATOL = 1e-12
 # the oracle's numpy warns on the NaN, Inf and grazing inputs (the kernels do not)
 pytestmark = pytest.mark.filterwarnings("ignore::RuntimeWarning")
 KINDS = (DIFFUSE, CONDUCTOR, ROUGHCONDUCTOR, DIELECTRIC, THINDIELECTRIC, PLASTIC, ROUGHPLASTIC,
-         ROUGHPLASTIC_DIFFUSE, NULL)
+         ROUGHPLASTIC_DIFFUSE, ROUGHPLASTIC_LOBE, NULL)
+SPLIT = (ROUGHPLASTIC_DIFFUSE, ROUGHPLASTIC_LOBE)  # internal kinds: parts of a rough plastic
 
 
 def _unit(rng, n):
@@ -75,7 +77,7 @@ def _randoms(rng, n):
 
 
 def _material(kind, dist="ggx", twosided=False, alpha=0.3, int_ior=1.5):
-    base = ROUGHPLASTIC if kind == ROUGHPLASTIC_DIFFUSE else kind
+    base = ROUGHPLASTIC if kind in SPLIT else kind
     return Material(f"{KIND_NAMES.get(kind, kind)}_{dist}", base, diffuse=Texture.constant([0.6, 0.3, 0.1]),
                     alpha=alpha, distribution=dist, twosided=twosided, int_ior=int_ior, ext_ior=1.0,
                     eta=np.array([0.2, 0.9, 1.1]), k=np.array([3.0, 2.4, 1.8]))
@@ -87,7 +89,7 @@ def _textured(sp, rng, vary_coat=False):
     rough plastics, whose coat tables are per material."""
     n = len(sp)
     f32 = np.float32
-    rough = np.isin(sp.kind, (ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE)) & (not vary_coat)
+    rough = np.isin(sp.kind, (ROUGHPLASTIC, *SPLIT)) & (not vary_coat)
     alpha = np.where(rough, sp.alpha, rng.uniform(0.02, 0.9, n)).astype(f32)
     eta = np.where(rough, sp.eta, rng.choice([1.2, 1.5, 2.4, 1 / 1.33, 1.0], n)).astype(f32)
     return dataclasses.replace(
@@ -98,12 +100,12 @@ def _textured(sp, rng, vary_coat=False):
         coat_row=None if vary_coat else sp.coat_row)
 
 
-def _points(materials, n, rng, relabel_diffuse_layer=0.0):
+def _points(materials, n, rng, relabel_diffuse_layer=0.0, part=ROUGHPLASTIC_DIFFUSE):
     sp = bsdf.gather(materials, rng.integers(0, len(materials), n), None)
     if relabel_diffuse_layer:
         kind = sp.kind.copy()
         sel = (kind == ROUGHPLASTIC) & (rng.random(n) < relabel_diffuse_layer)
-        kind[sel] = ROUGHPLASTIC_DIFFUSE
+        kind[sel] = part
         sp = dataclasses.replace(sp, kind=kind)
     return sp
 
@@ -145,7 +147,7 @@ def test_every_kind_matches_the_numpy_oracle_front_back_and_grazing(kind, dist, 
     rng = np.random.default_rng(kind * 4 + (dist == "beckmann") * 2 + twosided)
     wi, wo = _directions(rng)
     n = len(wi)
-    sp = _points([_material(kind, dist, twosided)], n, rng, relabel_diffuse_layer=float(kind == ROUGHPLASTIC_DIFFUSE))
+    sp = _points([_material(kind, dist, twosided)], n, rng, relabel_diffuse_layer=float(kind in SPLIT), part=kind)
     u1, u2 = _randoms(rng, n)
     _assert_all_functions_match_the_oracle(sp, wi, wo, u1, u2)
     # the same with per-point (textured) parameters
@@ -154,7 +156,7 @@ def test_every_kind_matches_the_numpy_oracle_front_back_and_grazing(kind, dist, 
 
 def test_mixed_kinds_and_several_rough_plastics_in_one_call_match_the_oracle():
     rng = np.random.default_rng(100)
-    mats = [_material(k, d, t) for k in KINDS if k != ROUGHPLASTIC_DIFFUSE
+    mats = [_material(k, d, t) for k in KINDS if k not in SPLIT
             for d in ("ggx", "beckmann") for t in (False, True)]
     mats += [_material(ROUGHPLASTIC, d, alpha=a, int_ior=e)
              for d, a, e in (("ggx", 0.05, 1.3), ("beckmann", 0.15, 1.5), ("ggx", 0.6, 2.0), ("beckmann", 0.9, 1.1))]
@@ -193,7 +195,7 @@ def test_coat_transmittance_tables_and_means_match_the_oracle():
     mats = [_material(ROUGHPLASTIC, "beckmann"), _material(ROUGHPLASTIC, "ggx", alpha=0.05, int_ior=1.3),
             _material(DIFFUSE)]
     sp = _points(mats, 500, rng, relabel_diffuse_layer=0.5)
-    rough = np.isin(sp.kind, (ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE))
+    rough = np.isin(sp.kind, (ROUGHPLASTIC, *SPLIT))
     tabs, rows, t_avg = bsdf.coat_transmittance(sp)
     o_tabs, o_rows, o_avg = oracle.coat_transmittance(sp.subset(rough))
     _close(tabs[rows[rough]], o_tabs[o_rows], "tables")
@@ -317,7 +319,7 @@ def test_scalar_kernels_equal_the_array_loops():
     """eval_pdf / sample / sample_lobe / albedo / specular called per point (as other compiled
     code calls them) give the array loops' rows."""
     rng = np.random.default_rng(106)
-    mats = [_material(k, d) for k in KINDS if k != ROUGHPLASTIC_DIFFUSE for d in ("ggx", "beckmann")]
+    mats = [_material(k, d) for k in KINDS if k not in SPLIT for d in ("ggx", "beckmann")]
     n = 60
     sp = _points(mats, n, rng, relabel_diffuse_layer=0.5)
     wi, wo = _unit(rng, n), _unit(rng, n)

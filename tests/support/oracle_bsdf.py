@@ -25,6 +25,7 @@ from igi.common.scene import (
     ROUGHCONDUCTOR,
     ROUGHPLASTIC,
     ROUGHPLASTIC_DIFFUSE,
+    ROUGHPLASTIC_LOBE,
     THINDIELECTRIC,
 )
 
@@ -170,6 +171,23 @@ def _eval_roughconductor(sp, wi, wo):
     return np.where((ok & (d != 0))[:, None], res, 0.0)
 
 
+def _eval_coat_lobe(sp, wi, wo):
+    """(Added with ROUGHPLASTIC_LOBE, after the move: the oracle of the new kind.) A rough
+    plastic's coat reflection alone: the rough conductor's microfacet term with the
+    dielectric Fresnel factor."""
+    ci, co = wi[:, 2], wo[:, 2]
+    ok = (ci > 0) & (co > 0)
+    h = wi + wo
+    with np.errstate(invalid="ignore", divide="ignore"):
+        h = h / np.linalg.norm(h, axis=-1, keepdims=True)
+        d = mf.D(h, sp.alpha, sp.beckmann)
+        g = mf.G(wi, wo, h, sp.alpha, sp.beckmann)
+        val = d * g / (4.0 * ci)
+        F = fresnel_dielectric(np.sum(wi * h, axis=-1), sp.eta)[0]
+    res = sp.specular * (F * val)[:, None]
+    return np.where((ok & (d != 0))[:, None], res, 0.0)
+
+
 def _pdf_roughconductor(sp, wi, wo):
     ci, co = wi[:, 2], wo[:, 2]
     h = wi + wo
@@ -281,6 +299,8 @@ def _eval_kind(k, sp, wi, wo):
         return _roughplastic_parts(sp, wi, wo, want_pdf=False)[0]
     if k == ROUGHPLASTIC_DIFFUSE:
         return _roughplastic_diffuse(sp, wi, wo)
+    if k == ROUGHPLASTIC_LOBE:
+        return _eval_coat_lobe(sp, wi, wo)
     return None  # delta kinds and NULL: 0
 
 
@@ -288,7 +308,7 @@ def _pdf_kind(k, sp, wi, wo):
     if k in (DIFFUSE, ROUGHPLASTIC_DIFFUSE):
         ok = (wi[:, 2] > 0) & (wo[:, 2] > 0)
         return np.where(ok, _cos_hemisphere_pdf(wo), 0.0)
-    if k == ROUGHCONDUCTOR:
+    if k in (ROUGHCONDUCTOR, ROUGHPLASTIC_LOBE):
         return _pdf_roughconductor(sp, wi, wo)
     if k == PLASTIC:
         return _pdf_plastic(sp, wi, wo)
@@ -365,7 +385,7 @@ def _sample_kind(k, sp, wi, u1, u2, mode):
         weight = np.where(ok[:, None], F * sp.specular, 0.0)
         p = np.where(ok, 1.0, 0.0)
         delta = ok
-    elif k == ROUGHCONDUCTOR:
+    elif k in (ROUGHCONDUCTOR, ROUGHPLASTIC_LOBE):
         ok = ci > 0
         m, pm = mf.sample_visible(wi, u2, sp.alpha, sp.beckmann)
         wo = reflect_m(wi, m)
@@ -374,7 +394,10 @@ def _sample_kind(k, sp, wi, u1, u2, mode):
         with np.errstate(invalid="ignore", divide="ignore"):
             p = pm / (4.0 * dwm)
         g = mf.smith_g1(wo, m, sp.alpha, sp.beckmann)
-        F = fresnel_conductor(np.sum(wi * m, axis=-1), sp.cond_eta, sp.cond_k)
+        if k == ROUGHCONDUCTOR:
+            F = fresnel_conductor(np.sum(wi * m, axis=-1), sp.cond_eta, sp.cond_k)
+        else:  # the coat lobe alone (ROUGHPLASTIC_LOBE)
+            F = fresnel_dielectric(np.sum(wi * m, axis=-1), sp.eta)[0][:, None]
         weight = np.where(ok[:, None], F * sp.specular * g[:, None], 0.0)
         p = np.where(ok, p, 0.0)
     elif k == DIELECTRIC:
@@ -484,7 +507,7 @@ def sample_lobe(sp: SurfacePoints, wi: np.ndarray, u2: np.ndarray) -> tuple[np.n
         if k == ROUGHCONDUCTOR:
             o, wt, _p, _d = _sample_kind(k, sub, w, np.zeros(len(w), dt), u2[sel], "radiance")
             wo[sel], weight[sel] = o, wt
-        elif k == ROUGHPLASTIC:
+        elif k in (ROUGHPLASTIC, ROUGHPLASTIC_LOBE):
             ok = w[:, 2] > 0
             m, _ = mf.sample_visible(w, u2[sel], sub.alpha, sub.beckmann)
             o = reflect_m(w, m)
@@ -596,4 +619,7 @@ def albedo(sp: SurfacePoints, wi: np.ndarray) -> np.ndarray:
             out[sel] = diff * dscale[:, None]
             if k == ROUGHPLASTIC:
                 out[sel] += r_i[:, None] * s.specular
+        elif k == ROUGHPLASTIC_LOBE:
+            _tabs, rows, _fdr, refl = _rough_tables(s, with_reflectance=True)
+            out[sel] = mf.lerp_gather(refl.astype(dt), rows, c)[:, None] * s.specular
     return _finite(out)

@@ -82,3 +82,21 @@ def two_rooms(width=32, height=24) -> Scene:
     emitters = [Emitter(AREA, radiance=np.full(3, 20.0), mesh=len(meshes) - 1)]
     cam = Camera(look_at([3.8, 1.0, 1.0], [2.0, 0.8, 1.0], [0, 1, 0]), fov=80, width=width, height=height)
     return Scene(meshes, mats, emitters, cam, source="two rooms")
+
+
+def glossy_floor_lamp(width=48, height=36, alpha=0.05) -> Scene:
+    """A smooth rough-conductor floor (white, perfect-mirror Fresnel) under a small, bright
+    ceiling lamp, nothing else: every pixel sees the floor, and all it shows is the lamp's
+    glossy reflection (no indirect light: nothing else reflects)."""
+    from igi.common.scene import ROUGHCONDUCTOR
+
+    mats = [Material("floor", ROUGHCONDUCTOR, alpha=alpha),
+            Material("lamp", DIFFUSE, diffuse=Texture.constant(0.0))]
+    fv, ff = quad([-3, 0, -3], [0, 0, 6], [6, 0, 0])  # normal +y
+    lv, lf = quad([-0.15, 1.0, -0.15], [0.3, 0, 0], [0, 0, 0.3])  # normal -y: faces the floor
+    if np.cross(lv[1] - lv[0], lv[2] - lv[0])[1] > 0:
+        lf = lf[:, ::-1].copy()
+    meshes = [Mesh("floor", fv, ff, 0), Mesh("lamp", lv, lf, 1, emitter=0)]
+    emitters = [Emitter(AREA, radiance=np.full(3, 40.0), mesh=1)]
+    cam = Camera(look_at([0.0, 0.8, 2.5], [0.0, 0.0, 0.6], [0, 1, 0]), fov=50, width=width, height=height)
+    return Scene(meshes, mats, emitters, cam, source="glossy floor lamp")

@@ -162,6 +162,7 @@ def _bsdf_calls() -> dict:
         "_layer": lambda: kb._layer(P, 0, f, f),
         "_rough_plastic": lambda: kb._rough_plastic(P, 0, *f6), "_eval_pdf_kind": lambda: kb._eval_pdf_kind(P, 0, k, *f6),
         "eval_pdf": lambda: kb.eval_pdf(P, 0, *f6), "_sample_rough_conductor": lambda: kb._sample_rough_conductor(P, 0, *f5),
+        "_sample_coat_lobe": lambda: kb._sample_coat_lobe(P, 0, *f5),
         "_sample_kind": lambda: kb._sample_kind(P, 0, k, *f6, True), "sample": lambda: kb.sample(P, 0, *f6, True),
         "sample_lobe": lambda: kb.sample_lobe(P, 0, *f5), "albedo": lambda: kb.albedo(P, 0, f),
         "specular": lambda: kb.specular(P, 0, *f3, True),
