@@ -325,8 +325,9 @@ def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
     if e == 0 or m == 0:
         return albedo, irr
     cols = _VPLColumns(vpls, geom, clamp_d2, force_general, lobe_alpha)
+    receivers = _Receivers(end, albedo)
     for sl in _chunks(e, m):
-        pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, albedo[sl])
+        pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, receivers)
         vg.accumulate(sl.stop - sl.start, pi, pj, w, blocked, cols.color, factor, irr[sl])
     return albedo, irr
 
@@ -348,8 +349,9 @@ def contribution_per_vpl(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2:
         return out
     albedo = bsdf.albedo(end.sp, end.wi).astype(np.float64)
     cols = _VPLColumns(vpls, geom, clamp_d2, lobe_alpha=lobe_alpha)
+    receivers = _Receivers(end, albedo)
     for sl in _chunks(e, m):
-        pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, albedo[sl])
+        pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, receivers)
         rgb = cols.color[pj] * (albedo[sl][pi] * end.throughput[sl][pi])
         if len(factor):
             rgb = rgb * factor
@@ -374,6 +376,16 @@ def regularized_senders(surface: "bsdf.SurfacePoints", lobe_alpha: float) -> "bs
     return replace(surface, alpha=alpha)
 
 
+class _Receivers:
+    """The end points' BSDFs for the compiled per-pair evaluation, packed once per gather."""
+
+    def __init__(self, end: EndPoints, albedo: np.ndarray):
+        self.P = bsdf.pack(end.sp)
+        self.wi = np.ascontiguousarray(end.wi, dtype=np.float64)
+        self.ns = np.ascontiguousarray(end.ns, dtype=np.float64)
+        self.albedo = np.ascontiguousarray(albedo, dtype=np.float64)
+
+
 class _VPLColumns:
     """Per-VPL constants of the gather as flat kernel arrays, computed once per set and call."""
 
@@ -391,6 +403,7 @@ class _VPLColumns:
         color = vpls.power.astype(np.float64).copy()
         self.glossy = np.zeros(m, bool)
         self.surf_rows = np.nonzero(surface)[0]
+        self.P = None  # the surface VPLs' packed BSDFs (glossy senders, regularized)
         # Surface VPLs: Lambertian ones fold rho/π into their colour and radiate on the side
         # their light arrived from; the others need their BSDF per pair.
         self.side = np.ones(m, f32)
@@ -402,7 +415,12 @@ class _VPLColumns:
             self.side[rows] = np.where(vpls.wi_local[rows, 2] >= 0, 1.0, -1.0)
             color[rows[lam]] *= sp.diffuse[lam] / np.pi
             self.glossy[rows[~lam]] = True
-            self.surface = regularized_senders(sp, lobe_alpha)
+            self.P = bsdf.pack(regularized_senders(sp, lobe_alpha))
+        # glossy columns' BSDF rows in P (their surface VPLs in order), -1 elsewhere
+        self.vpl_row = np.full(m, -1, np.int64)
+        self.vpl_row[self.surf_rows] = np.arange(len(self.surf_rows))
+        self.vwi = np.ascontiguousarray(vpls.wi_local, dtype=np.float64)
+        self.vnormal = np.ascontiguousarray(vpls.normal, dtype=np.float64)
         self.color = np.ascontiguousarray(color)
         # Spots carry (_, beam, cutoff) degrees in wi_local; cutoff < 0 marks "not a spot".
         self.spot_cutoff = np.where(spot, vpls.wi_local[:, 2], -1.0).astype(np.float64)
@@ -421,7 +439,7 @@ class _VPLColumns:
 
 
 def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,
-                      max_depth: int, albedo: np.ndarray) -> tuple:
+                      max_depth: int, receivers: _Receivers) -> tuple:
     """The chunk's live (end point, VPL) pairs after Embree's occlusion test: (row, column,
     scalar weight, blocked, per-pair RGB factor or an empty (0, 3) array)."""
     f32 = np.float32
@@ -468,39 +486,23 @@ def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, c
                         tables, row_tab, inv_tavg, pi, pj, w, pl, o, d, t)
     pi, pj, w, pl, o, d, t = pi[:k], pj[:k], w[:k], pl[:k], o[:k], d[:k], t[:k]
     blocked = geom.occluded_local(o, d, t) if k else np.zeros(0, bool)
-    factor = _bsdf_factors(end, sl, vpls, cols, row, pi, pj, pl, d, blocked, albedo)
+    factor = _bsdf_factors(sl, cols, row, pi, pj, pl, d, blocked, receivers)
     return pi, pj, w, blocked, factor
 
 
-def _bsdf_factors(end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns, row: np.ndarray,
-                  pi: np.ndarray, pj: np.ndarray, pl: np.ndarray, d: np.ndarray,
-                  blocked: np.ndarray, albedo: np.ndarray) -> np.ndarray:
+def _bsdf_factors(sl: slice, cols: _VPLColumns, row: np.ndarray, pi: np.ndarray, pj: np.ndarray,
+                  pl: np.ndarray, d: np.ndarray, blocked: np.ndarray, receivers: _Receivers) -> np.ndarray:
     """Per-pair RGB factors for the unoccluded pairs with a non-Lambertian end: the receiver's
     f_x(wi, ω)/albedo and its MIS weight against emitter samples, and a glossy VPL's
-    f_y(ω_in, y→x) in place of its Lambertian colour. Empty (0, 3) when no pair needs one."""
-    gr = (row[pi] == vg.ROW_GLOSSY) & ~blocked
-    gc = cols.glossy[pj] & ~blocked
-    if not gr.any() and not gc.any():
+    f_y(ω_in, y→x) in place of its Lambertian colour (compiled: vpl_gather.pair_factors).
+    Empty (0, 3) when no pair needs one."""
+    if not (np.any(row == vg.ROW_GLOSSY) or cols.glossy.any()):
         return np.zeros((0, 3))
-    factor = np.ones((len(pi), 3))
-    if gr.any():
-        sel = np.nonzero(gr)[0]
-        rows = sl.start + pi[sel]
-        spx = end.sp.subset(rows)
-        wi_x = end.wi[rows]
-        wo_l = to_local(d[sel].astype(np.float64), end.ns[rows])
-        fx = bsdf.eval(spx, wi_x, wo_l, mode="radiance") / np.maximum(albedo[pi[sel]], 1e-6)
-        pls = pl[sel].astype(np.float64)
-        if np.any(pls > 0):
-            pb = bsdf.pdf(spx, wi_x, wo_l)
-            fx *= np.where(pls > 0, pls * pls / np.maximum(pls * pls + pb * pb, 1e-30), 1.0)[:, None]
-        factor[sel] = fx
-    if gc.any():
-        sel = np.nonzero(gc)[0]
-        j = pj[sel]
-        sub = cols.surface.subset(np.searchsorted(cols.surf_rows, j))
-        wo_y = to_local(-d[sel].astype(np.float64), vpls.normal[j])
-        factor[sel] *= bsdf.eval(sub, vpls.wi_local[j], wo_y, mode="importance")
+    factor = np.empty((len(pi), 3))
+    P_vpl = cols.P if cols.P is not None else receivers.P  # (typing only: no glossy column reads it)
+    if not vg.pair_factors(pi, pj, d, pl, blocked, row, sl.start, receivers.P, receivers.wi, receivers.ns,
+                           receivers.albedo, cols.glossy, P_vpl, cols.vpl_row, cols.vwi, cols.vnormal, factor):
+        return np.zeros((0, 3))
     return factor
 
 

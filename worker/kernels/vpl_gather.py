@@ -18,6 +18,8 @@ import math
 import numpy as np
 from numba import njit
 
+from igi.common.kernels import bsdf as kb
+
 INV_PI = 1.0 / math.pi
 
 # Per-row flags (receiver kind).
@@ -158,3 +160,59 @@ def accumulate(n, pi, pj, w, blocked, color, factor, out):
         for c in range(3):
             if not math.isfinite(out[i, c]):
                 out[i, c] = 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _to_local(wx, wy, wz, nx, ny, nz):
+    """w in the shading frame of unit normal n (common.lights.to_local: Duff et al. 2017)."""
+    sign = 1.0 if nz >= 0.0 else -1.0
+    a = -1.0 / (sign + nz)
+    b = nx * ny * a
+    sx, sy, sz = 1.0 + sign * nx * nx * a, sign * b, -sign * nx
+    tx, ty, tz = b, sign + ny * ny * a, -ny
+    return wx * sx + wy * sy + wz * sz, wx * tx + wy * ty + wz * tz, wx * nx + wy * ny + wz * nz
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def pair_factors(pi, pj, d, pl, blocked, row, base, P_end, wi, ns, albedo,
+                 glossy_col, P_vpl, vpl_row, vwi, vnormal, out):
+    """Per-pair RGB factors of the unoccluded pairs (``out`` (k, 3), 1 elsewhere): a glossy
+    receiver's f_x(wi, ω)/albedo with its MIS weight against the emitter sample's light pdf
+    ``pl``, times a glossy VPL's f_y(ω_in, y→x) in place of its Lambertian colour.
+
+    Rows ``pi`` are chunk-relative: end point ``base + i`` of P_end / wi / ns / albedo. VPL
+    column j's BSDF is row ``vpl_row[j]`` of P_vpl (its surface VPLs). Returns whether any
+    pair needed a factor (False: the caller may drop ``out``)."""
+    any_factor = False
+    for k in range(pi.shape[0]):
+        out[k, 0] = 1.0
+        out[k, 1] = 1.0
+        out[k, 2] = 1.0
+        if blocked[k]:
+            continue
+        i = pi[k]
+        j = pj[k]
+        dx, dy, dz = np.float64(d[k, 0]), np.float64(d[k, 1]), np.float64(d[k, 2])
+        if row[i] == ROW_GLOSSY:
+            e = base + i
+            lx, ly, lz = _to_local(dx, dy, dz, ns[e, 0], ns[e, 1], ns[e, 2])
+            r, g, b, pb = kb.eval_pdf(P_end, e, wi[e, 0], wi[e, 1], wi[e, 2], lx, ly, lz)
+            out[k, 0] = r / max(albedo[e, 0], 1e-6)
+            out[k, 1] = g / max(albedo[e, 1], 1e-6)
+            out[k, 2] = b / max(albedo[e, 2], 1e-6)
+            p = np.float64(pl[k])
+            if p > 0.0:
+                m = p * p / max(p * p + pb * pb, 1e-30)
+                out[k, 0] *= m
+                out[k, 1] *= m
+                out[k, 2] *= m
+            any_factor = True
+        if glossy_col[j]:
+            q = vpl_row[j]
+            lx, ly, lz = _to_local(-dx, -dy, -dz, vnormal[j, 0], vnormal[j, 1], vnormal[j, 2])
+            r, g, b, _p = kb.eval_pdf(P_vpl, q, vwi[j, 0], vwi[j, 1], vwi[j, 2], lx, ly, lz)
+            out[k, 0] *= r
+            out[k, 1] *= g
+            out[k, 2] *= b
+            any_factor = True
+    return any_factor
