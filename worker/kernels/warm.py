@@ -21,9 +21,15 @@ import numpy as np
 KERNEL_PACKAGES = ("igi.common.kernels", "igi.worker.kernels")
 
 
+def inlined(disp) -> bool:
+    """A kernel compiled only into its callers (``inline="always"``): it has no code of its own
+    to load, and compiling it standalone would cost seconds on a cold cache for nothing."""
+    return disp.targetoptions.get("inline") == "always"
+
+
 def kernel_dispatchers() -> dict[str, object]:
     """``module.name`` -> numba dispatcher, for every compiled kernel of :data:`KERNEL_PACKAGES`
-    (private helpers included)."""
+    (private helpers included, the inlined ones not)."""
     from numba.core.registry import CPUDispatcher
 
     out = {}
@@ -34,7 +40,7 @@ def kernel_dispatchers() -> dict[str, object]:
                 continue
             mod = importlib.import_module(f"{pkg_name}.{info.name}")
             for name, obj in vars(mod).items():
-                if isinstance(obj, CPUDispatcher) and obj.__module__ == mod.__name__:
+                if isinstance(obj, CPUDispatcher) and obj.__module__ == mod.__name__ and not inlined(obj):
                     out[f"{mod.__name__}.{name}"] = obj
     return out
 
