@@ -204,6 +204,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     if not args.output:
         raise UsageError("-o/--output is required (unless --plan alone)")
     progress = Progress(args.frames) if not args.quiet else None
+    if progress:
+        _say_if_compiling()
     tracker = ErrorTracker()
 
     def on_frame(i, img):
@@ -225,6 +227,16 @@ def cmd_render(args: argparse.Namespace) -> int:
         print(f"wrote {args.output} ({image.shape[1]}x{image.shape[0]}, {args.frames} frame(s){extra})",
               file=sys.stderr)
     return 0
+
+
+def _say_if_compiling() -> None:
+    """A first run on a machine compiles the kernels before the first frame (~20-40 s): say so
+    instead of looking stuck."""
+    from igi.worker.kernels.warm import compiled_before
+
+    if compiled_before() is False:
+        print("first run on this machine: compiling igi's kernels (~20-40 s, cached for later runs)",
+              file=sys.stderr)
 
 
 class Converged(Exception):
@@ -396,6 +408,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
     from igi.common.bundled import resolve
 
     args.scene_path = str(resolve(args.scene))  # the viewer looks for a reference image beside it
+    if args.workers:
+        _say_if_compiling()
     return _serve(args, scene, args.workers)
 
 

@@ -46,3 +46,27 @@ def test_warm_up_logs_its_duration(caplog):
     with caplog.at_level(logging.INFO):
         warm.warm_up_before_hello(logging.getLogger("igi.worker"))
     assert "kernels ready in" in caplog.text
+
+
+def test_compiled_before_tells_a_warm_cache_from_a_cold_one(monkeypatch, tmp_path):
+    import importlib.util
+
+    from igi.worker.kernels.warm import compiled_before
+
+    warm_up()
+    assert compiled_before() is True  # the kernels beside the sources were just compiled/loaded
+    real = importlib.util.find_spec
+    fake_dir = tmp_path / "kernels"
+    fake_dir.mkdir()
+    (fake_dir / "bsdf.py").write_text("")
+
+    def find_spec(name, *a, **k):
+        spec = real(name, *a, **k)
+        if name == "igi.common.kernels.bsdf":
+            spec = importlib.util.spec_from_file_location(name, fake_dir / "bsdf.py")
+        return spec
+
+    monkeypatch.setattr(importlib.util, "find_spec", find_spec)
+    assert compiled_before() is False  # a checkout whose kernels were never compiled
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    assert compiled_before() is None  # elsewhere: cannot tell without numba

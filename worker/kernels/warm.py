@@ -183,6 +183,25 @@ def _bsdf_calls() -> dict:
     return {f"igi.common.kernels.bsdf.{name}": call for name, call in calls.items()}
 
 
+def compiled_before() -> bool | None:
+    """Has this machine compiled igi's kernels (numba's on-disk cache beside the sources)?
+    None when that cannot be told (NUMBA_CACHE_DIR set, sources not found). Checked without
+    importing numba or the kernels, so the master can say why a first run waits."""
+    import glob
+    import importlib.util
+    import os
+    import sys
+
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return None
+    spec = importlib.util.find_spec("igi.common.kernels.bsdf")
+    if spec is None or not spec.origin:
+        return None
+    here = os.path.dirname(spec.origin)
+    tag = f"py{sys.version_info.major}{sys.version_info.minor}"
+    return bool(glob.glob(os.path.join(here, "__pycache__", f"bsdf.*.{tag}.nbi")))
+
+
 def warm_up(render: bool = True) -> dict:
     """Load or compile every kernel; returns {"seconds": s, "kernels": count, "cold": names
     still without a compiled signature (should be empty)}."""
