@@ -194,7 +194,8 @@ def _mis_emission(lights, hits, valid, dirs, mis_pdf, light_mis) -> np.ndarray:
     return w
 
 
-def emitter_pdf(lights, hits, valid, dirs, light_mis) -> np.ndarray:
+def emitter_pdf(lights: LightSampler, hits, valid: np.ndarray, dirs: np.ndarray,
+                light_mis: LightMIS) -> np.ndarray:
     """(n,) solid-angle density with which the set's ``direct_count`` emitter samples pick what
     each ray hits: the emitter at a valid hit, the environment along a miss."""
     pl = np.zeros(len(dirs))
