@@ -719,10 +719,11 @@ def specular(P, i: int, wix: float, wiy: float, wiz: float, radiance: bool) -> t
 
 
 # ----------------------------------------------------------------------------------------------
-# array loops (point i of P with row i of the direction arrays)
+# array loops (point i of P with row i of the direction arrays): the entry points Python calls,
+# compiled on their own (not inlined: no compiled caller), the scalar functions inlined in them
 
 
-@njit(**_KERNEL, inline="always")
+@njit(**_KERNEL)
 def eval_many(P, wi, wo, out_rgb, out_pdf) -> None:
     """out_rgb[i], out_pdf[i] = :func:`eval_pdf` of point i at (wi[i], wo[i])."""
     for i in range(wi.shape[0]):
@@ -733,7 +734,7 @@ def eval_many(P, wi, wo, out_rgb, out_pdf) -> None:
         out_pdf[i] = p
 
 
-@njit(**_KERNEL, inline="always")
+@njit(**_KERNEL)
 def sample_many(P, wi, u1, u2, radiance, out_wo, out_w, out_pdf, out_delta) -> None:
     """Row i: :func:`sample` of point i with (u1[i], u2[i])."""
     for i in range(wi.shape[0]):
@@ -749,7 +750,7 @@ def sample_many(P, wi, u1, u2, radiance, out_wo, out_w, out_pdf, out_delta) -> N
         out_delta[i] = d
 
 
-@njit(**_KERNEL, inline="always")
+@njit(**_KERNEL)
 def sample_lobe_many(P, wi, u2, out_wo, out_w) -> None:
     """Row i: :func:`sample_lobe` of point i with u2[i]."""
     for i in range(wi.shape[0]):
@@ -762,7 +763,7 @@ def sample_lobe_many(P, wi, u2, out_wo, out_w) -> None:
         out_w[i, 2] = wb
 
 
-@njit(**_KERNEL, inline="always")
+@njit(**_KERNEL)
 def albedo_many(P, wi, out_rgb) -> None:
     """Row i: :func:`albedo` of point i at wi[i]."""
     for i in range(wi.shape[0]):
@@ -772,7 +773,7 @@ def albedo_many(P, wi, out_rgb) -> None:
         out_rgb[i, 2] = b
 
 
-@njit(**_KERNEL, inline="always")
+@njit(**_KERNEL)
 def specular_many(P, wi, radiance, r_wo, r_w, t_wo, t_w) -> None:
     """Row i: :func:`specular` of point i at wi[i]."""
     for i in range(wi.shape[0]):

@@ -7,8 +7,9 @@ inside the first frame a user waits for: it renders a tiny built-in scene (every
 diffuse, glossy and mirror surfaces, an area and a spot light, caustic photons) through the
 real ``Renderer``, so the kernels are loaded for exactly the argument types the product
 passes, then encodes and decodes a tile (common.codec) and finally calls any public kernel
-of ``common.kernels`` / ``worker.kernels`` that still has no compiled signature on tiny inputs
-(the BSDF kernels' scalar functions, inlined into their array loops, among them).
+of ``common.kernels`` / ``worker.kernels`` that still has no compiled signature on tiny inputs.
+Kernels compiled only into their callers (``inline="always"``) have nothing of their own to
+load and are left out.
 """
 from __future__ import annotations
 
@@ -142,14 +143,13 @@ def _direct_calls() -> dict:
 
 def _bsdf_calls() -> dict:
     """Tiny calls of the BSDF kernels (common.kernels.bsdf) with the argument types the array
-    loops pass: its scalar functions are inlined into the loops, or loaded with them from the
-    cache, so they keep no signature of their own; a 1-point diffuse P needs no coat tables."""
+    loops pass: the non-inlined scalar functions they call are loaded with them from the cache,
+    so they keep no signature of their own; a 1-point diffuse P needs no coat tables."""
     from igi.common import bsdf
     from igi.common.kernels import bsdf as kb
     from igi.common.scene import DIFFUSE, Material
 
     P = bsdf.SurfacePoints.constant(Material("warm-up", DIFFUSE), 1).packed()
-    k = P[0][0]  # the kind code as the kernels read it (int8)
     f, f3, f5, f6 = 0.5, (0.5,) * 3, (0.5,) * 5, (0.5,) * 6
     w1, w2, o1 = np.full((1, 3), 0.5), np.full((1, 2), 0.5), np.zeros(1)
     o3 = np.zeros((1, 3))
@@ -163,17 +163,9 @@ def _bsdf_calls() -> dict:
         "_visible_11_ggx": lambda: kb._visible_11_ggx(*f3), "_visible_11_beckmann": lambda: kb._visible_11_beckmann(*f3),
         "sample_visible": lambda: kb.sample_visible(*f5, f, True), "pdf_visible": lambda: kb.pdf_visible(*f6, f, True),
         "lerp_table": lambda: kb.lerp_table(P[12], 0, f), "_fin": lambda: kb._fin(f),
-        "_flipped": lambda: kb._flipped(P, 0, f), "_half": lambda: kb._half(*f6), "_reflect_m": lambda: kb._reflect_m(*f6),
-        "_diffuse_coef": lambda: kb._diffuse_coef(P, 0, 0), "_lobe_probability": lambda: kb._lobe_probability(*f3),
-        "_thin_r": lambda: kb._thin_r(f, 1.5), "_coat_t": lambda: kb._coat_t(P, 0, f),
-        "_layer": lambda: kb._layer(P, 0, f, f),
-        "_rough_plastic": lambda: kb._rough_plastic(P, 0, *f6), "_eval_pdf_kind": lambda: kb._eval_pdf_kind(P, 0, k, *f6),
-        "eval_pdf": lambda: kb.eval_pdf(P, 0, *f6), "_sample_rough_conductor": lambda: kb._sample_rough_conductor(P, 0, *f5),
-        "_sample_coat_lobe": lambda: kb._sample_coat_lobe(P, 0, *f5),
-        "_sample_kind": lambda: kb._sample_kind(P, 0, k, *f6, True), "sample": lambda: kb.sample(P, 0, *f6, True),
-        "sample_lobe": lambda: kb.sample_lobe(P, 0, *f5), "albedo": lambda: kb.albedo(P, 0, f),
-        "specular": lambda: kb.specular(P, 0, *f3, True),
-        "eval_many": lambda: kb.eval_many(P, w1, w1, o3.copy(), o1.copy()),
+        "_half": lambda: kb._half(*f6), "_reflect_m": lambda: kb._reflect_m(*f6),
+        "_lobe_probability": lambda: kb._lobe_probability(*f3),
+        "_thin_r": lambda: kb._thin_r(f, 1.5), "eval_many": lambda: kb.eval_many(P, w1, w1, o3.copy(), o1.copy()),
         "sample_many": lambda: kb.sample_many(P, w1, o1, w2, True, o3.copy(), o3.copy(), o1.copy(), np.zeros(1, bool)),
         "sample_lobe_many": lambda: kb.sample_lobe_many(P, w1, w2, o3.copy(), o3.copy()),
         "albedo_many": lambda: kb.albedo_many(P, w1, o3.copy()),
