@@ -194,7 +194,10 @@ def gather_photons(end, photons: PhotonSet, albedo: np.ndarray, max_depth: int) 
     # r) can find any, so the others skip the grid lookups.
     lo = photons.position.min(axis=0) - photons.radius
     hi = photons.position.max(axis=0) + photons.radius
-    near = np.nonzero(np.all((end.position >= lo) & (end.position <= hi), axis=1))[0]
+    inside = np.all((end.position >= lo) & (end.position <= hi), axis=1)
+    if end.direct_only is not None:
+        inside &= ~end.direct_only  # a split lobe's light samples: emitters only
+    near = np.nonzero(inside)[0]
     if len(near) == 0:
         return out
     pi_idx, qn = photons.grid.query(end.position[near])

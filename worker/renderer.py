@@ -220,10 +220,7 @@ class Renderer:
             photons = self.photon_set(spec.seed, tile.k, params, index)
         if len(photons):
             with self._stage("photon gather"):
-                caustic = gather_photons(end, photons, albedo, params.max_depth)
-                if end.direct_only is not None:
-                    caustic[end.direct_only] = 0.0  # a lobe's light samples: emitters only
-                irr = irr + caustic
+                irr = irr + gather_photons(end, photons, albedo, params.max_depth)
         refl = np.zeros((p, 3))
         irr_buf = np.zeros((p, 3))
         unf = eye.unfiltered
