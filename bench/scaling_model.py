@@ -43,6 +43,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from typing import Callable
 
+from igi.common.params import PARAM_BY_NAME
 from igi.master import scheduler
 
 GBIT = 1e9
@@ -98,7 +99,7 @@ class Config:
     workers: int
     width: int = 640
     height: int = 480
-    interleave: int = 3
+    interleave: int = PARAM_BY_NAME["interleave"].default
     task_pixels: int = 4096
     threads_per_worker: int = 1
     credit_per_thread: int = 3

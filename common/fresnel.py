@@ -64,7 +64,7 @@ def fresnel_conductor(cos_theta_i, eta, k):
         r_p = r_s * (term3 - term4) / (term3 + term4)
     r = 0.5 * (r_s + r_p)
     mirror = (eta == 0) & (k == 0)
-    r = np.where(mirror | ~np.isfinite(r), 1.0, r)
+    r = np.where(mirror | ~np.isfinite(r), 1.0, np.maximum(r, 0.0))  # ~-1e-17 at eta = 1, k = 0
     return r
 
 

@@ -14,11 +14,17 @@ groups are paired at random.
 """
 from __future__ import annotations
 
+import copy
 import hashlib
+import threading
 import warnings
+from collections import OrderedDict
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import qmc
+
+from igi.common.kernels import sobol_points
 
 # Tags that keep the derived PRNGs of different uses independent of each other.
 _TAG_MAIN = 0x50B01  # the main Sobol' instance
@@ -57,61 +63,89 @@ def _sobol(d: int, seed: int, *keys: int) -> qmc.Sobol:
     return qmc.Sobol(d, scramble=True, seed=rng(seed, *keys))
 
 
-_DIRECT_SEEK: list[bool] = []  # [works?] once checked against scipy's own fast_forward
+@dataclass(frozen=True)
+class _Scrambling:
+    """One scrambled Sobol' instance as data: its direction numbers and digital shift (read-only,
+    so every thread may draw from it at once)."""
+
+    sv: np.ndarray  # (d, bits) unsigned
+    shift: np.ndarray  # (d,) unsigned
+    scale: float  # 2^-bits
+    engine: qmc.Sobol  # the scipy engine it came from (fallback draws only)
 
 
-def _seek_state(engine: qmc.Sobol, start: int) -> np.ndarray:
-    """The engine's state after ``start`` points, in O(bits): scipy keeps the last point drawn
-    (Gray-code order: point j = shift ^ XOR of the direction numbers of the bits of j ^ (j>>1))."""
-    j = start - 1
-    g = j ^ (j >> 1)
-    q = engine._shift.copy()
-    b = 0
-    while g:
-        if g & 1:
-            q ^= engine._sv[:, b]
-        g >>= 1
-        b += 1
-    return q
+_SCRAMBLINGS: "OrderedDict[tuple, _Scrambling]" = OrderedDict()
+_SCRAMBLINGS_MAX = 512  # ~5 instances per frame seed: the last ~100 frames' streams
+_LOCK = threading.Lock()
 
 
-def _direct_seek_works() -> bool:
-    """scipy's fast_forward walks every skipped point (O(n): ~0.4 s per photon set of a
-    13-light scene at block 116); seeking the state directly relies on private attributes, so
-    it is checked against fast_forward once and used only if it agrees."""
-    if not _DIRECT_SEEK:
-        try:
-            ok = True
-            for start in (1, 2, 3, 5, 8, 1000, 4097, 123457):
-                e = _sobol(5, 12345, 1)
-                e.reset()
-                e.fast_forward(start)
-                ok &= bool(np.array_equal(_seek_state(e, start), e._quasi))
-        except Exception:  # noqa: BLE001 - any scipy internals change: use the public path
-            ok = False
-        _DIRECT_SEEK.append(ok)
-    return _DIRECT_SEEK[0]
+def _scrambling(d: int, seed: int, *keys: int) -> _Scrambling:
+    """The scrambling of (d, seed, keys), built once per process: scipy's scrambled construction
+    (~0.3 ms per instance) used to be paid by every set of every frame."""
+    key = (d, seed, *keys)
+    with _LOCK:
+        hit = _SCRAMBLINGS.get(key)
+        if hit is not None:
+            _SCRAMBLINGS.move_to_end(key)
+            return hit
+    e = _sobol(d, seed, *keys)
+    scr = _Scrambling(e._sv.copy(), e._shift.copy(), float(e._scale), e)
+    scr.sv.flags.writeable = scr.shift.flags.writeable = False
+    with _LOCK:
+        _SCRAMBLINGS[key] = scr
+        while len(_SCRAMBLINGS) > _SCRAMBLINGS_MAX:
+            _SCRAMBLINGS.popitem(last=False)
+    return scr
 
 
-def _draw(engine: qmc.Sobol, start: int, count: int) -> np.ndarray:
-    """Points [start, start+count) of the engine's sequence."""
-    engine.reset()
-    if start and _direct_seek_works():
-        engine._quasi = _seek_state(engine, start)
-        engine.num_generated = start
-    elif start:
-        engine.fast_forward(start)
+_DIRECT: list[bool] = []  # [works?] once checked against scipy's own engine
+
+
+def _engine_draw(engine: qmc.Sobol, start: int, count: int) -> np.ndarray:
+    """Points [start, start+count) through scipy's public API (O(start); a private copy of the
+    engine, so concurrent draws never share its state)."""
+    e = copy.deepcopy(engine)
+    e.reset()
+    if start:
+        e.fast_forward(start)
     with warnings.catch_warnings():
         # scipy warns when count is not a power of two; blocks of any size are intended here.
         warnings.simplefilter("ignore", UserWarning)
-        return engine.random(count)
+        return e.random(count)
+
+
+def _direct_works() -> bool:
+    """Direct evaluation reads scipy's private direction numbers and shift; it is checked
+    against scipy's own draws once per process and used only if they agree bit for bit."""
+    if not _DIRECT:
+        try:
+            scr = _scrambling(5, 12345, 1)
+            ok = all(np.array_equal(_direct_draw(scr, start, 9), _engine_draw(scr.engine, start, 9))
+                     for start in (0, 1, 2, 3, 5, 8, 1000, 4097, 123457))
+        except Exception:  # noqa: BLE001 - any scipy internals change: use the public path
+            ok = False
+        _DIRECT.append(ok)
+    return _DIRECT[0]
+
+
+def _direct_draw(scr: _Scrambling, start: int, count: int) -> np.ndarray:
+    out = np.empty((count, scr.sv.shape[0]), np.float64)
+    sobol_points.draw(scr.sv, scr.shift, start, count, scr.scale, out)
+    return out
+
+
+def _draw(scr: _Scrambling, start: int, count: int) -> np.ndarray:
+    """Points [start, start+count) of the instance's sequence."""
+    if _direct_works():
+        return _direct_draw(scr, start, count)
+    return _engine_draw(scr.engine, start, count)
 
 
 class SobolStream:
     """A scrambled Sobol' sequence of ``dims`` dimensions, fixed by ``seed``.
 
-    Draws reuse one engine (reset + fast_forward), so one instance must not be shared by
-    threads drawing concurrently; build one per thread (construction takes ~2 ms).
+    Points are evaluated directly from process-wide scramblings (any start in O(bits), no
+    engine state), so instances are cheap and threads may share one.
     """
 
     def __init__(self, seed: int, dims: int = 32) -> None:
@@ -119,14 +153,13 @@ class SobolStream:
             raise ValueError(f"dims must be >= 1, got {dims}")
         self.seed = int(seed)
         self.dims = int(dims)
-        self._engine = _sobol(self.dims, self.seed, _TAG_MAIN)
-        self._groups: dict[tuple[int, int], qmc.Sobol] = {}
+        self._main = _scrambling(self.dims, self.seed, _TAG_MAIN)
 
     def points(self, start: int, count: int) -> np.ndarray:
         """Points [start, start+count) of the stream: (count, dims) float64 in [0, 1)."""
         if start < 0 or count < 0:
             raise ValueError(f"start and count must be >= 0, got {start}, {count}")
-        return _draw(self._engine, start, count)
+        return _draw(self._main, start, count)
 
     def block(self, k: int, count: int, block_size: int) -> np.ndarray:
         """The first ``count`` points of block k: rows [k*block_size, k*block_size+count).
@@ -135,12 +168,6 @@ class SobolStream:
         """
         _check_block(k, count, block_size)
         return self.points(k * block_size, count)
-
-    def _group_engine(self, g: int, d: int) -> qmc.Sobol:
-        engine = self._groups.get((g, d))
-        if engine is None:
-            engine = self._groups[(g, d)] = _sobol(d, self.seed, _TAG_GROUP, g)
-        return engine
 
     def padded(self, k: int, count: int, block_size: int, total_dims: int,
                group_dims: int = 4) -> np.ndarray:
@@ -159,7 +186,7 @@ class SobolStream:
         out = np.empty((count, total_dims), dtype=np.float64)
         for g, d0 in enumerate(range(0, total_dims, group_dims)):
             d = min(group_dims, total_dims - d0)
-            pts = _draw(self._group_engine(g, d), k * block_size, count)
+            pts = _draw(_scrambling(d, self.seed, _TAG_GROUP, g), k * block_size, count)
             if g:
                 pts = pts[rng(self.seed, _TAG_PERM, g, k, count).permutation(count)]
             out[:, d0:d0 + d] = pts

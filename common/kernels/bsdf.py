@@ -105,7 +105,7 @@ def fresnel_conductor(c: float, eta: float, k: float) -> float:
     r = 0.5 * (r_s + r_p)
     if (eta == 0.0 and k == 0.0) or not math.isfinite(r):
         return 1.0
-    return r
+    return max0(r)  # eta = 1, k = 0 cancels to ~-1e-17: a reflectance is never negative
 
 
 @njit(**_KERNEL)
@@ -474,6 +474,14 @@ def eval_pdf(P, i: int, wix: float, wiy: float, wiz: float, wox: float, woy: flo
     return _fin(r), _fin(g), _fin(b), _fin(p)
 
 
+@njit(**_KERNEL, inline="always")
+def _well_posed(wix, wiy, wiz, mx, my, mz) -> bool:
+    """A reflection about m is usable: wi·m not ~0. There wo ≈ -wi (both on the horizon), the
+    half vector eval/pdf recover from wi + wo cancels, and pdf(wi, wo) no longer equals the
+    sampled density (hypothesis found wi_z ~ 1e-61); such samples carry ~nothing anyway."""
+    return wix * mx + wiy * my + wiz * mz > 1e-9
+
+
 @njit(**_KERNEL)
 def _reflect_m(wix, wiy, wiz, mx, my, mz) -> tuple:
     d2 = 2.0 * (wix * mx + wiy * my + wiz * mz)
@@ -487,7 +495,7 @@ def _sample_rough_conductor(P, i: int, wix, wiy, wiz, u2a, u2b) -> tuple:
     mx, my, mz = sample_visible(wix, wiy, wiz, u2a, u2b, a, beck)
     pm = pdf_visible(wix, wiy, wiz, mx, my, mz, a, beck)
     wox, woy, woz = _reflect_m(wix, wiy, wiz, mx, my, mz)
-    if not (wiz > 0.0 and pm != 0.0 and woz > 0.0):
+    if not (wiz > 0.0 and pm != 0.0 and woz > 0.0 and _well_posed(wix, wiy, wiz, mx, my, mz)):
         return wox, woy, woz, 0.0, 0.0, 0.0, 0.0
     p = pm / (4.0 * (wox * mx + woy * my + woz * mz))
     g = smith_g1(wox, woy, woz, mx, my, mz, a, beck)
@@ -507,7 +515,7 @@ def _sample_coat_lobe(P, i: int, wix, wiy, wiz, u2a, u2b) -> tuple:
     mx, my, mz = sample_visible(wix, wiy, wiz, u2a, u2b, a, beck)
     wox, woy, woz = _reflect_m(wix, wiy, wiz, mx, my, mz)
     pm = pdf_visible(wix, wiy, wiz, mx, my, mz, a, beck)
-    if not (wiz > 0.0 and woz > 0.0 and pm != 0.0):
+    if not (wiz > 0.0 and woz > 0.0 and pm != 0.0 and _well_posed(wix, wiy, wiz, mx, my, mz)):
         return wox, woy, woz, 0.0, 0.0, 0.0, 0.0
     f = fresnel_dielectric(wix * mx + wiy * my + wiz * mz, P[5][i])[0]
     fg = f * smith_g1(wox, woy, woz, mx, my, mz, a, beck)

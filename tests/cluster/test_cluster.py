@@ -160,7 +160,7 @@ def test_worker_reconnects_when_the_master_comes_back(scene, procs):
     with Broker(scene, bind=endpoint) as again:
         assert again.wait_for_workers(1, 60)
         res = again.render_frame(again.frame_spec(0, {"photons": 0}), timeout=60)
-        assert res.tasks == len(task_tiles(W, H, 3))
+        assert res.tasks == len(task_tiles(W, H, make_params().interleave))
 
 
 def test_worker_process_refuses_a_master_of_another_version(procs):

@@ -274,6 +274,6 @@ def test_sobol_blocks_are_disjoint_and_their_union_is_the_prefix(seed, bs, nbloc
 
 def _group_rows(stream: SobolStream, g: int, d: int, start: int, count: int) -> np.ndarray:
     """Rows [start, start+count) of padded group g's own Sobol' instance (unshuffled)."""
-    from igi.common.sobol_stream import _draw
+    from igi.common.sobol_stream import _TAG_GROUP, _draw, _scrambling
 
-    return _draw(stream._group_engine(g, d), start, count)
+    return _draw(_scrambling(d, stream.seed, _TAG_GROUP, g), start, count)

@@ -139,20 +139,37 @@ def test_invalid_block_arguments_raise():
         rng(1, -3)
 
 
-@pytest.mark.parametrize("start", [1, 2, 3, 4, 5, 63, 64, 65, 4096, 4097, 123457, 475136])
-def test_direct_seek_draws_what_fast_forward_draws(start):
-    """Blocks far into the stream are reached by setting the engine's state directly (O(bits),
-    not scipy's O(n) walk); the points drawn must be exactly fast_forward's."""
+@pytest.mark.parametrize("start", [0, 1, 2, 3, 4, 5, 63, 64, 65, 4096, 4097, 123457, 475136])
+def test_direct_evaluation_draws_what_scipys_engine_draws(start):
+    """Points are evaluated directly from the scrambled direction numbers (any block in O(bits),
+    no engine state); they must be exactly what scipy's engine draws after fast_forward."""
     import warnings
+
+    from scipy.stats import qmc
 
     from igi.common import sobol_stream as ss
 
-    assert ss._direct_seek_works()
-    a = ss._draw(ss._sobol(7, 99, 4), start, 33)
-    e = ss._sobol(7, 99, 4)
-    e.reset()
-    e.fast_forward(start)
+    assert ss._direct_works()
+    a = ss._draw(ss._scrambling(7, 99, 4), start, 33)
+    e = qmc.Sobol(7, scramble=True, seed=rng(99, 4))
+    if start:  # scipy's fast_forward(0) raises
+        e.fast_forward(start)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
         b = e.random(33)
     np.testing.assert_array_equal(a, b)
+
+
+def test_threads_drawing_from_one_stream_get_the_serial_points():
+    """One stream shared by threads (a worker's render threads) draws what a serial caller does."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    s = SobolStream(4242, dims=9)
+    want = {k: (s.block(k, 50, 64), s.padded(k, 50, 64, 13)) for k in range(24)}
+    fresh = SobolStream(4242, dims=9)
+    with ThreadPoolExecutor(4) as pool:
+        got = dict(pool.map(lambda k: (k, (fresh.block(k, 50, 64), fresh.padded(k, 50, 64, 13))),
+                            list(range(24)) * 3))
+    for k, (b, p) in want.items():
+        np.testing.assert_array_equal(got[k][0], b)
+        np.testing.assert_array_equal(got[k][1], p)

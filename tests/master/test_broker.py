@@ -17,7 +17,8 @@ from tests.support.cluster_helpers import FakeWorker, wait_until
 from igi.common import protocol as P
 from igi.master.broker import Broker, FrameCancelled
 
-W, H = 24, 18  # 9 tasks of one sub-image tile each
+W, H = 24, 18  # with a 3x3 interleave: 9 tasks of one sub-image tile each
+IL3 = {"interleave": 3}
 
 
 @pytest.fixture
@@ -38,7 +39,7 @@ def hello_ok(fw: FakeWorker, expect_blob=True):
 def test_credit_stale_and_duplicate_results(broker):
     a = FakeWorker(broker.endpoint, "a", credit=2)
     hello_ok(a)
-    fut = broker.submit_frame(broker.frame_spec(0, {}))
+    fut = broker.submit_frame(broker.frame_spec(0, IL3))
     got = a.tasks(2)
     assert len(got) == 2
     assert a.tasks(1, timeout=0.5) == [], "no more than the credit in flight"
@@ -65,7 +66,7 @@ def test_credit_stale_and_duplicate_results(broker):
 def test_bye_puts_tasks_back_at_the_front(broker):
     a = FakeWorker(broker.endpoint, "a", credit=2)
     hello_ok(a)
-    fut = broker.submit_frame(broker.frame_spec(0, {}))
+    fut = broker.submit_frame(broker.frame_spec(0, IL3))
     ta = a.tasks(2)
     b = FakeWorker(broker.endpoint, "b", credit=1)
     hello_ok(b)
@@ -92,7 +93,7 @@ def test_silent_worker_expires_and_its_tasks_move():
     with Broker(mini_cornell(W, H), bind="tcp://127.0.0.1:*", heartbeat=0.2, liveness=3) as broker:
         a = FakeWorker(broker.endpoint, "silent", credit=3)
         hello_ok(a)
-        fut = broker.submit_frame(broker.frame_spec(0, {}))
+        fut = broker.submit_frame(broker.frame_spec(0, IL3))
         lost = a.tasks(3, timeout=1.0)
         assert len(lost) == 2, "a new worker's credit starts small, whatever it advertises"
         b = FakeWorker(broker.endpoint, "b", credit=2)
@@ -132,14 +133,14 @@ def test_scene_blob_sent_once_and_edits_broadcast(broker):
     assert len(late.body["edits"]) == 1 and late.body["base_version"] == 0, "a late joiner gets the edits"
     with pytest.raises(ValueError):
         broker.apply_edit({"op": "set_emitter", "emitter": 5, "param": "radiance", "value": [1, 2, 3]})
-    spec = broker.frame_spec(0, {})
+    spec = broker.frame_spec(0, IL3)
     assert spec.scene_version == 1
     for fw in (a, b, c):
         fw.close()
 
 
 def test_edit_cancels_frames_of_the_old_version(broker):
-    fut = broker.submit_frame(broker.frame_spec(0, {}))  # no worker: stays open
+    fut = broker.submit_frame(broker.frame_spec(0, IL3))  # no worker: stays open
     broker.apply_edit({"op": "set_material", "material": 0, "param": "diffuse", "value": 0.5})
     with pytest.raises(FrameCancelled):
         fut.result(5)
@@ -189,7 +190,7 @@ def test_garbage_is_dropped_and_master_keeps_serving(broker):
 def _serves_a_frame(broker):
     fw = FakeWorker(broker.endpoint, "ok", credit=9)
     hello_ok(fw)
-    fut = broker.submit_frame(broker.frame_spec(0, {}))
+    fut = broker.submit_frame(broker.frame_spec(0, IL3))
     answered = 0
     while answered < 9:  # effective credit grows with the results delivered
         got = fw.tasks(1)
@@ -202,12 +203,12 @@ def _serves_a_frame(broker):
 
 def test_stop_cancels_open_frames_and_later_submissions():
     b = Broker(mini_cornell(W, H), bind="tcp://127.0.0.1:*").start()
-    fut = b.submit_frame(b.frame_spec(0, {}))  # no worker: stays open
+    fut = b.submit_frame(b.frame_spec(0, IL3))  # no worker: stays open
     b.stop()
     with pytest.raises(FrameCancelled):
         fut.result(5)
     with pytest.raises(FrameCancelled):
-        b.submit_frame(b.frame_spec(1, {})).result(5)
+        b.submit_frame(b.frame_spec(1, IL3)).result(5)
     b.stop()  # idempotent
 
 
@@ -238,8 +239,8 @@ def test_worker_lists_its_sets_only_when_they_change():
 def test_master_keeps_the_last_set_list_of_each_worker(broker):
     a = FakeWorker(broker.endpoint, "a", credit=2)
     hello_ok(a)
-    fut = broker.submit_frame(broker.frame_spec(0, {}))
-    seed = broker.frame_spec(0, {}).seed
+    fut = broker.submit_frame(broker.frame_spec(0, IL3))
+    seed = broker.frame_spec(0, IL3).seed
 
     def cached():
         return broker._call(lambda: {k for w in broker._workers.values() for k in w.cached})
@@ -266,7 +267,7 @@ def test_re_registering_does_not_keep_the_front_of_the_queue(broker):
     hello_ok(good)
     rogue = FakeWorker(broker.endpoint, "rehello", credit=4096)
     hello_ok(rogue)
-    fut = broker.submit_frame(broker.frame_spec(0, {}))
+    fut = broker.submit_frame(broker.frame_spec(0, IL3))
     first = good.tasks(1)  # the good worker is busy meanwhile
     assert first
     held = set()
@@ -295,7 +296,7 @@ def test_a_peer_cycling_identities_cannot_keep_the_lost_tasks(broker):
     them) go to a worker that has delivered, not to the next newcomer."""
     good = FakeWorker(broker.endpoint, "good", credit=2)
     hello_ok(good)
-    fut = broker.submit_frame(broker.frame_spec(0, {}))
+    fut = broker.submit_frame(broker.frame_spec(0, IL3))
     first = good.tasks(2)
     good.result(first[0])  # "good" has delivered: trusted
     busy = [first[1]] + good.tasks(1)  # and is full again

@@ -390,7 +390,7 @@ def _sample_kind(k, sp, wi, u1, u2, mode):
         m, pm = mf.sample_visible(wi, u2, sp.alpha, sp.beckmann)
         wo = reflect_m(wi, m)
         dwm = np.sum(wo * m, axis=-1)
-        ok &= (pm != 0) & (wo[:, 2] > 0)
+        ok &= (pm != 0) & (wo[:, 2] > 0) & (np.sum(wi * m, axis=-1) > 1e-9)  # as the kernel: wi·m ~0 is ill-posed
         with np.errstate(invalid="ignore", divide="ignore"):
             p = pm / (4.0 * dwm)
         g = mf.smith_g1(wo, m, sp.alpha, sp.beckmann)
