@@ -34,6 +34,7 @@ from igi.common.scene import (
     ROUGHPLASTIC_LOBE,
     THINDIELECTRIC,
     Material,
+    kind_in,
 )
 
 INV_PI = 1.0 / np.pi
@@ -202,12 +203,12 @@ def gather(materials: list[Material], mat_ids: np.ndarray, uv: np.ndarray | None
 
 def is_delta(kind) -> np.ndarray:
     """Kinds that are purely delta (eval/pdf always 0): conductor, dielectric, thindielectric."""
-    return np.isin(np.asarray(kind), DELTA_KINDS)
+    return kind_in(kind, DELTA_KINDS)
 
 
 def has_delta(sp: SurfacePoints) -> np.ndarray:
     """Points whose BSDF has any delta component (the pure delta kinds and smooth plastic)."""
-    return np.isin(sp.kind, HAS_DELTA_KINDS)
+    return kind_in(sp.kind, HAS_DELTA_KINDS)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -227,7 +228,7 @@ def _coat_rows(sp: SurfacePoints) -> np.ndarray:
 
 def _lookup_coat_rows(sp: SurfacePoints, rows: np.ndarray) -> np.ndarray:
     """``rows`` with every rough-plastic point lacking a row (row 0) filled in (a copy)."""
-    need = np.isin(sp.kind, ROUGH_PLASTIC_KINDS) & (rows == 0)
+    need = kind_in(sp.kind, ROUGH_PLASTIC_KINDS) & (rows == 0)
     rows = rows.copy()
     if need.any():
         rows[need] = coat_tables.rows(sp.alpha[need], sp.eta[need], sp.beckmann[need])

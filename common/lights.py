@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .geometry import Geometry
-from .kernels import bounding_spheres
+from .kernels import bounding_spheres, shading_frame
 from .scene import AREA, CONSTANT, DIRECTIONAL, POINT, SPOT, Scene
 
 # Kinds of point-light records (VPLs and emitter samples), see worker/vpl.py.
@@ -39,15 +39,29 @@ def frame_from(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return s, t
 
 
+def _pair(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Both as contiguous float64 (N, 3) rows, one broadcast against the other."""
+    a = np.ascontiguousarray(a, dtype=np.float64).reshape(-1, 3)
+    b = np.ascontiguousarray(b, dtype=np.float64).reshape(-1, 3)
+    if a.shape != b.shape:
+        a, b = (np.ascontiguousarray(x) for x in np.broadcast_arrays(a, b))
+    return a, b
+
+
 def to_world(local: np.ndarray, n: np.ndarray) -> np.ndarray:
-    s, t = frame_from(n)
-    return local[:, 0:1] * s + local[:, 1:2] * t + local[:, 2:3] * n
+    """(N, 3) local directions of the shading frames of unit normals n (N, 3), in world space."""
+    local, n = _pair(local, n)
+    out = np.empty(local.shape)
+    shading_frame.to_world_many(local, n, out)
+    return out
 
 
 def to_local(w: np.ndarray, n: np.ndarray) -> np.ndarray:
-    s, t = frame_from(n)
-    return np.stack([np.einsum("ij,ij->i", w, s), np.einsum("ij,ij->i", w, t),
-                     np.einsum("ij,ij->i", w, n)], axis=1)
+    """(N, 3) world directions w in the shading frames of unit normals n (N, 3)."""
+    w, n = _pair(w, n)
+    out = np.empty(w.shape)
+    shading_frame.to_local_many(w, n, out)
+    return out
 
 
 def cosine_hemisphere(u: np.ndarray) -> np.ndarray:

@@ -102,6 +102,21 @@ KIND_NAMES = {
 }
 SPECULAR_KINDS = (CONDUCTOR, DIELECTRIC, THINDIELECTRIC)  # delta BSDFs: chains are followed
 GLOSSY_KINDS = (ROUGHCONDUCTOR, PLASTIC, ROUGHPLASTIC)
+_N_KINDS = ROUGHPLASTIC_LOBE + 1
+_KIND_TABLES: dict[tuple, np.ndarray] = {}
+
+
+def kind_in(kind: np.ndarray, kinds: tuple) -> np.ndarray:
+    """``np.isin(kind, kinds)`` for BSDF kind codes, as one table lookup (isin sorts per call;
+    this runs per bounce of every tile). Codes outside the known kinds are in no set."""
+    table = _KIND_TABLES.get(kinds)
+    if table is None:
+        table = np.zeros(_N_KINDS + 1, bool)  # the last row: any unknown code
+        table[list(kinds)] = True
+        _KIND_TABLES[kinds] = table
+    k = np.asarray(kind)
+    idx = np.where((k >= 0) & (k < _N_KINDS), k, _N_KINDS)
+    return table[idx]
 
 
 @dataclass

@@ -16,7 +16,7 @@ import numpy as np
 from igi.common import bsdf
 from igi.common.geometry import Geometry
 from igi.common.lights import LightSampler, to_local, to_world, uniform_sphere
-from igi.common.scene import AREA, NULL, POINT, SPECULAR_KINDS, SPOT, Scene
+from igi.common.scene import AREA, NULL, POINT, SPECULAR_KINDS, SPOT, Scene, kind_in
 from igi.common.sobol_stream import SobolStream
 from igi.common.specular import specular_targets
 
@@ -152,7 +152,7 @@ def _trace_photons(scene, geom, o, d, flux, u, max_bounces):
             break
         sp = bsdf.gather(scene.materials, hits.material[v], hits.uv[v])
         ns, ng, pos = hits.ns[v], hits.ng[v], hits.position[v]
-        spec = np.isin(sp.kind, SPECULAR_KINDS)
+        spec = kind_in(sp.kind, SPECULAR_KINDS)
         store = ~spec & bounced[alive] & (sp.kind != NULL)
         if store.any():
             s = np.nonzero(store)[0]

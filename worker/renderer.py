@@ -19,7 +19,7 @@ from igi.common.geometry import Geometry
 from igi.common.lights import LightSampler
 from igi.common.params import Params, make_params
 from igi.common.render_plan import analyze
-from igi.common.scene import DIFFUSE, GLOSSY_KINDS, PLASTIC, ROUGHPLASTIC_DIFFUSE, Scene
+from igi.common.scene import DIFFUSE, GLOSSY_KINDS, PLASTIC, ROUGHPLASTIC_DIFFUSE, Scene, kind_in
 from igi.common.sobol_stream import rng as make_rng
 
 from .caustics import PhotonSet, build_photon_set, default_radius, gather_photons
@@ -229,7 +229,7 @@ class Renderer:
         # their highlights smeared by it, so their radiance stays unfiltered.
         kind = end.sp.kind
         filterable = (kind == DIFFUSE) | (kind == PLASTIC) | (kind == ROUGHPLASTIC_DIFFUSE) | (
-            np.isin(kind, GLOSSY_KINDS) & (end.sp.alpha >= params.filter_glossy_alpha))
+            kind_in(kind, GLOSSY_KINDS) & (end.sp.alpha >= params.filter_glossy_alpha))
         main = end.main & filterable
         refl[end.pixel[main]] = albedo[main] * end.throughput[main]
         irr_buf[end.pixel[main]] = irr[main]

@@ -23,7 +23,8 @@ from igi.common.geometry import Geometry
 from igi.common.microfacet import lerp_gather
 from igi.common.lights import (VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE, LightSampler, luminance,
                            to_local, to_world)
-from igi.common.scene import DIFFUSE, NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE, SPECULAR_KINDS, Scene
+from igi.common.scene import (DIFFUSE, NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE, SPECULAR_KINDS,
+                              Scene, kind_in)
 
 from .kernels import vpl_gather as vg
 from .vpl import VPLSet, concat_surface
@@ -119,7 +120,7 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
     unf[idx] += lights.emitted_radiance(hits.emitter[v], cos_front)
     sp = bsdf.gather(scene.materials, hits.material[v], hits.uv[v])
     wi = to_local(-d, ns)
-    delta = np.isin(sp.kind, SPECULAR_KINDS)
+    delta = kind_in(sp.kind, SPECULAR_KINDS)
     nd_mask = ~delta & (sp.kind != NULL)
     lobe = np.zeros(0, np.int64)
     if specular_depth > 0 and _allowed(2, max_depth):
@@ -242,7 +243,7 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis
             np.add.at(unf, pix, thr * lights.emitted_radiance(hits.emitter[v], cos_front) * w_mis[:, None])
         sp = bsdf.gather(scene.materials, hits.material[v], hits.uv[v])
         wi = to_local(-dirs, hns)
-        delta = np.isin(sp.kind, SPECULAR_KINDS)
+        delta = kind_in(sp.kind, SPECULAR_KINDS)
         nd_mask = ~delta & (sp.kind != NULL)
         # Smooth glossy surfaces along a chain are split as at the first hit: a plastic's diffuse
         # layer ends the path (VPL-lit), the lobe continues the chain by one sampled ray.
@@ -283,7 +284,7 @@ def _split_smooth(sp, nd_mask: np.ndarray, alpha: float):
     none = np.zeros(0, np.int64)
     if alpha <= 0:
         return sp, none, None, nd_mask
-    smooth = np.isin(sp.kind, (ROUGHCONDUCTOR, ROUGHPLASTIC)) & (sp.alpha < alpha)
+    smooth = kind_in(sp.kind, (ROUGHCONDUCTOR, ROUGHPLASTIC)) & (sp.alpha < alpha)
     if not smooth.any():
         return sp, none, None, nd_mask
     lobe = np.nonzero(smooth)[0]
@@ -616,7 +617,7 @@ def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: 
     y = EndPoints(np.arange(len(sel)), hits.position[sel], hits.ns[sel], hits.ng[sel],
                   to_local(-d[sel], hits.ns[sel]), y_sp, np.ones((len(sel), 3)),
                   end.segments[ok[sel]] + 1, np.ones(len(sel), bool), hits.t[sel])
-    nd = ~np.isin(y_sp.kind, SPECULAR_KINDS) & (y_sp.kind != NULL)
+    nd = ~kind_in(y_sp.kind, SPECULAR_KINDS) & (y_sp.kind != NULL)
     if not nd.any():
         return out
     keep = np.nonzero(nd)[0]

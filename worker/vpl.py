@@ -14,7 +14,7 @@ import numpy as np
 from igi.common import bsdf
 from igi.common.geometry import Geometry
 from igi.common.lights import VPL_SPOT, VPL_SURFACE, LightSampler, to_local, to_world
-from igi.common.scene import NULL, SPECULAR_KINDS, Scene
+from igi.common.scene import NULL, SPECULAR_KINDS, Scene, kind_in
 from igi.common.sobol_stream import SobolStream
 from igi.common.sobol_stream import rng as make_rng
 
@@ -129,7 +129,7 @@ def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarr
         uv = hits.uv[keep]
         sp = bsdf.gather(scene.materials, mat, uv)
         wi = to_local(-d[alive], ns)
-        nondelta = ~np.isin(sp.kind, SPECULAR_KINDS) & (sp.kind != NULL)
+        nondelta = ~kind_in(sp.kind, SPECULAR_KINDS) & (sp.kind != NULL)
         if nondelta.any():
             sel = np.nonzero(nondelta)[0]
             pos_l.append(pos[sel])

@@ -19,6 +19,7 @@ import numpy as np
 from numba import njit
 
 from igi.common.kernels import bsdf as kb
+from igi.common.kernels import shading_frame
 
 INV_PI = 1.0 / math.pi
 
@@ -163,17 +164,6 @@ def accumulate(n, pi, pj, w, blocked, color, factor, out):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _to_local(wx, wy, wz, nx, ny, nz):
-    """w in the shading frame of unit normal n (common.lights.to_local: Duff et al. 2017)."""
-    sign = 1.0 if nz >= 0.0 else -1.0
-    a = -1.0 / (sign + nz)
-    b = nx * ny * a
-    sx, sy, sz = 1.0 + sign * nx * nx * a, sign * b, -sign * nx
-    tx, ty, tz = b, sign + ny * ny * a, -ny
-    return wx * sx + wy * sy + wz * sz, wx * tx + wy * ty + wz * tz, wx * nx + wy * ny + wz * nz
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def pair_factors(pi, pj, d, pl, blocked, row, base, P_end, wi, ns, albedo,
                  glossy_col, P_vpl, vpl_row, vwi, vnormal, out):
     """Per-pair RGB factors of the unoccluded pairs (``out`` (k, 3), 1 elsewhere): a glossy
@@ -195,7 +185,7 @@ def pair_factors(pi, pj, d, pl, blocked, row, base, P_end, wi, ns, albedo,
         dx, dy, dz = np.float64(d[k, 0]), np.float64(d[k, 1]), np.float64(d[k, 2])
         if row[i] == ROW_GLOSSY:
             e = base + i
-            lx, ly, lz = _to_local(dx, dy, dz, ns[e, 0], ns[e, 1], ns[e, 2])
+            lx, ly, lz = shading_frame.to_local(dx, dy, dz, ns[e, 0], ns[e, 1], ns[e, 2])
             r, g, b, pb = kb.eval_pdf(P_end, e, wi[e, 0], wi[e, 1], wi[e, 2], lx, ly, lz)
             out[k, 0] = r / max(albedo[e, 0], 1e-6)
             out[k, 1] = g / max(albedo[e, 1], 1e-6)
@@ -209,7 +199,7 @@ def pair_factors(pi, pj, d, pl, blocked, row, base, P_end, wi, ns, albedo,
             any_factor = True
         if glossy_col[j]:
             q = vpl_row[j]
-            lx, ly, lz = _to_local(-dx, -dy, -dz, vnormal[j, 0], vnormal[j, 1], vnormal[j, 2])
+            lx, ly, lz = shading_frame.to_local(-dx, -dy, -dz, vnormal[j, 0], vnormal[j, 1], vnormal[j, 2])
             r, g, b, _p = kb.eval_pdf(P_vpl, q, vwi[j, 0], vwi[j, 1], vwi[j, 2], lx, ly, lz)
             out[k, 0] *= r
             out[k, 1] *= g

@@ -125,7 +125,6 @@ def _direct_calls() -> dict:
     out1 = np.zeros(0, np.float32)
     return {
         "igi.worker.kernels.vpl_gather.spot_falloff": lambda: vpl_gather.spot_falloff(0.9, 30.0, 20.0),
-        "igi.worker.kernels.vpl_gather._to_local": lambda: vpl_gather._to_local(0.0, 0.0, 1.0, 0.0, 0.0, 1.0),
         "igi.common.kernels.wire_decode.oct_decode_one": lambda: wire_decode.oct_decode_one(0, 0),
         "igi.common.kernels.wire_decode.f16_to_f32": lambda: wire_decode.f16_to_f32(z, z, out1.view(np.uint32), out1),
         "igi.common.kernels.wire_decode._u32": lambda: wire_decode._u32(z, z, z, z, out1.view(np.uint32)),
