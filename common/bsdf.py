@@ -76,11 +76,8 @@ class SurfacePoints:
         return len(self.kind)
 
     def subset(self, mask_or_index) -> "SurfacePoints":
-        kw = {}
-        for f in fields(self):
-            v = getattr(self, f.name)
-            kw[f.name] = None if v is None else v[mask_or_index]
-        return SurfacePoints(**kw)
+        return SurfacePoints(*[None if v is None else v[mask_or_index]
+                               for v in (getattr(self, name) for name in _SP_FIELDS)])
 
     def packed(self) -> tuple:
         """The per-point parameter tuple ``P`` of the compiled kernels (see :func:`pack`)."""
@@ -101,6 +98,7 @@ class SurfacePoints:
         return np.where(np.isfinite(w), w, 0.5).astype(np.float32)
 
 
+_SP_FIELDS = tuple(f.name for f in fields(SurfacePoints))  # subset() runs per bounce: no fields() call
 _TABLES: dict = {}
 
 

@@ -148,17 +148,19 @@ class Geometry:
         self._mesh = TriangleMesh(self._embree, local)
 
     # -- queries ---------------------------------------------------------------------------
-    def intersect(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
-        """Closest hit for each ray (directions need not be normalized; t is in their units)."""
+    def intersect(self, origins: np.ndarray, directions: np.ndarray, tmax: float | None = None) -> Hits:
+        """Closest hit for each ray (directions need not be normalized; t is in their units);
+        ``tmax``: only hits with t < tmax count (Embree stops short rays early)."""
         n = len(origins)
         o = (origins - self.center).astype(np.float32)
         d = directions.astype(np.float32)
         if n == 0:
             return self._empty()
         self.counters["intersect_rays"] += n
+        dist = None if tmax is None else np.full(n, min(float(tmax), 3.0e38), np.float32)
         if self.record is not None:
-            self.record.append(("intersect", o, d, None))
-        r = self._embree.run(o, d, output=1)
+            self.record.append(("intersect", o, d, dist))
+        r = self._embree.run(o, d, output=1) if dist is None else self._embree.run(o, d, dists=dist, output=1)
         prim = r["primID"].astype(np.int64)
         valid = (r["geomID"] != -1) & (prim >= 0)
         prim = np.where(valid, prim, -1)
@@ -225,7 +227,7 @@ class Geometry:
         t0 = time.perf_counter()
         for kind, o, d, dist in batches:
             if kind == "intersect":
-                embree.run(o, d, output=1)
+                embree.run(o, d, output=1) if dist is None else embree.run(o, d, dists=dist, output=1)
             else:
                 embree.run(o, d, query="OCCLUDED", dists=dist)
         return time.perf_counter() - t0

@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .kernels import texture
+
 
 class SceneError(ValueError):
     """A scene file or scene content that cannot be used; the message names file, line and problem."""
@@ -46,32 +48,12 @@ class Texture:
         n = len(uv)
         if self.image is None:
             return np.broadcast_to(self.rgb, (n, 3)).astype(np.float32)
-        img = self.image
-        h, w = img.shape[:2]
-        u = uv[:, 0] * self.uv_scale[0] + self.uv_offset[0]
-        v = uv[:, 1] * self.uv_scale[1] + self.uv_offset[1]
-        u = u - np.floor(u)
-        v = v - np.floor(v)
-        # Mitsuba flips v: row 0 of the bitmap is v = 1.
-        x = u * w
-        y = (1.0 - v) * h
-        if self.filter == "nearest":
-            xi = np.clip(x.astype(np.int64), 0, w - 1)
-            yi = np.clip(y.astype(np.int64), 0, h - 1)
-            return img[yi, xi]
-        x = x - 0.5
-        y = y - 0.5
-        x0 = np.floor(x)
-        y0 = np.floor(y)
-        fx = (x - x0)[:, None].astype(np.float32)
-        fy = (y - y0)[:, None].astype(np.float32)
-        x0 = x0.astype(np.int64) % w
-        y0 = y0.astype(np.int64) % h
-        x1 = (x0 + 1) % w
-        y1 = (y0 + 1) % h
-        top = img[y0, x0] * (1 - fx) + img[y0, x1] * fx
-        bot = img[y1, x0] * (1 - fx) + img[y1, x1] * fx
-        return top * (1 - fy) + bot * fy
+        out = np.empty((n, 3), np.float32)
+        texture.lookup(np.ascontiguousarray(self.image, dtype=np.float32),
+                       np.ascontiguousarray(uv, dtype=np.float64).reshape(n, 2),
+                       float(self.uv_scale[0]), float(self.uv_scale[1]), float(self.uv_offset[0]),
+                       float(self.uv_offset[1]), self.filter == "nearest", out)
+        return out
 
 
 # BSDF kinds; the integer codes are what per-point arrays carry.

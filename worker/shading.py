@@ -607,8 +607,8 @@ def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: 
         return out
     d = to_world(wo, end.ns[ok])
     o = geom.offset(end.position[ok], end.ng[ok], d)
-    hits = geom.intersect(o, d)
     r = np.sqrt(clamp_d2)
+    hits = geom.intersect(o, d, tmax=r)  # only points the clamp dimmed count
     near = hits.valid & (hits.t < r)
     if not near.any():
         return out

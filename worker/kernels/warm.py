@@ -118,13 +118,16 @@ def _empty_args(disp) -> list:
 def _direct_calls() -> dict:
     """Tiny calls of the kernels the render does not register: the worker never decodes,
     and helpers that are loaded from the cache inside their caller keep no signature."""
-    from igi.common.kernels import wire_decode
+    from igi.common.kernels import texture, wire_decode
     from igi.worker.kernels import photon_query, vpl_gather
 
     z = np.zeros(0, np.uint8)
     out1 = np.zeros(0, np.float32)
     return {
         "igi.worker.kernels.vpl_gather.spot_falloff": lambda: vpl_gather.spot_falloff(0.9, 30.0, 20.0),
+        # the tiny scene has no bitmap (a textured scene's first hit would load it)
+        "igi.common.kernels.texture.lookup": lambda: texture.lookup(
+            np.zeros((1, 1, 3), np.float32), np.zeros((1, 2)), 1.0, 1.0, 0.0, 0.0, False, np.zeros((1, 3), np.float32)),
         "igi.common.kernels.wire_decode.oct_decode_one": lambda: wire_decode.oct_decode_one(0, 0),
         "igi.common.kernels.wire_decode.f16_to_f32": lambda: wire_decode.f16_to_f32(z, z, out1.view(np.uint32), out1),
         "igi.common.kernels.wire_decode._u32": lambda: wire_decode._u32(z, z, z, z, out1.view(np.uint32)),
