@@ -1,7 +1,7 @@
 """Master merge + filter + compose, before (numpy, tests/support/oracle_master.py) and after
 (compiled kernels) in one process, on one core: ``PYTHONPATH=. python -m tests.support.master_speed``.
 
-A frame's wire bytes (every task tile of ``--width`` x ``--height``, interleave 3, encoded by
+A frame's wire bytes (every task tile of ``--width`` x ``--height``, ``--interleave`` (default: the product default), encoded by
 common.codec) go through ``add_wire`` (validate, lz4, decode/store) and ``image()`` (filter,
 compose) ``--reps`` times each way; the best time of each is reported as Mpixel/s (wall and
 CPU), and the two images are checked to be equal bit for bit. The frame is rendered from
@@ -97,12 +97,15 @@ def main(argv=None) -> int:
     ap.add_argument("--height", type=int, default=480)
     ap.add_argument("--scene", default=None, help="render this shared scene instead of a synthetic frame")
     ap.add_argument("--reps", type=int, default=5)
+    ap.add_argument("--interleave", type=int, default=None, help="default: the product's default")
     args = ap.parse_args(argv)
     if args.scene:
         buffers = rendered_frame(args.scene, args.width, args.height)
     else:
         buffers = synthetic_frame(args.width, args.height)
-    res = measure(buffers, reps=args.reps)
+    from igi.common.params import make_params
+
+    res = measure(buffers, n=args.interleave or make_params().interleave, reps=args.reps)
     res["frame"] = args.scene or "synthetic"
     print(json.dumps(res, indent=2))
     return 0
