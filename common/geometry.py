@@ -213,10 +213,17 @@ class Geometry:
     def offset(self, p: np.ndarray, ng: np.ndarray, towards: np.ndarray,
                scale: np.ndarray | None = None) -> np.ndarray:
         """Move p off its surface, along ng, to the side ``towards`` points to."""
+        if scale is None:
+            f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64).reshape(-1, 3)
+            p, ng, towards = f64(p), f64(ng), f64(towards)
+            if not (p.shape == ng.shape == towards.shape):
+                p, ng, towards = (np.ascontiguousarray(a) for a in np.broadcast_arrays(p, ng, towards))
+            out = np.empty(p.shape)
+            hit_surface.offset_points(p, ng, towards, self.center, float(self.eps),
+                                      float(4 * np.finfo(np.float32).eps), out)
+            return out
         side = np.sign(np.einsum("ij,ij->i", ng, towards))
         side[side == 0] = 1.0
-        if scale is None:
-            scale = self.offset_scale(p)
         return p + ng * (side * scale)[:, None]
 
     def replay(self, batches: list) -> float:

@@ -23,7 +23,7 @@ from igi.common.scene import DIFFUSE, GLOSSY_KINDS, PLASTIC, ROUGHPLASTIC_DIFFUS
 from igi.common.sobol_stream import rng as make_rng
 
 from .caustics import PhotonSet, build_photon_set, default_radius, gather_photons
-from .shading import LightMIS, bsdf_direct, clamp_compensation, gather_vpls, trace_eye
+from .shading import LightMIS, bsdf_direct, clamp_compensation, gather_vpls, trace_bsdf_rays, trace_eye
 from .vpl import VPLSet, build_vpl_set
 from .vpl_importance import AUTO_ESS, View, build_importance_vpl_set
 
@@ -208,14 +208,17 @@ class Renderer:
             albedo, irr = gather_vpls(self.geom, eye.end, vpls, clamp_d2, params.max_depth,
                                       force_general=self.plan is None, lobe_alpha=lobe_alpha)
         end = eye.end
+        rays = None
         if index > 0 and params.consistent:
-            # Accumulating: give back what the clamp took (not while the view moves).
+            # Accumulating: give back what the clamp took (not while the view moves), through the
+            # same traced BSDF ray per end point that BSDF-direct lighting uses.
             with self._stage("compensation"):
+                rays = trace_bsdf_rays(self.geom, end, params.max_depth, rng)
                 irr = irr + clamp_compensation(self.scene, self.geom, self.lights, end, albedo, vpls,
-                                               clamp_d2, params.max_depth, rng, lobe_alpha)
+                                               clamp_d2, params.max_depth, rng, lobe_alpha, rays)
         with self._stage("BSDF direct"):
             irr = irr + bsdf_direct(self.scene, self.geom, self.lights, end, albedo, vpls.direct_count,
-                                    params.max_depth, rng, vpls.env_guide)
+                                    params.max_depth, rng, vpls.env_guide, rays)
         with self._stage("photon set"):
             photons = self.photon_set(spec.seed, tile.k, params, index)
         if len(photons):

@@ -531,36 +531,77 @@ def _bsdf_factors(sl: slice, cols: _VPLColumns, row: np.ndarray, pi: np.ndarray,
     return factor
 
 
-def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints,
-                albedo: np.ndarray, direct_count: int, max_depth: int,
-                rng: np.random.Generator, env_guide=None) -> np.ndarray:
-    """Emission reached by one BSDF-sampled ray per end point, MIS-weighted against the
-    emitter samples (per unit albedo, so it joins the filtered irradiance). ``env_guide``: the
-    set's environment-direction pdf (worker.env_guide), when its samples were guided."""
+@dataclass
+class BSDFRays:
+    """One BSDF-sampled ray per end point of ``rows``, traced to its closest hit: the continuation
+    ray a path tracer would take. BSDF-direct lighting reads the emission it reaches and the clamp
+    compensation the surface it hits within the clamp radius, so one sample, one set of world
+    rays and one Embree batch serve both (both estimators stay unbiased; they are merely
+    correlated through the shared direction)."""
+
+    rows: np.ndarray  # (n,) end-point rows
+    weight: np.ndarray  # (n, 3) f cos / pdf
+    pdf: np.ndarray  # (n,) solid-angle pdf (delta: the component's probability)
+    delta: np.ndarray  # (n,) bool
+    direction: np.ndarray  # (n, 3) world space
+    hits: object  # common.geometry.Hits of the n rays
+
+
+def trace_bsdf_rays(geom: Geometry, end: EndPoints, max_depth: int, rng: np.random.Generator) -> BSDFRays:
+    """The continuation rays of every end point that may still add a segment (not the split
+    lobes' direct-only points: a lobe's own traced ray is its BSDF sample)."""
     e = len(end)
-    out = np.zeros((e, 3))
-    if e == 0 or not lights.has_light:
-        return out
     ok = end.segments + 1 <= max_depth if max_depth >= 0 else np.ones(e, bool)
     if end.direct_only is not None:
-        ok &= ~end.direct_only  # a glossy lobe's own sampled ray is its BSDF sample
+        ok &= ~end.direct_only
     ok = np.nonzero(ok)[0]
-    if len(ok) == 0:
-        return out
     sp = end.sp if len(ok) == e else end.sp.subset(ok)
     wo, weight, pdf_b, delta = bsdf.sample(sp, end.wi[ok], rng.random(len(ok)), rng.random((len(ok), 2)),
                                            mode="radiance")
     live = np.any(weight > 0, axis=1) & np.all(np.isfinite(weight), axis=1)
     ok, wo, weight, pdf_b, delta = ok[live], wo[live], weight[live], pdf_b[live], delta[live]
-    if len(ok) == 0:
-        return out
     d = to_world(wo, end.ns[ok])
     o = geom.offset(end.position[ok], end.ng[ok], d)
-    reach = lights.may_reach_emitter(o, d)
-    ok, wo, weight, pdf_b, delta, d, o = (a[reach] for a in (ok, wo, weight, pdf_b, delta, d, o))
-    if len(ok) == 0:
+    return BSDFRays(ok, weight, pdf_b, delta, d, geom.intersect(o, d))
+
+
+def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints,
+                albedo: np.ndarray, direct_count: int, max_depth: int,
+                rng: np.random.Generator, env_guide=None, rays: BSDFRays | None = None) -> np.ndarray:
+    """Emission reached by one BSDF-sampled ray per end point, MIS-weighted against the
+    emitter samples (per unit albedo, so it joins the filtered irradiance). ``env_guide``: the
+    set's environment-direction pdf (worker.env_guide), when its samples were guided.
+    ``rays``: the end points' traced continuation rays (:func:`trace_bsdf_rays`), shared with
+    the clamp compensation; None: sampled and traced here (only those that may reach a light)."""
+    e = len(end)
+    out = np.zeros((e, 3))
+    if e == 0 or not lights.has_light:
         return out
-    hits = geom.intersect(o, d)
+    if rays is None:
+        ok = end.segments + 1 <= max_depth if max_depth >= 0 else np.ones(e, bool)
+        if end.direct_only is not None:
+            ok &= ~end.direct_only  # a glossy lobe's own sampled ray is its BSDF sample
+        ok = np.nonzero(ok)[0]
+        if len(ok) == 0:
+            return out
+        sp = end.sp if len(ok) == e else end.sp.subset(ok)
+        wo, weight, pdf_b, delta = bsdf.sample(sp, end.wi[ok], rng.random(len(ok)), rng.random((len(ok), 2)),
+                                               mode="radiance")
+        live = np.any(weight > 0, axis=1) & np.all(np.isfinite(weight), axis=1)
+        ok, wo, weight, pdf_b, delta = ok[live], wo[live], weight[live], pdf_b[live], delta[live]
+        if len(ok) == 0:
+            return out
+        d = to_world(wo, end.ns[ok])
+        o = geom.offset(end.position[ok], end.ng[ok], d)
+        reach = lights.may_reach_emitter(o, d)
+        ok, weight, pdf_b, delta, d, o = (a[reach] for a in (ok, weight, pdf_b, delta, d, o))
+        if len(ok) == 0:
+            return out
+        hits = geom.intersect(o, d)
+    else:
+        ok, weight, pdf_b, delta, d, hits = rays.rows, rays.weight, rays.pdf, rays.delta, rays.direction, rays.hits
+        if len(ok) == 0:
+            return out
     le = np.zeros((len(ok), 3))
     v = hits.valid
     if v.any():
@@ -579,9 +620,12 @@ def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoin
 
 def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints,
                        albedo: np.ndarray, vpls: VPLSet, clamp_d2: float, max_depth: int,
-                       rng: np.random.Generator, lobe_alpha: float = 0.0) -> np.ndarray:
+                       rng: np.random.Generator, lobe_alpha: float = 0.0,
+                       rays: BSDFRays | None = None) -> np.ndarray:
     """Energy the VPL clamp removed, added back by short BSDF-sampled gather rays
-    (Kollig & Keller 2004; pbrt-v2's igi integrator), per unit albedo.
+    (Kollig & Keller 2004; pbrt-v2's igi integrator), per unit albedo. ``rays``: the end
+    points' traced continuation rays (:func:`trace_bsdf_rays`), shared with BSDF-direct; None:
+    sampled here and traced only as far as the clamp radius.
 
     The clamp replaces 1/d² by 1/max(d², c) for surface VPLs, i.e. it drops the fraction
     (1 - d²/c) of the light a point y closer than √c sends to x. A BSDF-sampled ray from x
@@ -592,24 +636,30 @@ def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: 
     out = np.zeros((e, 3))
     if e == 0 or clamp_d2 <= 0 or not np.any(vpls.kind == VPL_SURFACE):
         return out
-    ok = (end.segments + 2 <= max_depth) if max_depth >= 0 else np.ones(e, bool)
-    if end.direct_only is not None:
-        ok &= ~end.direct_only  # they take no surface VPL: nothing was clamped
-    ok = np.nonzero(ok)[0]
-    if len(ok) == 0:
-        return out
-    sp = end.sp if len(ok) == e else end.sp.subset(ok)
-    wo, weight, _pdf, delta = bsdf.sample(sp, end.wi[ok], rng.random(len(ok)), rng.random((len(ok), 2)),
-                                          mode="radiance")
-    live = ~delta & np.any(weight > 0, axis=1) & np.all(np.isfinite(weight), axis=1)
-    ok, wo, weight = ok[live], wo[live], weight[live]
-    if len(ok) == 0:
-        return out
-    d = to_world(wo, end.ns[ok])
-    o = geom.offset(end.position[ok], end.ng[ok], d)
     r = np.sqrt(clamp_d2)
-    hits = geom.intersect(o, d, tmax=r)  # only points the clamp dimmed count
-    near = hits.valid & (hits.t < r)
+    if rays is None:
+        ok = (end.segments + 2 <= max_depth) if max_depth >= 0 else np.ones(e, bool)
+        if end.direct_only is not None:
+            ok &= ~end.direct_only  # they take no surface VPL: nothing was clamped
+        ok = np.nonzero(ok)[0]
+        if len(ok) == 0:
+            return out
+        sp = end.sp if len(ok) == e else end.sp.subset(ok)
+        wo, weight, _pdf, delta = bsdf.sample(sp, end.wi[ok], rng.random(len(ok)), rng.random((len(ok), 2)),
+                                              mode="radiance")
+        live = ~delta & np.any(weight > 0, axis=1) & np.all(np.isfinite(weight), axis=1)
+        ok, wo, weight = ok[live], wo[live], weight[live]
+        if len(ok) == 0:
+            return out
+        d = to_world(wo, end.ns[ok])
+        o = geom.offset(end.position[ok], end.ng[ok], d)
+        hits = geom.intersect(o, d, tmax=r)  # only points the clamp dimmed count
+        near = hits.valid & (hits.t < r)
+    else:
+        ok, weight, d, hits = rays.rows, rays.weight, rays.direction, rays.hits
+        near = hits.valid & (hits.t < r) & ~rays.delta
+        if max_depth >= 0:
+            near &= end.segments[ok] + 2 <= max_depth
     if not near.any():
         return out
     sel = np.nonzero(near)[0]

@@ -1,6 +1,7 @@
 """Hit reconstruction from Embree's (primID, u, v, t): position from the centred float32
 triangle, geometric and interpolated shading normal (ng turned to the shading normal's side,
-as Mitsuba orients by the shading frame), texture coordinates, material/emitter/mesh ids."""
+as Mitsuba orients by the shading frame), texture coordinates, material/emitter/mesh ids; and
+the scale-aware ray-origin offset off a hit surface."""
 from __future__ import annotations
 
 import math
@@ -54,3 +55,19 @@ def reconstruct(valid, prim, u, v, t, center, v0c, e1c, e2c, fn32, smooth, tri_n
             mat[i] = -1
             em[i] = -1
             mesh[i] = -1
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def offset_points(p, ng, towards, center, eps, ulps, out):
+    """``p`` moved off its surface along ``ng`` to the side ``towards`` points to, by the scene
+    epsilon plus ``ulps`` float32 ulps of the centred coordinate (common.geometry.Geometry.offset
+    fused: one pass instead of six numpy ones per bounce)."""
+    for i in range(p.shape[0]):
+        m = 0.0
+        for a in range(3):
+            m = max(m, abs(p[i, a] - center[a]))
+        scale = eps + ulps * m
+        dot = ng[i, 0] * towards[i, 0] + ng[i, 1] * towards[i, 1] + ng[i, 2] * towards[i, 2]
+        side = -1.0 if dot < 0.0 else 1.0  # 0 (and NaN): the normal's side
+        for a in range(3):
+            out[i, a] = p[i, a] + ng[i, a] * (side * scale)
