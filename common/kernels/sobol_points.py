@@ -14,18 +14,29 @@ from numba import njit
 @njit(cache=True, nogil=True)
 def draw(sv, shift, start, count, scale, out):
     """Points [start, start+count) of the engine (sv (d, bits) uint, shift (d,) uint) into
-    ``out`` (count, d) float64."""
+    ``out`` (count, d) float64: the first by the formula, each next one from its predecessor by
+    one XOR (Gray code: index j flips direction number ctz(j))."""
     d, bits = sv.shape
-    for i in range(count):
+    if count <= 0:
+        return
+    q = shift.copy()
+    g = start ^ (start >> 1)
+    b = 0
+    while g != 0 and b < bits:
+        if g & 1:
+            for a in range(d):
+                q[a] ^= sv[a, b]
+        g >>= 1
+        b += 1
+    for a in range(d):
+        out[0, a] = np.float64(q[a]) * scale
+    for i in range(1, count):
         j = start + i
-        g = j ^ (j >> 1)
+        c = 0
+        while (j >> c) & 1 == 0:
+            c += 1
+        if c < bits:
+            for a in range(d):
+                q[a] ^= sv[a, c]
         for a in range(d):
-            q = shift[a]
-            b = 0
-            gg = g
-            while gg != 0 and b < bits:
-                if gg & 1:
-                    q ^= sv[a, b]
-                gg >>= 1
-                b += 1
-            out[i, a] = np.float64(q) * scale
+            out[i, a] = np.float64(q[a]) * scale
