@@ -148,16 +148,19 @@ class Geometry:
         self._mesh = TriangleMesh(self._embree, local)
 
     # -- queries ---------------------------------------------------------------------------
-    def intersect(self, origins: np.ndarray, directions: np.ndarray, tmax: float | None = None) -> Hits:
+    def intersect(self, origins: np.ndarray, directions: np.ndarray,
+                  tmax: float | np.ndarray | None = None) -> Hits:
         """Closest hit for each ray (directions need not be normalized; t is in their units);
-        ``tmax``: only hits with t < tmax count (Embree stops short rays early)."""
+        ``tmax`` (one for all rays, or per ray): only hits with t < tmax count (Embree stops
+        short rays early)."""
         n = len(origins)
         o = (origins - self.center).astype(np.float32)
         d = directions.astype(np.float32)
         if n == 0:
             return self._empty()
         self.counters["intersect_rays"] += n
-        dist = None if tmax is None else np.full(n, min(float(tmax), 3.0e38), np.float32)
+        dist = None if tmax is None else np.ascontiguousarray(
+            np.minimum(np.broadcast_to(np.asarray(tmax, np.float64), (n,)), 3.0e38), dtype=np.float32)
         if self.record is not None:
             self.record.append(("intersect", o, d, dist))
         r = self._embree.run(o, d, output=1) if dist is None else self._embree.run(o, d, dists=dist, output=1)

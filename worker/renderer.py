@@ -213,7 +213,7 @@ class Renderer:
             # Accumulating: give back what the clamp took (not while the view moves), through the
             # same traced BSDF ray per end point that BSDF-direct lighting uses.
             with self._stage("compensation"):
-                rays = trace_bsdf_rays(self.geom, end, params.max_depth, rng)
+                rays = trace_bsdf_rays(self.geom, self.lights, end, params.max_depth, rng, np.sqrt(clamp_d2))
                 irr = irr + clamp_compensation(self.scene, self.geom, self.lights, end, albedo, vpls,
                                                clamp_d2, params.max_depth, rng, lobe_alpha, rays)
         with self._stage("BSDF direct"):

@@ -547,9 +547,12 @@ class BSDFRays:
     hits: object  # common.geometry.Hits of the n rays
 
 
-def trace_bsdf_rays(geom: Geometry, end: EndPoints, max_depth: int, rng: np.random.Generator) -> BSDFRays:
+def trace_bsdf_rays(geom: Geometry, lights: LightSampler, end: EndPoints, max_depth: int,
+                    rng: np.random.Generator, short: float) -> BSDFRays:
     """The continuation rays of every end point that may still add a segment (not the split
-    lobes' direct-only points: a lobe's own traced ray is its BSDF sample)."""
+    lobes' direct-only points: a lobe's own traced ray is its BSDF sample). Rays that provably
+    reach no emitter are traced only ``short`` far (the clamp radius: all the compensation
+    reads of them)."""
     e = len(end)
     ok = end.segments + 1 <= max_depth if max_depth >= 0 else np.ones(e, bool)
     if end.direct_only is not None:
@@ -562,7 +565,8 @@ def trace_bsdf_rays(geom: Geometry, end: EndPoints, max_depth: int, rng: np.rand
     ok, wo, weight, pdf_b, delta = ok[live], wo[live], weight[live], pdf_b[live], delta[live]
     d = to_world(wo, end.ns[ok])
     o = geom.offset(end.position[ok], end.ng[ok], d)
-    return BSDFRays(ok, weight, pdf_b, delta, d, geom.intersect(o, d))
+    tmax = np.where(lights.may_reach_emitter(o, d), np.inf, short)
+    return BSDFRays(ok, weight, pdf_b, delta, d, geom.intersect(o, d, tmax=tmax))
 
 
 def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints,
