@@ -582,30 +582,11 @@ def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoin
     if e == 0 or not lights.has_light:
         return out
     if rays is None:
-        ok = end.segments + 1 <= max_depth if max_depth >= 0 else np.ones(e, bool)
-        if end.direct_only is not None:
-            ok &= ~end.direct_only  # a glossy lobe's own sampled ray is its BSDF sample
-        ok = np.nonzero(ok)[0]
-        if len(ok) == 0:
-            return out
-        sp = end.sp if len(ok) == e else end.sp.subset(ok)
-        wo, weight, pdf_b, delta = bsdf.sample(sp, end.wi[ok], rng.random(len(ok)), rng.random((len(ok), 2)),
-                                               mode="radiance")
-        live = np.any(weight > 0, axis=1) & np.all(np.isfinite(weight), axis=1)
-        ok, wo, weight, pdf_b, delta = ok[live], wo[live], weight[live], pdf_b[live], delta[live]
-        if len(ok) == 0:
-            return out
-        d = to_world(wo, end.ns[ok])
-        o = geom.offset(end.position[ok], end.ng[ok], d)
-        reach = lights.may_reach_emitter(o, d)
-        ok, weight, pdf_b, delta, d, o = (a[reach] for a in (ok, weight, pdf_b, delta, d, o))
-        if len(ok) == 0:
-            return out
-        hits = geom.intersect(o, d)
-    else:
-        ok, weight, pdf_b, delta, d, hits = rays.rows, rays.weight, rays.pdf, rays.delta, rays.direction, rays.hits
-        if len(ok) == 0:
-            return out
+        # Rays that provably reach no emitter carry nothing here: traced 0 far.
+        rays = trace_bsdf_rays(geom, lights, end, max_depth, rng, short=0.0)
+    ok, weight, pdf_b, delta, d, hits = rays.rows, rays.weight, rays.pdf, rays.delta, rays.direction, rays.hits
+    if len(ok) == 0:
+        return out
     le = np.zeros((len(ok), 3))
     v = hits.valid
     if v.any():
@@ -629,7 +610,7 @@ def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: 
     """Energy the VPL clamp removed, added back by short BSDF-sampled gather rays
     (Kollig & Keller 2004; pbrt-v2's igi integrator), per unit albedo. ``rays``: the end
     points' traced continuation rays (:func:`trace_bsdf_rays`), shared with BSDF-direct; None:
-    sampled here and traced only as far as the clamp radius.
+    sampled and traced here.
 
     The clamp replaces 1/d² by 1/max(d², c) for surface VPLs, i.e. it drops the fraction
     (1 - d²/c) of the light a point y closer than √c sends to x. A BSDF-sampled ray from x
@@ -642,28 +623,11 @@ def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: 
         return out
     r = np.sqrt(clamp_d2)
     if rays is None:
-        ok = (end.segments + 2 <= max_depth) if max_depth >= 0 else np.ones(e, bool)
-        if end.direct_only is not None:
-            ok &= ~end.direct_only  # they take no surface VPL: nothing was clamped
-        ok = np.nonzero(ok)[0]
-        if len(ok) == 0:
-            return out
-        sp = end.sp if len(ok) == e else end.sp.subset(ok)
-        wo, weight, _pdf, delta = bsdf.sample(sp, end.wi[ok], rng.random(len(ok)), rng.random((len(ok), 2)),
-                                              mode="radiance")
-        live = ~delta & np.any(weight > 0, axis=1) & np.all(np.isfinite(weight), axis=1)
-        ok, wo, weight = ok[live], wo[live], weight[live]
-        if len(ok) == 0:
-            return out
-        d = to_world(wo, end.ns[ok])
-        o = geom.offset(end.position[ok], end.ng[ok], d)
-        hits = geom.intersect(o, d, tmax=r)  # only points the clamp dimmed count
-        near = hits.valid & (hits.t < r)
-    else:
-        ok, weight, d, hits = rays.rows, rays.weight, rays.direction, rays.hits
-        near = hits.valid & (hits.t < r) & ~rays.delta
-        if max_depth >= 0:
-            near &= end.segments[ok] + 2 <= max_depth
+        rays = trace_bsdf_rays(geom, lights, end, max_depth, rng, short=r)
+    ok, weight, d, hits = rays.rows, rays.weight, rays.direction, rays.hits
+    near = hits.valid & (hits.t < r) & ~rays.delta  # a delta sample never meets a clamped VPL
+    if max_depth >= 0:
+        near &= end.segments[ok] + 2 <= max_depth
     if not near.any():
         return out
     sel = np.nonzero(near)[0]
