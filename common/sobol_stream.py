@@ -75,7 +75,7 @@ class _Scrambling:
 
 
 _SCRAMBLINGS: "OrderedDict[tuple, _Scrambling]" = OrderedDict()
-_SCRAMBLINGS_MAX = 512  # ~5 instances per frame seed: the last ~100 frames' streams
+_SCRAMBLINGS_MAX = 512  # ~15 instances per frame seed (VPL walks, emitter samples, photons): ~30 frames
 _LOCK = threading.Lock()
 
 
