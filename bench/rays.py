@@ -35,7 +35,8 @@ from igi.common.params import make_params
 
 from .report import git_commit, machine_info, md_table
 
-STAGES = ("eye paths", "VPL set", "VPL gather", "compensation", "BSDF direct", "photon set", "photon gather")
+STAGES = ("eye paths", "VPL set", "VPL gather", "compensation", "BSDF direct", "indirect caustics",
+          "photon set", "photon gather")
 
 
 def add_arguments(p) -> None:

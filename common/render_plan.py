@@ -100,7 +100,7 @@ def analyze(scene: Scene, geom, lights: LightSampler) -> RenderPlan:
     reasons = {}
     has_spec = bool(used & set(SPECULAR_KINDS))
     specular_chains = has_spec
-    reasons["specular_chains"] = ("mirror/glass surfaces present" if has_spec
+    reasons["specular_chains"] = ("mirror/glass surfaces present: eye chains followed, light reflected through them gathered" if has_spec
                                   else "no mirror or glass surface")
     if not has_spec:
         caustics = False

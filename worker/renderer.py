@@ -21,8 +21,10 @@ from igi.common.params import Params, make_params
 from igi.common.render_plan import analyze
 from igi.common.scene import DIFFUSE, GLOSSY_KINDS, PLASTIC, ROUGHPLASTIC_DIFFUSE, Scene, kind_in
 from igi.common.sobol_stream import rng as make_rng
+from igi.common.specular import specular_targets
 
 from .caustics import PhotonSet, build_photon_set, default_radius, gather_photons
+from .indirect_caustics import lensed_reflection
 from .shading import LightMIS, bsdf_direct, clamp_compensation, gather_vpls, trace_bsdf_rays, trace_eye
 from .vpl import VPLSet, build_vpl_set
 from .vpl_importance import AUTO_ESS, View, build_importance_vpl_set
@@ -87,6 +89,7 @@ class Renderer:
         self._max_sets = max_cached_sets
         self._lock = threading.Lock()
         self.stats = {"sets_built": 0, "set_hits": 0}
+        self._specular_targets = specular_targets(scene, self.geom)  # mirror/glass bounding spheres
         self._pilot: dict[tuple, bool] = {}  # (scene version, view, sizes) -> importance sampling on?
         self.importance_notes = ""
 
@@ -209,16 +212,27 @@ class Renderer:
                                       force_general=self.plan is None, lobe_alpha=lobe_alpha)
         end = eye.end
         rays = None
-        if index > 0 and params.consistent:
-            # Accumulating: give back what the clamp took (not while the view moves), through the
-            # same traced BSDF ray per end point that BSDF-direct lighting uses.
+        compensate = index > 0 and params.consistent  # not while the view moves
+        lensed = self.plan is None or self.plan.specular_chains
+        if compensate or lensed:
+            # One traced BSDF ray per end point serves BSDF-direct lighting, the compensation and
+            # the light reflected through mirror/glass chains.
+            with self._stage("BSDF direct"):
+                rays = trace_bsdf_rays(self.geom, self.lights, end, params.max_depth, rng,
+                                       np.sqrt(clamp_d2) if compensate else 0.0,
+                                       self._specular_targets if lensed else None)
+        if compensate:
+            # Accumulating: give back what the clamp took.
             with self._stage("compensation"):
-                rays = trace_bsdf_rays(self.geom, self.lights, end, params.max_depth, rng, np.sqrt(clamp_d2))
                 irr = irr + clamp_compensation(self.scene, self.geom, self.lights, end, albedo, vpls,
                                                clamp_d2, params.max_depth, rng, lobe_alpha, rays)
         with self._stage("BSDF direct"):
             irr = irr + bsdf_direct(self.scene, self.geom, self.lights, end, albedo, vpls.direct_count,
                                     params.max_depth, rng, vpls.env_guide, rays)
+        if lensed:
+            with self._stage("indirect caustics"):
+                irr = irr + lensed_reflection(self.scene, self.geom, self.lights, end, albedo, vpls, rays,
+                                              clamp_d2, params.max_depth, params.specular_depth, rng, lobe_alpha)
         with self._stage("photon set"):
             photons = self.photon_set(spec.seed, tile.k, params, index)
         if len(photons):

@@ -20,6 +20,7 @@ import numpy as np
 
 from igi.common import bsdf
 from igi.common.geometry import Geometry
+from igi.common.kernels import bounding_spheres
 from igi.common.microfacet import lerp_gather
 from igi.common.lights import (VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE, LightSampler, luminance,
                            to_local, to_world)
@@ -548,11 +549,13 @@ class BSDFRays:
 
 
 def trace_bsdf_rays(geom: Geometry, lights: LightSampler, end: EndPoints, max_depth: int,
-                    rng: np.random.Generator, short: float) -> BSDFRays:
+                    rng: np.random.Generator, short: float,
+                    targets: tuple[np.ndarray, np.ndarray] | None = None) -> BSDFRays:
     """The continuation rays of every end point that may still add a segment (not the split
     lobes' direct-only points: a lobe's own traced ray is its BSDF sample). Rays that provably
-    reach no emitter are traced only ``short`` far (the clamp radius: all the compensation
-    reads of them)."""
+    reach no emitter and none of the ``targets`` spheres (centres, radii: the mirror/glass
+    objects whose chains are gathered) are traced only ``short`` far (the clamp radius: all the
+    compensation reads of them)."""
     e = len(end)
     ok = end.segments + 1 <= max_depth if max_depth >= 0 else np.ones(e, bool)
     if end.direct_only is not None:
@@ -565,7 +568,14 @@ def trace_bsdf_rays(geom: Geometry, lights: LightSampler, end: EndPoints, max_de
     ok, wo, weight, pdf_b, delta = ok[live], wo[live], weight[live], pdf_b[live], delta[live]
     d = to_world(wo, end.ns[ok])
     o = geom.offset(end.position[ok], end.ng[ok], d)
-    tmax = np.where(lights.may_reach_emitter(o, d), np.inf, short)
+    reach = lights.may_reach_emitter(o, d)
+    if targets is not None and len(targets[1]) and not reach.all():
+        to_target = np.empty(len(o), bool)
+        bounding_spheres.any_hit(np.ascontiguousarray(o, np.float64), np.ascontiguousarray(d, np.float64),
+                                 np.ascontiguousarray(targets[0], np.float64),
+                                 np.ascontiguousarray(targets[1] ** 2, np.float64), to_target)
+        reach |= to_target
+    tmax = np.where(reach, np.inf, short)
     return BSDFRays(ok, weight, pdf_b, delta, d, geom.intersect(o, d, tmax=tmax))
 
 
@@ -631,22 +641,35 @@ def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: 
     if not near.any():
         return out
     sel = np.nonzero(near)[0]
-    y_sp = bsdf.gather(scene.materials, hits.material[sel], hits.uv[sel])
-    y = EndPoints(np.arange(len(sel)), hits.position[sel], hits.ns[sel], hits.ng[sel],
-                  to_local(-d[sel], hits.ns[sel]), y_sp, np.ones((len(sel), 3)),
-                  end.segments[ok[sel]] + 1, np.ones(len(sel), bool), hits.t[sel])
-    nd = ~kind_in(y_sp.kind, SPECULAR_KINDS) & (y_sp.kind != NULL)
-    if not nd.any():
+    keep, l_y = reflected_radiance(scene, geom, lights, hits, sel, d[sel], end.segments[ok[sel]] + 1, vpls,
+                                   clamp_d2, max_depth, rng, lobe_alpha)
+    if len(keep) == 0:
         return out
-    keep = np.nonzero(nd)[0]
-    y = y.subset(keep)
-    a_y, irr_y = gather_vpls(geom, y, vpls, clamp_d2, max_depth, lobe_alpha=lobe_alpha)
-    irr_y = irr_y + bsdf_direct(scene, geom, lights, y, a_y, vpls.direct_count, max_depth, rng,
-                                vpls.env_guide)
-    l_y = a_y * irr_y  # radiance leaving y toward x
     t = hits.t[sel][keep]
     share = np.clip(1.0 - t * t / clamp_d2, 0.0, 1.0)
     rows = ok[sel][keep]
     contrib = weight[sel][keep] * l_y * share[:, None] / np.maximum(albedo[rows], 1e-6)
     np.add.at(out, rows, np.nan_to_num(contrib, nan=0.0, posinf=0.0, neginf=0.0))
     return out
+
+
+def reflected_radiance(scene: Scene, geom: Geometry, lights: LightSampler, hits, sel: np.ndarray,
+                       d: np.ndarray, segments: np.ndarray, vpls: VPLSet, clamp_d2: float,
+                       max_depth: int, rng: np.random.Generator,
+                       lobe_alpha: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Radiance that the surfaces hit by rays ``sel`` of ``hits`` (world directions ``d``,
+    reached after ``segments`` segments) reflect back along the rays: the VPL set's light and the
+    emitter samples there, with their own MIS-weighted BSDF ray; their emission is not included.
+    Returns ``(k, L)``: the positions in ``sel`` of the non-specular, non-black hits and their
+    (len(k), 3) radiance."""
+    y_sp = bsdf.gather(scene.materials, hits.material[sel], hits.uv[sel])
+    nd = np.nonzero(~kind_in(y_sp.kind, SPECULAR_KINDS) & (y_sp.kind != NULL))[0]
+    if len(nd) == 0:
+        return nd, np.zeros((0, 3))
+    s = sel[nd]
+    y = EndPoints(np.arange(len(nd)), hits.position[s], hits.ns[s], hits.ng[s], to_local(-d[nd], hits.ns[s]),
+                  y_sp.subset(nd), np.ones((len(nd), 3)), np.asarray(segments)[nd], np.ones(len(nd), bool),
+                  hits.t[s])
+    a_y, irr_y = gather_vpls(geom, y, vpls, clamp_d2, max_depth, lobe_alpha=lobe_alpha)
+    irr_y = irr_y + bsdf_direct(scene, geom, lights, y, a_y, vpls.direct_count, max_depth, rng, vpls.env_guide)
+    return nd, a_y * irr_y

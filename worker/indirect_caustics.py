@@ -1,0 +1,83 @@
+"""Caustics of indirect light, L D S+ D E: what surfaces reflect onto a point through a mirror or
+glass chain (the lensed image of a lit room in a glass ball, a lit floor seen in a mirror by a
+wall).
+
+VPLs cannot carry it (a shadow ray through glass is blocked) and caustic photons start only at
+emitters. The end point's continuation ray (worker.shading.trace_bsdf_rays, already traced for
+BSDF-direct lighting) that hits a mirror or glass surface is followed along its chain, one
+sampled delta component per bounce, to the first non-specular surface y; the light y reflects
+back (the VPL set and the emitter samples at y, with y's own BSDF ray: what the compensation
+gathers at its near points) is the sample. Emission at the chain's end is left to the caustic
+photons (L S+ D E); the environment seen through the chain is added here (no photons leave
+distant lights, and shadow rays of the environment samples are blocked by the glass).
+No other estimator covers these paths, so no MIS weight is needed.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from igi.common import bsdf
+from igi.common.geometry import Geometry
+from igi.common.lights import LightSampler, to_local, to_world
+from igi.common.scene import SPECULAR_KINDS, Scene, kind_in
+
+from .shading import BSDFRays, EndPoints, reflected_radiance
+from .vpl import VPLSet
+
+
+def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints,
+                      albedo: np.ndarray, vpls: VPLSet, rays: BSDFRays, clamp_d2: float, max_depth: int,
+                      specular_depth: int, rng: np.random.Generator, lobe_alpha: float = 0.0) -> np.ndarray:
+    """(E, 3) light reaching the end points through mirror/glass chains, per unit albedo (it
+    joins the filtered irradiance like BSDF-direct lighting)."""
+    e = len(end)
+    out = np.zeros((e, 3))
+    hits = rays.hits
+    if e == 0 or len(rays.rows) == 0 or specular_depth <= 0:
+        return out
+    kinds = np.array([m.kind for m in scene.materials] + [-1], np.int8)
+    mat = np.where(hits.material >= 0, hits.material, len(scene.materials))
+    first = np.nonzero(hits.valid & ~rays.delta & kind_in(kinds[mat], SPECULAR_KINDS))[0]
+    if max_depth >= 0:  # x -> mirror/glass -> something: at least the environment at segment + 2
+        first = first[end.segments[rays.rows[first]] + 2 <= max_depth]
+    if len(first) == 0:
+        return out
+    rows = rays.rows[first]
+    thr = rays.weight[first]
+    d = rays.direction[first]
+    pos, ns, ng = hits.position[first], hits.ns[first], hits.ng[first]
+    mat_i, uv = hits.material[first], hits.uv[first]
+    seg = end.segments[rows].astype(np.int64) + 1  # segments once the ray reached the surface
+    env = lights.environment()
+    for _ in range(specular_depth):
+        sp = bsdf.gather(scene.materials, mat_i, uv)
+        wo, w, _p, delta = bsdf.sample(sp, to_local(-d, ns), rng.random(len(rows)), rng.random((len(rows), 2)),
+                                       mode="radiance")
+        live = np.nonzero(delta & np.any(w > 0, axis=1) & np.all(np.isfinite(w), axis=1))[0]
+        rows, thr, seg = rows[live], thr[live] * w[live], seg[live] + 1
+        d = to_world(wo[live], ns[live])
+        if max_depth >= 0:
+            keep = np.nonzero(seg <= max_depth)[0]
+            rows, thr, seg, d, live = rows[keep], thr[keep], seg[keep], d[keep], live[keep]
+        if len(rows) == 0:
+            break
+        h = geom.intersect(geom.offset(pos[live], ng[live], d), d)
+        miss = np.nonzero(~h.valid)[0]
+        if len(miss) and np.any(env > 0):
+            np.add.at(out, rows[miss], thr[miss] * env / np.maximum(albedo[rows[miss]], 1e-6))
+        hit = np.nonzero(h.valid)[0]
+        spec = kind_in(kinds[h.material[hit]], SPECULAR_KINDS)
+        y = hit[~spec]
+        if len(y):
+            k, l_y = reflected_radiance(scene, geom, lights, h, y, d[y], seg[y], vpls, clamp_d2, max_depth,
+                                        rng, lobe_alpha)
+            if len(k):
+                r = rows[y[k]]
+                np.add.at(out, r, np.nan_to_num(thr[y[k]] * l_y / np.maximum(albedo[r], 1e-6),
+                                                nan=0.0, posinf=0.0, neginf=0.0))
+        c = hit[spec]  # still on the chain
+        rows, thr, seg, d = rows[c], thr[c], seg[c], d[c]
+        pos, ns, ng, mat_i, uv = h.position[c], h.ns[c], h.ng[c], h.material[c], h.uv[c]
+        if len(rows) == 0:
+            break
+    return out
