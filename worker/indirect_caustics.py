@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from igi.common import bsdf
-from igi.common.geometry import Geometry
+from igi.common.geometry import Geometry, Hits
 from igi.common.lights import LightSampler, to_local, to_world
 from igi.common.scene import SPECULAR_KINDS, Scene, kind_in
 
@@ -49,6 +49,7 @@ def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: E
     mat_i, uv = hits.material[first], hits.uv[first]
     seg = end.segments[rows].astype(np.int64) + 1  # segments once the ray reached the surface
     env = lights.environment()
+    ends: list[tuple] = []
     for _ in range(specular_depth):
         sp = bsdf.gather(scene.materials, mat_i, uv)
         wo, w, _p, delta = bsdf.sample(sp, to_local(-d, ns), rng.random(len(rows)), rng.random((len(rows), 2)),
@@ -68,16 +69,22 @@ def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: E
         hit = np.nonzero(h.valid)[0]
         spec = kind_in(kinds[h.material[hit]], SPECULAR_KINDS)
         y = hit[~spec]
-        if len(y):
-            k, l_y = reflected_radiance(scene, geom, lights, h, y, d[y], seg[y], vpls, clamp_d2, max_depth,
-                                        rng, lobe_alpha)
-            if len(k):
-                r = rows[y[k]]
-                np.add.at(out, r, np.nan_to_num(thr[y[k]] * l_y / np.maximum(albedo[r], 1e-6),
-                                                nan=0.0, posinf=0.0, neginf=0.0))
+        if len(y):  # the chain's end: gathered once for all bounces below
+            ends.append((rows[y], thr[y], seg[y], d[y], h.position[y], h.ns[y], h.ng[y], h.material[y],
+                         h.uv[y], h.t[y]))
         c = hit[spec]  # still on the chain
         rows, thr, seg, d = rows[c], thr[c], seg[c], d[c]
         pos, ns, ng, mat_i, uv = h.position[c], h.ns[c], h.ng[c], h.material[c], h.uv[c]
         if len(rows) == 0:
             break
+    if ends:
+        rows, thr, seg, d, p, n_s, n_g, m, uv, t = (np.concatenate(c) for c in zip(*ends))
+        z = np.zeros(len(rows), np.int32)
+        y = Hits(np.ones(len(rows), bool), t, z.astype(np.int64), p, n_g, n_s, uv, m, z - 1, z)
+        k, l_y = reflected_radiance(scene, geom, lights, y, np.arange(len(rows)), d, seg, vpls, clamp_d2,
+                                    max_depth, rng, lobe_alpha)
+        if len(k):
+            r = rows[k]
+            np.add.at(out, r, np.nan_to_num(thr[k] * l_y / np.maximum(albedo[r], 1e-6),
+                                            nan=0.0, posinf=0.0, neginf=0.0))
     return out
