@@ -36,6 +36,15 @@ class Hits:
     mesh: np.ndarray  # (N,) int32
 
 
+def rows3(*arrays: np.ndarray) -> list[np.ndarray]:
+    """The arrays as contiguous float64 (N, 3) rows, broadcast against each other (one vector
+    may stand for all rows): the layout the compiled per-row kernels take."""
+    out = [np.ascontiguousarray(a, dtype=np.float64).reshape(-1, 3) for a in arrays]
+    if len({a.shape for a in out}) > 1:
+        out = [np.ascontiguousarray(a) for a in np.broadcast_arrays(*out)]
+    return out
+
+
 def _repair_nonfinite(scene: Scene, m) -> tuple:
     """A mesh's (vertices, faces, normals, uvs) with NaN/Inf data repaired, never rendered.
 
@@ -217,10 +226,7 @@ class Geometry:
                scale: np.ndarray | None = None) -> np.ndarray:
         """Move p off its surface, along ng, to the side ``towards`` points to."""
         if scale is None:
-            f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64).reshape(-1, 3)
-            p, ng, towards = f64(p), f64(ng), f64(towards)
-            if not (p.shape == ng.shape == towards.shape):
-                p, ng, towards = (np.ascontiguousarray(a) for a in np.broadcast_arrays(p, ng, towards))
+            p, ng, towards = rows3(p, ng, towards)
             out = np.empty(p.shape)
             hit_surface.offset_points(p, ng, towards, self.center, float(self.eps),
                                       float(4 * np.finfo(np.float32).eps), out)

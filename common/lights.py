@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import Geometry
+from .geometry import Geometry, rows3
 from .kernels import bounding_spheres, shading_frame
 from .scene import AREA, CONSTANT, DIRECTIONAL, POINT, SPOT, Scene
 
@@ -39,18 +39,9 @@ def frame_from(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return s, t
 
 
-def _pair(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Both as contiguous float64 (N, 3) rows, one broadcast against the other."""
-    a = np.ascontiguousarray(a, dtype=np.float64).reshape(-1, 3)
-    b = np.ascontiguousarray(b, dtype=np.float64).reshape(-1, 3)
-    if a.shape != b.shape:
-        a, b = (np.ascontiguousarray(x) for x in np.broadcast_arrays(a, b))
-    return a, b
-
-
 def to_world(local: np.ndarray, n: np.ndarray) -> np.ndarray:
     """(N, 3) local directions of the shading frames of unit normals n (N, 3), in world space."""
-    local, n = _pair(local, n)
+    local, n = rows3(local, n)
     out = np.empty(local.shape)
     shading_frame.to_world_many(local, n, out)
     return out
@@ -58,9 +49,18 @@ def to_world(local: np.ndarray, n: np.ndarray) -> np.ndarray:
 
 def to_local(w: np.ndarray, n: np.ndarray) -> np.ndarray:
     """(N, 3) world directions w in the shading frames of unit normals n (N, 3)."""
-    w, n = _pair(w, n)
+    w, n = rows3(w, n)
     out = np.empty(w.shape)
     shading_frame.to_local_many(w, n, out)
+    return out
+
+
+def rays_meet_spheres(o: np.ndarray, d: np.ndarray, centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """(N,) bool: the ray o + t d (unit d, t > 0) passes through some sphere (centres, radii)."""
+    out = np.empty(len(o), bool)
+    bounding_spheres.any_hit(np.ascontiguousarray(o, np.float64), np.ascontiguousarray(d, np.float64),
+                             np.ascontiguousarray(centres, np.float64),
+                             np.ascontiguousarray(np.asarray(radii) ** 2, np.float64), out)
     return out
 
 
@@ -175,10 +175,7 @@ class LightSampler:
             return np.zeros(len(o), bool)
         if len(r) > 64:
             return np.ones(len(o), bool)
-        out = np.empty(len(o), bool)
-        bounding_spheres.any_hit(np.ascontiguousarray(o, np.float64), np.ascontiguousarray(d, np.float64),
-                                 np.ascontiguousarray(c, np.float64), np.ascontiguousarray(r * r, np.float64), out)
-        return out
+        return rays_meet_spheres(o, d, c, r)
 
     @property
     def has_light(self) -> bool:

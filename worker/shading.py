@@ -20,10 +20,9 @@ import numpy as np
 
 from igi.common import bsdf
 from igi.common.geometry import Geometry
-from igi.common.kernels import bounding_spheres
 from igi.common.microfacet import lerp_gather
 from igi.common.lights import (VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE, LightSampler, luminance,
-                           to_local, to_world)
+                               rays_meet_spheres, to_local, to_world)
 from igi.common.scene import (DIFFUSE, NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE, SPECULAR_KINDS,
                               Scene, kind_in)
 
@@ -570,11 +569,7 @@ def trace_bsdf_rays(geom: Geometry, lights: LightSampler, end: EndPoints, max_de
     o = geom.offset(end.position[ok], end.ng[ok], d)
     reach = lights.may_reach_emitter(o, d)
     if targets is not None and len(targets[1]) and not reach.all():
-        to_target = np.empty(len(o), bool)
-        bounding_spheres.any_hit(np.ascontiguousarray(o, np.float64), np.ascontiguousarray(d, np.float64),
-                                 np.ascontiguousarray(targets[0], np.float64),
-                                 np.ascontiguousarray(targets[1] ** 2, np.float64), to_target)
-        reach |= to_target
+        reach |= rays_meet_spheres(o, d, *targets)
     tmax = np.where(reach, np.inf, short)
     return BSDFRays(ok, weight, pdf_b, delta, d, geom.intersect(o, d, tmax=tmax))
 
