@@ -42,6 +42,10 @@ PARAMS: tuple[Param, ...] = (
           "-1 auto (when a pilot set's contributions are uneven), 0 off, 1 on", "vpl", -1, 1),
     Param("vpl_oversample", int, 8, "candidate light walks per kept walk when VPLs are importance-sampled",
           "vpl", 1, 64),
+    Param("vpl_portals", bool, True,
+          "with VPLs importance-sampled in a sky-lit scene, half the light walks from the sky start "
+          "where the view's escaped rays show it entering (openings found from the view; the other "
+          "half on the disk around the scene, so the estimate stays unbiased)", "vpl"),
     Param("vpl_lobe_alpha", float, 0.5,
           "glossy VPLs smoother than this roughness radiate through their lobe widened to it (path "
           "regularization, Kaplanyan & Dachsbacher 2013; at 0.5 a GGX peak is within ~4x a Lambertian "

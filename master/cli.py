@@ -197,8 +197,11 @@ def cmd_render(args: argparse.Namespace) -> int:
         r = Renderer(scene)
         print("\n".join(r.plan.lines()))
         cam, fov_x, w, h = resolve_camera(scene, None, args.width, args.height)
-        r.importance_on(params, View(tuple(np.asarray(cam, np.float64).ravel()), fov_x, w, h))
+        view = View(tuple(np.asarray(cam, np.float64).ravel()), fov_x, w, h)
+        if r.importance_on(params, view):
+            r.portals(params, view)
         print(r.importance_notes or "off vpl_importance      no indirect VPLs or turned off")
+        print(r.portal_notes or "off vpl_portals         no sky seen through an opening (or VPL importance off)")
         if not args.output:
             return 0
     if not args.output:

@@ -37,6 +37,10 @@ class EnvGuide:
     cdf: np.ndarray  # (BINS_Z * BINS_PHI,) over the histogram bins
     density: np.ndarray  # (bins,) histogram pdf per steradian
     pmf: float
+    # The escaped rays themselves (origins, unit directions towards the sky): where sky light
+    # enters what the view sees (worker.portals starts light walks there); None: not kept.
+    escape_origin: np.ndarray | None = None
+    escape_direction: np.ndarray | None = None
 
     def pdf(self, d: np.ndarray) -> np.ndarray:
         """q(ω) per steradian for unit world directions (N, 3)."""
@@ -91,12 +95,14 @@ def build_guide(scene: Scene, geom: Geometry, lights: LightSampler, end, g: np.r
     d = to_world(local, end.ns[rows] * side[:, None])
     o = geom.offset(end.position[rows], end.ng[rows], d)
     hits = geom.intersect(o, d)
-    out = d[~hits.valid]
+    escaped = ~hits.valid
+    out = d[escaped]
     if len(out) == 0:
         return None
     counts = np.bincount(_bin(out), minlength=BINS_Z * BINS_PHI).astype(np.float64)
     hist = counts / counts.sum()
-    return EnvGuide(np.cumsum(hist), hist / (4 * np.pi / (BINS_Z * BINS_PHI)), float(lights.pmf[ei]))
+    return EnvGuide(np.cumsum(hist), hist / (4 * np.pi / (BINS_Z * BINS_PHI)), float(lights.pmf[ei]),
+                    o[escaped], out)
 
 
 def guide_environment_samples(vpls, lights: LightSampler, guide: EnvGuide, direct_vpls: int,

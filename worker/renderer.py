@@ -27,7 +27,8 @@ from .caustics import PhotonSet, build_photon_set, default_radius, gather_photon
 from .indirect_caustics import lensed_reflection
 from .shading import LightMIS, bsdf_direct, clamp_compensation, gather_vpls, trace_bsdf_rays, trace_eye
 from .vpl import VPLSet, build_vpl_set
-from .vpl_importance import AUTO_ESS, View, build_importance_vpl_set
+from .portals import Portals
+from .vpl_importance import AUTO_ESS, View, build_importance_vpl_set, view_portals
 
 DEFAULT_CLAMP = 1e-3  # minimum squared VPL distance, as a fraction of the squared scene diagonal
 
@@ -90,8 +91,9 @@ class Renderer:
         self._lock = threading.Lock()
         self.stats = {"sets_built": 0, "set_hits": 0}
         self._specular_targets = specular_targets(scene, self.geom)  # mirror/glass bounding spheres
-        self._pilot: dict[tuple, bool] = {}  # (scene version, view, sizes) -> importance sampling on?
+        self._pilot: dict[tuple, object] = {}  # per view: importance sampling on? (pilot) and the portals
         self.importance_notes = ""
+        self.portal_notes = ""
 
     # -- per-set preprocessing --------------------------------------------------------------
     def importance_on(self, params: Params, view: View | None) -> bool:
@@ -106,7 +108,8 @@ class Renderer:
         with self._lock:
             hit = self._pilot.get(key)
         if hit is None:
-            _, st = self._build_importance(0, 0, params, view, False)
+            # Decided on plain walks: portal walks even out the candidates they serve.
+            _, st = self._build_importance(0, 0, params, view, False, use_portals=False)
             hit = st.ess < AUTO_ESS
             with self._lock:
                 self._pilot[key] = hit
@@ -115,13 +118,32 @@ class Renderer:
                                          f"(on below {AUTO_ESS})")
         return hit
 
-    def _build_importance(self, seed, k, params, view, roulette):
+    def portals(self, params: Params, view: View) -> Portals | None:
+        """The view's portals for light walks from the sky (worker.portals), found once per view."""
+        if not params.vpl_portals:
+            return None
+        key = ("portals", self.scene_version, view.key, params.max_depth, params.specular_depth,
+               params.filter_glossy_alpha)
+        with self._lock:
+            if key in self._pilot:
+                return self._pilot[key]
+        found = view_portals(self.scene, self.geom, self.lights, view, params.max_depth, params.specular_depth,
+                             params.filter_glossy_alpha)
+        with self._lock:
+            self._pilot[key] = found
+            if found is not None:
+                self.portal_notes = (f"ON  vpl_portals         sky enters the view through {len(found)} "
+                                     f"opening(s): half the sky's light walks start there")
+        return found
+
+    def _build_importance(self, seed, k, params, view, roulette, use_portals=True):
         direct, indirect, length = self._set_sizes(params)
         return build_importance_vpl_set(
             self.scene, self.geom, self.lights, seed, k, direct, indirect, length, view,
             params.vpl_oversample, clamp_distance2(params, self.geom.diagonal), params.max_depth,
             params.specular_depth, roulette=roulette and params.max_depth < 0,
-            glossy_split_alpha=params.filter_glossy_alpha, lobe_alpha=params.vpl_lobe_alpha)
+            glossy_split_alpha=params.filter_glossy_alpha, lobe_alpha=params.vpl_lobe_alpha,
+            portals=self.portals(params, view) if use_portals else None)
 
     def _set_sizes(self, params: Params) -> tuple[int, int, int]:
         direct = params.direct_vpls
@@ -141,7 +163,7 @@ class Renderer:
         key = (self.scene_version, seed, k, params.direct_vpls, params.indirect_vpls,
                params.light_path_length, params.max_depth, roulette,
                (view.key, params.vpl_oversample, params.clamp, params.specular_depth, params.filter_glossy_alpha,
-                params.vpl_lobe_alpha)
+                params.vpl_lobe_alpha, params.vpl_portals)
                if importance else None)
         with self._lock:
             hit = self._sets.get(key)

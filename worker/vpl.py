@@ -18,6 +18,8 @@ from igi.common.scene import NULL, SPECULAR_KINDS, Scene, kind_in
 from igi.common.sobol_stream import SobolStream
 from igi.common.sobol_stream import rng as make_rng
 
+from .portals import portal_walks
+
 # Sobol dimensions: direct samples use 3 (emitter, 2 for the point); a walk uses 5 to leave
 # the light and 3 per bounce (component + 2 for the direction).
 DIRECT_DIMS = 3
@@ -68,11 +70,12 @@ MAX_WALK = 64  # hard cap of Russian-roulette walks (a safety net; survival fall
 
 def build_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: int, k: int,
                   direct_vpls: int, indirect_vpls: int, max_length: int,
-                  roulette: bool = False) -> VPLSet:
+                  roulette: bool = False, portals=None) -> VPLSet:
     """The VPL set P_k for frame seed ``seed``.
 
     ``roulette``: walks go on past ``max_length`` with Russian roulette (survival = the
     throughput ratio of the bounce), so the set is unbiased for paths of any length.
+    ``portals`` (worker.portals.Portals): walks from the sky start where it enters the view.
     """
     if not lights.has_light:
         return _empty_set()
@@ -98,14 +101,17 @@ def build_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: int,
             # Bounces past max_length are rare: plain pseudo-random numbers serve them.
             extra = rr.random((walks, WALK_DIMS_PER_BOUNCE * (length - max_length)))
             u = np.concatenate([u, extra], axis=1)
-        parts.append(_light_walks(scene, geom, lights, u, walks, length, max_length if roulette else None, rr))
+        parts.append(_light_walks(scene, geom, lights, u, walks, length, max_length if roulette else None, rr,
+                                  portals))
     return _concat(parts)
 
 
 def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarray,
                  walks: int, max_length: int, roulette_after: int | None = None,
-                 rr: np.random.Generator | None = None) -> VPLSet:
+                 rr: np.random.Generator | None = None, portals=None) -> VPLSet:
     rays = lights.emit_rays(u[:, :WALK_DIMS_START])
+    if portals is not None:
+        portal_walks(rays, u[:, :WALK_DIMS_START], lights, portals)
     flux = rays.flux / walks
     d = rays.direction
     o = rays.origin.copy()

@@ -27,7 +27,8 @@ from igi.common.lights import VPL_SURFACE, LightSampler
 from igi.common.scene import Scene
 from igi.common.sobol_stream import rng as make_rng
 
-from .env_guide import ENV_SAMPLES, build_guide, guide_environment_samples, only_environment
+from .env_guide import ENV_SAMPLES, build_guide, guide_environment_samples, only_environment, single_environment
+from .portals import Portals, find_portals
 from .shading import contribution_per_vpl, trace_eye
 from .vpl import VPLSet, build_vpl_set, subset_vpls
 
@@ -76,6 +77,25 @@ def camera_end_points(scene: Scene, geom: Geometry, lights: LightSampler, view: 
     return trace_eye(scene, geom, lights, o, d, max_depth, specular_depth, g, glossy_split_alpha).end
 
 
+PORTAL_POINTS = 1024  # camera points whose escaped rays find the openings (once per view)
+
+
+def view_portals(scene: Scene, geom: Geometry, lights: LightSampler, view: View, max_depth: int,
+                 specular_depth: int, glossy_split_alpha: float = 0.0) -> Portals | None:
+    """The openings through which the view sees its sky (worker.portals), from the escaped rays
+    of camera points drawn once per view (seed 0): None without a single environment emitter or
+    an enclosure around the view."""
+    ei = single_environment(scene, lights)
+    if ei < 0:
+        return None
+    end = camera_end_points(scene, geom, lights, view, 0, 0, PORTAL_POINTS, max_depth, specular_depth,
+                            glossy_split_alpha)
+    guide = build_guide(scene, geom, lights, end, make_rng(0, 0, "portal rays"))
+    if guide is None or guide.escape_origin is None:
+        return None
+    return find_portals(geom, lights, ei, guide.escape_origin, guide.escape_direction)
+
+
 def effective_share(phi: np.ndarray) -> float:
     """(ΣΦ)² / (n ΣΦ²): 1 when all candidates matter equally, 1/n when one carries all."""
     s2 = float(np.sum(phi * phi))
@@ -115,17 +135,20 @@ def build_importance_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler,
                              oversample: int, clamp_d2: float, max_depth: int, specular_depth: int,
                              roulette: bool = False, camera_points: int = CAMERA_POINTS,
                              glossy_split_alpha: float = 0.0,
-                             lobe_alpha: float = 0.0) -> tuple[VPLSet, ImportanceStats]:
-    """P_k with its indirect VPLs importance-sampled for ``view`` (see the module docstring)."""
+                             lobe_alpha: float = 0.0, portals: Portals | None = None,
+                             ) -> tuple[VPLSet, ImportanceStats]:
+    """P_k with its indirect VPLs importance-sampled for ``view`` (see the module docstring);
+    ``portals`` (:func:`view_portals`): walks from the sky start where it enters the view."""
     if direct_vpls > 0 and only_environment(scene, lights):
         direct_vpls = max(direct_vpls, ENV_SAMPLES)
-    cand = build_vpl_set(scene, geom, lights, seed, k, direct_vpls, indirect_vpls * oversample,
-                         max_length, roulette=roulette)
-    surf = np.nonzero(cand.kind == VPL_SURFACE)[0]
     end = camera_end_points(scene, geom, lights, view, seed, k, camera_points, max_depth, specular_depth,
                             glossy_split_alpha)
-    # The sky seen through openings: environment samples drawn where camera points see it.
+    # The sky seen through openings: environment samples drawn where camera points see it, and
+    # light walks from the sky started where it enters (the escaped rays are the portals).
     guide = build_guide(scene, geom, lights, end, make_rng(seed, k, "env guide rays"))
+    cand = build_vpl_set(scene, geom, lights, seed, k, direct_vpls, indirect_vpls * oversample,
+                         max_length, roulette=roulette, portals=portals)
+    surf = np.nonzero(cand.kind == VPL_SURFACE)[0]
     if guide is not None:
         guide_environment_samples(cand, lights, guide, direct_vpls, make_rng(seed, k, "env guide samples"))
         cand.env_guide = guide
