@@ -15,7 +15,7 @@ import numpy as np
 
 from igi.common import bsdf
 from igi.common.geometry import Geometry
-from igi.common.lights import LightSampler, to_local, to_world, uniform_sphere
+from igi.common.lights import LightSampler, spot_falloff, to_local, to_world, uniform_sphere
 from igi.common.scene import AREA, NULL, POINT, SPECULAR_KINDS, SPOT, Scene, kind_in
 from igi.common.sobol_stream import SobolStream
 from igi.common.specular import specular_targets
@@ -77,54 +77,64 @@ def build_photon_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: i
         return _empty(radius)
     stream = SobolStream(seed ^ 0x5EED)
     dims = EMIT_DIMS + BOUNCE_DIMS * max_bounces
-    parts = []
-    shot = 0
-    for ei, e in enumerate(scene.emitters):
-        if e.kind not in (AREA, POINT, SPOT) or lights.powers[ei] <= 0:
-            continue  # distant lights: caustics from them are left to the VPLs (none), see docs
-        block = max(BLOCK, 1 << int(np.ceil(np.log2(photons_per_light))))
-        u = stream.padded(k * len(scene.emitters) + ei, photons_per_light, block, dims)
-        n = photons_per_light
-        shot += n
-        if e.kind == AREA:
-            pos, nrm = lights._area_points(np.full(n, ei), u[:, 0:2])
-        else:
-            pos = np.broadcast_to(e.position, (n, 3)).copy()
-            nrm = np.broadcast_to(e.direction / np.linalg.norm(e.direction), (n, 3)).copy()
-        if aim:
-            t = np.minimum((u[:, 2] * len(radii)).astype(np.int64), len(radii) - 1)
-            _, cos_max, axes = _cone_mixture_pdf(pos, np.zeros((n, 3)), centres, radii)
-            cm = cos_max[np.arange(n), t]
-            cz = 1 - u[:, 3] * (1 - cm)
-            r = np.sqrt(np.maximum(0, 1 - cz * cz))
-            phi = 2 * np.pi * u[:, 4]
-            local = np.stack([r * np.cos(phi), r * np.sin(phi), cz], axis=1)
-            d = to_world(local, axes[np.arange(n), t])
-            pdf, _, _ = _cone_mixture_pdf(pos, d, centres, radii)
-        else:
-            d = uniform_sphere(u[:, 3:5])
-            pdf = np.full(n, 1 / (4 * np.pi))
-        if e.kind == AREA:
-            cos_e = np.einsum("ij,ij->i", d, nrm)
-            flux = e.radiance[None, :] * (np.maximum(cos_e, 0) * lights.area_total[ei] / pdf)[:, None]
-            o = geom.offset(pos, nrm, d)
-        elif e.kind == POINT:
-            flux = e.intensity[None, :] / pdf[:, None]
-            o = pos
-        else:
-            from igi.common.lights import spot_falloff
-            fall = spot_falloff(np.einsum("ij,ij->i", d, nrm), e.cutoff_angle, e.beam_width)
-            flux = e.intensity[None, :] * (fall / pdf)[:, None]
-            o = pos
-        flux /= n
-        parts.append((o, d, flux, u))
+    block = max(BLOCK, 1 << int(np.ceil(np.log2(photons_per_light))))
+    n = photons_per_light
+    # Each light's photons from its own block of the stream; everything after is per photon,
+    # so all lights are emitted in one pass (same values as light by light).
+    shooting = [ei for ei, e in enumerate(scene.emitters)
+                if e.kind in (AREA, POINT, SPOT) and lights.powers[ei] > 0]  # distant: see docs
+    if not shooting:
+        return _empty(radius)
+    u = np.concatenate([stream.padded(k * len(scene.emitters) + ei, n, block, dims) for ei in shooting])
+    em = np.repeat(np.asarray(shooting, np.int64), n)
+    shot = len(em)
+    kind = np.array([e.kind for e in scene.emitters])[em]
+    area = np.nonzero(kind == AREA)[0]
+    pos = np.zeros((shot, 3))
+    nrm = np.zeros((shot, 3))
+    if len(area):
+        pos[area], nrm[area] = lights._area_points(em[area], u[area, 0:2])
+    for ei in shooting:
+        e = scene.emitters[ei]
+        if e.kind != AREA:
+            sel = np.nonzero(em == ei)[0]
+            pos[sel] = e.position
+            nrm[sel] = e.direction / np.linalg.norm(e.direction)
+    if aim:
+        t = np.minimum((u[:, 2] * len(radii)).astype(np.int64), len(radii) - 1)
+        _, cos_max, axes = _cone_mixture_pdf(pos, np.zeros((shot, 3)), centres, radii)
+        cm = cos_max[np.arange(shot), t]
+        cz = 1 - u[:, 3] * (1 - cm)
+        r = np.sqrt(np.maximum(0, 1 - cz * cz))
+        phi = 2 * np.pi * u[:, 4]
+        local = np.stack([r * np.cos(phi), r * np.sin(phi), cz], axis=1)
+        d = to_world(local, axes[np.arange(shot), t])
+        pdf, _, _ = _cone_mixture_pdf(pos, d, centres, radii)
+    else:
+        d = uniform_sphere(u[:, 3:5])
+        pdf = np.full(shot, 1 / (4 * np.pi))
+    flux = np.zeros((shot, 3))
+    o = pos.copy()
+    if len(area):
+        cos_e = np.einsum("ij,ij->i", d[area], nrm[area])
+        radiance = np.array([scene.emitters[i].radiance if scene.emitters[i].kind == AREA else np.zeros(3)
+                             for i in range(len(scene.emitters))], np.float64)
+        total = np.asarray(lights.area_total, np.float64)[em[area]]
+        flux[area] = radiance[em[area]] * (np.maximum(cos_e, 0) * total / pdf[area])[:, None]
+        o[area] = geom.offset(pos[area], nrm[area], d[area])
+    for ei in shooting:
+        e = scene.emitters[ei]
+        sel = np.nonzero(em == ei)[0]
+        if e.kind == POINT:
+            flux[sel] = e.intensity[None, :] / pdf[sel][:, None]
+        elif e.kind == SPOT:
+            fall = spot_falloff(np.einsum("ij,ij->i", d[sel], nrm[sel]), e.cutoff_angle, e.beam_width)
+            flux[sel] = e.intensity[None, :] * (fall / pdf[sel])[:, None]
+    flux /= n
     # All lights' photons in one trace (one Embree batch per bounce, not one per light), then
     # put back in light order: the same photons, in the same order, as tracing light by light.
-    traced = None
-    if parts:
-        light = np.concatenate([np.full(len(p[0]), i) for i, p in enumerate(parts)])
-        traced = _trace_photons(scene, geom, *(np.concatenate([p[i] for p in parts]) for i in range(4)),
-                                max_bounces)
+    light = em
+    traced = _trace_photons(scene, geom, o, d, flux, u, max_bounces)
     if traced is None or not len(traced[0]):
         out = _empty(radius)
         out.shot = shot
