@@ -138,7 +138,8 @@ def find_portals(geom: Geometry, lights: LightSampler, emitter: int, origin: np.
         hi_t = np.where(inside, hi_t, mid)
     d = direction[found]
     aperture = origin[found] + d * (0.5 * (lo_t + hi_t))[:, None]
-    side = np.argmax(np.abs(d), axis=1) * 2 + (np.take_along_axis(d, np.argmax(np.abs(d), axis=1)[:, None], 1)[:, 0] > 0)
+    axis = np.argmax(np.abs(d), axis=1)  # the side an opening faces: the ray's dominant axis and sign
+    side = axis * 2 + (d[np.arange(len(d)), axis] > 0)
     groups = np.unique(side)
     m = MARGIN * diameter
     lo = [aperture[side == s].min(axis=0) - m for s in groups]
