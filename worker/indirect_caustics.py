@@ -21,15 +21,19 @@ from igi.common.geometry import Geometry, Hits
 from igi.common.lights import LightSampler, to_local, to_world
 from igi.common.scene import SPECULAR_KINDS, Scene, kind_in
 
+from .caustics import PhotonSet
 from .shading import BSDFRays, EndPoints, reflected_radiance
 from .vpl import VPLSet
 
 
 def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints,
                       albedo: np.ndarray, vpls: VPLSet, rays: BSDFRays, clamp_d2: float, max_depth: int,
-                      specular_depth: int, rng: np.random.Generator, lobe_alpha: float = 0.0) -> np.ndarray:
+                      specular_depth: int, rng: np.random.Generator, lobe_alpha: float = 0.0,
+                      photons: PhotonSet | None = None) -> np.ndarray:
     """(E, 3) light reaching the end points through mirror/glass chains, per unit albedo (it
-    joins the filtered irradiance like BSDF-direct lighting)."""
+    joins the filtered irradiance like BSDF-direct lighting). ``photons``: the caustic photons,
+    so a caustic seen through the chain is included (L S+ D S+ D E: the bright focus under a
+    glass ball imaged by the ball onto the ceiling)."""
     e = len(end)
     out = np.zeros((e, 3))
     hits = rays.hits
@@ -82,7 +86,7 @@ def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: E
         z = np.zeros(len(rows), np.int32)
         y = Hits(np.ones(len(rows), bool), t, z.astype(np.int64), p, n_g, n_s, uv, m, z - 1, z)
         k, l_y = reflected_radiance(scene, geom, lights, y, np.arange(len(rows)), d, seg, vpls, clamp_d2,
-                                    max_depth, rng, lobe_alpha)
+                                    max_depth, rng, lobe_alpha, photons)
         if len(k):
             r = rows[k]
             np.add.at(out, r, np.nan_to_num(thr[k] * l_y / np.maximum(albedo[r], 1e-6),

@@ -13,7 +13,7 @@ from collections import OrderedDict
 import numpy as np
 from scipy.special import gammaln
 
-from igi.common.camera import camera_rays
+from igi.common.camera import camera_rays, pixel_jitter
 from igi.common.frame import FrameSpec, Tile, TileBuffers, accumulation_index
 from igi.common.geometry import Geometry
 from igi.common.lights import LightSampler
@@ -220,8 +220,10 @@ class Renderer:
         with self._stage("VPL set"):
             vpls = self.vpl_set(spec.seed, tile.k, params, roulette=index > 0 and params.consistent, view=view)
         with self._stage("eye paths"):
+            # Accumulating: each pixel walks its own rotation of the frames' jitter sequence.
+            jitter = spec.jitter if index == 0 else pixel_jitter(spec.jitter, xs, ys)
             o, d = camera_rays(np.asarray(spec.camera_to_world).reshape(4, 4), spec.fov_x, spec.width,
-                               spec.height, xs, ys, spec.jitter)
+                               spec.height, xs, ys, jitter)
             rng = make_rng(spec.seed, tile.k, tile.sx0, tile.sy0)
             eye = trace_eye(self.scene, self.geom, self.lights, o, d, params.max_depth,
                             params.specular_depth, rng, params.filter_glossy_alpha,
@@ -243,20 +245,21 @@ class Renderer:
                 rays = trace_bsdf_rays(self.geom, self.lights, end, params.max_depth, rng,
                                        np.sqrt(clamp_d2) if compensate else 0.0,
                                        self._specular_targets if lensed else None)
+        with self._stage("photon set"):
+            photons = self.photon_set(spec.seed, tile.k, params, index)
         if compensate:
             # Accumulating: give back what the clamp took.
             with self._stage("compensation"):
                 irr = irr + clamp_compensation(self.scene, self.geom, self.lights, end, albedo, vpls,
-                                               clamp_d2, params.max_depth, rng, lobe_alpha, rays)
+                                               clamp_d2, params.max_depth, rng, lobe_alpha, rays, photons)
         with self._stage("BSDF direct"):
             irr = irr + bsdf_direct(self.scene, self.geom, self.lights, end, albedo, vpls.direct_count,
                                     params.max_depth, rng, vpls.env_guide, rays)
         if lensed:
             with self._stage("indirect caustics"):
                 irr = irr + lensed_reflection(self.scene, self.geom, self.lights, end, albedo, vpls, rays,
-                                              clamp_d2, params.max_depth, params.specular_depth, rng, lobe_alpha)
-        with self._stage("photon set"):
-            photons = self.photon_set(spec.seed, tile.k, params, index)
+                                              clamp_d2, params.max_depth, params.specular_depth, rng, lobe_alpha,
+                                              photons)
         if len(photons):
             with self._stage("photon gather"):
                 irr = irr + gather_photons(end, photons, albedo, params.max_depth)

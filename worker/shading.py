@@ -26,6 +26,7 @@ from igi.common.lights import (VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE,
 from igi.common.scene import (DIFFUSE, NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE, SPECULAR_KINDS,
                               Scene, kind_in)
 
+from .caustics import PhotonSet, gather_photons
 from .kernels import vpl_gather as vg
 from .vpl import VPLSet, concat_surface
 
@@ -611,7 +612,7 @@ def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoin
 def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints,
                        albedo: np.ndarray, vpls: VPLSet, clamp_d2: float, max_depth: int,
                        rng: np.random.Generator, lobe_alpha: float = 0.0,
-                       rays: BSDFRays | None = None) -> np.ndarray:
+                       rays: BSDFRays | None = None, photons: PhotonSet | None = None) -> np.ndarray:
     """Energy the VPL clamp removed, added back by short BSDF-sampled gather rays
     (Kollig & Keller 2004; pbrt-v2's igi integrator), per unit albedo. ``rays``: the end
     points' traced continuation rays (:func:`trace_bsdf_rays`), shared with BSDF-direct; None:
@@ -637,7 +638,7 @@ def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: 
         return out
     sel = np.nonzero(near)[0]
     keep, l_y = reflected_radiance(scene, geom, lights, hits, sel, d[sel], end.segments[ok[sel]] + 1, vpls,
-                                   clamp_d2, max_depth, rng, lobe_alpha)
+                                   clamp_d2, max_depth, rng, lobe_alpha, photons)
     if len(keep) == 0:
         return out
     t = hits.t[sel][keep]
@@ -650,11 +651,13 @@ def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: 
 
 def reflected_radiance(scene: Scene, geom: Geometry, lights: LightSampler, hits, sel: np.ndarray,
                        d: np.ndarray, segments: np.ndarray, vpls: VPLSet, clamp_d2: float,
-                       max_depth: int, rng: np.random.Generator,
-                       lobe_alpha: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+                       max_depth: int, rng: np.random.Generator, lobe_alpha: float = 0.0,
+                       photons: PhotonSet | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Radiance that the surfaces hit by rays ``sel`` of ``hits`` (world directions ``d``,
     reached after ``segments`` segments) reflect back along the rays: the VPL set's light and the
-    emitter samples there, with their own MIS-weighted BSDF ray; their emission is not included.
+    emitter samples there, with their own MIS-weighted BSDF ray, and the caustic ``photons``
+    there (L S+ D: the light walks behind the VPLs pass through glass, so the VPLs stand for it
+    too); their emission is not included.
     Returns ``(k, L)``: the positions in ``sel`` of the non-specular, non-black hits and their
     (len(k), 3) radiance."""
     y_sp = bsdf.gather(scene.materials, hits.material[sel], hits.uv[sel])
@@ -667,4 +670,6 @@ def reflected_radiance(scene: Scene, geom: Geometry, lights: LightSampler, hits,
                   hits.t[s])
     a_y, irr_y = gather_vpls(geom, y, vpls, clamp_d2, max_depth, lobe_alpha=lobe_alpha)
     irr_y = irr_y + bsdf_direct(scene, geom, lights, y, a_y, vpls.direct_count, max_depth, rng, vpls.env_guide)
+    if photons is not None and len(photons):
+        irr_y = irr_y + gather_photons(y, photons, a_y, max_depth)
     return nd, a_y * irr_y

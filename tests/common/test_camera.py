@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from igi.common.camera import camera_rays, look_at
+from igi.common.camera import PIXEL_TILE, camera_rays, look_at, pixel_jitter
 from igi.common.scene import Camera
 
 
@@ -54,3 +54,36 @@ def test_jitter_spans_the_pixel_footprint():
     _, dj = camera_rays(m, 60, 8, 8, np.array([3]), np.array([3]), (1.0, 1.0))
     np.testing.assert_allclose(dj, d1, atol=1e-12)  # the far corner of pixel 3 is pixel 4's near corner
     assert not np.allclose(d0, d1)
+
+
+@pytest.mark.parametrize("block", [2, 4, 8])
+def test_pixel_jitter_stratifies_every_aligned_block_within_a_frame(block):
+    # A block's b² pixels sample one position per 1/b² strip along each axis (a (0, m, 2)-net),
+    # whatever the frame's point: an edge's coverage seen by a block is off by at most 1/b².
+    rng = np.random.default_rng(3)
+    ys, xs = np.mgrid[0:24, 0:24]
+    for jitter in [(0.5, 0.5), tuple(rng.random(2)), (0.999, 0.0)]:
+        j = pixel_jitter(jitter, xs.ravel(), ys.ravel()).reshape(24, 24, 2)
+        assert np.all((j >= 0) & (j < 1))
+        n = block * block
+        for by in range(0, 24, block):
+            for bx in range(0, 24, block):
+                pts = j[by:by + block, bx:bx + block].reshape(-1, 2)
+                for axis in (0, 1):
+                    for c in rng.random(5):
+                        assert abs(np.mean(pts[:, axis] < c) - c) <= 1.0 / n + 1e-12
+                cells = np.floor(np.mod(pts - np.asarray(jitter), 1.0) * block).astype(int)
+                assert len({(a, b) for a, b in cells}) == n  # one point per cell of a b x b grid
+
+
+def test_pixel_jitter_keeps_each_pixels_sequence_over_frames_stratified():
+    from igi.master.accumulation import jitter_for
+
+    for px, py in [(0, 0), (5, 3), (1021, 77)]:
+        for axis, frames in ((0, 64), (1, 81)):  # Halton bases 2 and 3: full strata at 2^6, 3^4
+            seq = np.array([pixel_jitter(jitter_for(i), np.array([px]), np.array([py]))[0, axis]
+                            for i in range(1, frames + 1)])
+            s = np.sort(seq)
+            gaps = np.diff(np.append(s, s[0] + 1.0))  # on the circle: the rotation wraps
+            assert gaps.max() < 2.0 / frames  # a rotated Halton sequence: no gap of two strata
+    assert len({tuple(p) for p in PIXEL_TILE.reshape(-1, 2)}) == 64  # pixels differ within a tile

@@ -32,3 +32,37 @@ def test_light_through_the_glass_ball_is_no_longer_missing(monkeypatch):
 def test_without_the_lensed_light_the_room_reads_dark(monkeypatch):
     # the same measure without the chain gather: the path class the test above needs is real
     assert _dark_region_ratio(monkeypatch, False) < 0.97
+
+
+def _ceiling_ratio(monkeypatch, photons_at_chain_ends: bool) -> float:
+    """igi / reference over the ceiling around the emitter (its bounding box in the reference
+    grown by half its size, the emitter itself and its edges left out), 16 frames at 1/4 size.
+    That ceiling faces away from the light: besides the room's bounces it is lit by the glass
+    ball imaging the bright caustic under it (L S S D S S D E, a quarter of its light)."""
+    import igi.worker.shading as shading
+    from scipy.ndimage import binary_dilation
+
+    if not photons_at_chain_ends:
+        monkeypatch.setattr(shading, "gather_photons", lambda end, *a, **k: np.zeros((len(end), 3)))
+    _, ref = load_reference("cornell-box-sphere")
+    ref = reduced_reference(ref, 4)
+    lum = ref.mean(axis=2)
+    top = np.zeros_like(lum, bool)
+    top[: lum.shape[0] // 4] = True
+    ys, xs = np.nonzero((lum > 2.0) & top)
+    gy, gx = (ys.max() - ys.min()) // 2 + 2, (xs.max() - xs.min()) // 2 + 2
+    box = np.zeros_like(top)
+    box[max(ys.min() - gy, 0):ys.max() + gy + 1, max(xs.min() - gx, 0):xs.max() + gx + 1] = True
+    region = box & ~binary_dilation(lum > 1.0, iterations=2) & (lum > 0.02)
+    assert region.sum() > 100
+    img = render_local(load_shared("cornell-box-sphere"), {}, 16, width=ref.shape[1], height=ref.shape[0])
+    return float(img[region].mean() / ref[region].mean())
+
+
+def test_a_caustic_seen_through_the_glass_ball_lights_the_ceiling(monkeypatch):
+    assert _ceiling_ratio(monkeypatch, True) == pytest.approx(1.0, abs=0.07)
+
+
+def test_without_photons_at_the_chain_ends_the_ceiling_reads_dark(monkeypatch):
+    # the same measure without the caustic photons where the chains end: the path class is real
+    assert _ceiling_ratio(monkeypatch, False) < 0.9
