@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from igi.common.camera import PIXEL_TILE, camera_rays, look_at, pixel_jitter
+from igi.common.camera import camera_rays, look_at, pixel_jitter, pixel_tile
 from igi.common.scene import Camera
 
 
@@ -86,4 +86,4 @@ def test_pixel_jitter_keeps_each_pixels_sequence_over_frames_stratified():
             s = np.sort(seq)
             gaps = np.diff(np.append(s, s[0] + 1.0))  # on the circle: the rotation wraps
             assert gaps.max() < 2.0 / frames  # a rotated Halton sequence: no gap of two strata
-    assert len({tuple(p) for p in PIXEL_TILE.reshape(-1, 2)}) == 64  # pixels differ within a tile
+    assert len({tuple(p) for p in pixel_tile().reshape(-1, 2)}) == 64  # pixels differ within a tile
