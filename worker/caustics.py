@@ -94,10 +94,10 @@ def build_photon_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: i
     nrm = np.zeros((shot, 3))
     if len(area):
         pos[area], nrm[area] = lights._area_points(em[area], u[area, 0:2])
-    for ei in shooting:
+    for i, ei in enumerate(shooting):
         e = scene.emitters[ei]
         if e.kind != AREA:
-            sel = np.nonzero(em == ei)[0]
+            sel = slice(i * n, (i + 1) * n)  # light i's photons: the i-th block of n
             pos[sel] = e.position
             nrm[sel] = e.direction / np.linalg.norm(e.direction)
     if aim:
@@ -122,9 +122,9 @@ def build_photon_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: i
         total = np.asarray(lights.area_total, np.float64)[em[area]]
         flux[area] = radiance[em[area]] * (np.maximum(cos_e, 0) * total / pdf[area])[:, None]
         o[area] = geom.offset(pos[area], nrm[area], d[area])
-    for ei in shooting:
+    for i, ei in enumerate(shooting):
         e = scene.emitters[ei]
-        sel = np.nonzero(em == ei)[0]
+        sel = slice(i * n, (i + 1) * n)
         if e.kind == POINT:
             flux[sel] = e.intensity[None, :] / pdf[sel][:, None]
         elif e.kind == SPOT:
