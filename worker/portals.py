@@ -198,7 +198,6 @@ def _merge_overlapping(lo: list, hi: list) -> np.ndarray:
     return label
 
 
-
 def _enclosed(geom: Geometry, p: np.ndarray, reach: float) -> np.ndarray:
     """(n,) bool: at least ENCLOSED of the probe rays from p hit something within ``reach``."""
     n, k = len(p), len(_PROBES)
