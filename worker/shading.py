@@ -659,8 +659,13 @@ def reflected_radiance(scene: Scene, geom: Geometry, lights: LightSampler, hits,
     there (L S+ D: the light walks behind the VPLs pass through glass, so the VPLs stand for it
     too); their emission is not included.
     Returns ``(k, L)``: the positions in ``sel`` of the non-specular, non-black hits and their
-    (len(k), 3) radiance."""
-    y_sp = bsdf.gather(scene.materials, hits.material[sel], hits.uv[sel])
+    (len(k), 3) radiance.
+
+    y reflects light toward x as a VPL would: its microfacet lobes are regularized like the VPL
+    senders' (:func:`regularized_senders`, ``lobe_alpha``), or a smooth plastic at y (α 0.01)
+    turns one caustic photon or VPL near its mirror direction into a spike of ~10³ times the
+    pixel's light that the discontinuity buffer spreads over a whole interleave block."""
+    y_sp = regularized_senders(bsdf.gather(scene.materials, hits.material[sel], hits.uv[sel]), lobe_alpha)
     nd = np.nonzero(~kind_in(y_sp.kind, SPECULAR_KINDS) & (y_sp.kind != NULL))[0]
     if len(nd) == 0:
         return nd, np.zeros((0, 3))

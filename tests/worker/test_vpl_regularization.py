@@ -67,3 +67,54 @@ def test_the_bound_shrinks_while_accumulating_consistently():
     scales = [radius_scale(i, p) for i in (0, 1, 16, 256)]
     assert scales[0] == 1.0 and all(a > b for a, b in zip(scales, scales[1:]))
     assert radius_scale(256, make_params(consistent=False)) == 1.0
+
+
+def _smooth_plastic_floor():
+    """A smooth plastic floor (α 0.01, diffuse 0.5, normal +y) and a dim lamp far aside."""
+    from igi.common.camera import look_at
+    from igi.common.scene import AREA, Camera, Emitter, Mesh, Scene
+    from tests.support.scenes_synthetic import quad
+
+    mats = [Material("plastic", ROUGHPLASTIC, diffuse=Texture.constant(0.5), alpha=0.01),
+            Material("lamp", DIFFUSE, diffuse=Texture.constant(0.0))]
+    fv, ff = quad([-3, 0, -3], [0, 0, 6], [6, 0, 0])
+    lv, lf = quad([4, 3, 4], [0.3, 0, 0], [0, 0, 0.3])
+    if np.cross(lv[1] - lv[0], lv[2] - lv[0])[1] > 0:
+        lf = lf[:, ::-1].copy()
+    return Scene([Mesh("floor", fv, ff, 0), Mesh("lamp", lv, lf, 1, emitter=0)], mats,
+                 [Emitter(AREA, radiance=np.full(3, 1e-3), mesh=1)],
+                 Camera(look_at([0, 1, 1], [0, 0, 0], [0, 1, 0]), fov=40, width=8, height=8))
+
+
+def test_a_caustic_photon_in_a_smooth_plastics_mirror_direction_is_no_spike_where_it_is_read_back():
+    """The clamp compensation and the lensed chains read the light a surface y reflects toward
+    x (shading.reflected_radiance): y is a sender like a VPL, so its lobe is regularized too.
+    One photon arriving from y's mirror direction on a plastic of α 0.01 read with the raw lobe
+    is ~500 Lambertian photons' worth (modern-hall: one such read put a 1000× spike into a
+    pixel's filtered irradiance, smeared over a whole 5×5 interleave block)."""
+    from igi.worker.caustics import PhotonSet
+    from igi.worker.hash_grid import HashGrid
+    from igi.worker.renderer import Renderer
+    from igi.worker.shading import reflected_radiance
+    from igi.worker.vpl import _empty_set
+
+    scene = _smooth_plastic_floor()
+    r = Renderer(scene)
+    d = np.array([[0.0, -1.0, -1.0]]) / np.sqrt(2)  # from x = (0, 1, 1) down to y = origin
+    hits = r.geom.intersect(np.array([[0.0, 1.0, 1.0]]), d)
+    assert hits.valid[0]
+    radius = 0.05
+    pos = np.zeros((1, 3))
+    mirror = np.array([[0.0, 1.0, -1.0]]) / np.sqrt(2)  # where the photon came from
+    photons = PhotonSet(pos, np.ones((1, 3)), mirror, np.array([[0.0, 1.0, 0.0]]), np.ones(1, np.int32),
+                        radius, HashGrid(pos, radius), 1)
+    lambertian = 0.5 / np.pi / (np.pi * radius ** 2)  # the same photon on a diffuse 0.5 surface
+
+    def read(lobe_alpha):
+        k, radiance = reflected_radiance(scene, r.geom, r.lights, hits, np.array([0]), d, np.array([1]), _empty_set(),
+                                         0.01, -1, np.random.default_rng(0), lobe_alpha, photons)
+        assert list(k) == [0]
+        return float(radiance.mean()) / lambertian
+
+    assert read(0.0) > 100  # the raw lobe: the spike
+    assert 0.5 < read(0.5) < 4  # regularized: about a Lambertian photon
