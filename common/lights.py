@@ -202,28 +202,43 @@ class LightSampler:
             nrm[sel] = n
         return pos, nrm
 
-    def sample_points(self, u: np.ndarray) -> PointSamples:
+    def sample_points(self, u: np.ndarray, pmf: np.ndarray | None = None) -> PointSamples:
         """One point-light record per row of u (N, 3): emitter choice + position.
 
+        ``pmf``: the emitter choice probabilities (None: :attr:`pmf`, by power); any pmf that is
+        positive wherever an emitter can light something keeps the estimate unbiased.
         Power is divided by the choice probability but NOT by N (the caller averages).
         """
+        pmf = self.pmf if pmf is None else pmf
+        cdf = self.cdf if pmf is self.pmf else np.cumsum(pmf)
+        em = np.minimum(np.searchsorted(cdf, u[:, 0] * cdf[-1], side="right"), len(cdf) - 1)
+        s = self.points_on(em, u[:, 1:3])
+        area = s.kind == VPL_AREA
+        s.pdf[area] = pmf[em[area]] / np.maximum(self.area_total[em[area]], 1e-300)
+        env = s.pdf > 0
+        env &= ~area
+        s.pdf[env] = pmf[em[env]] / (4 * np.pi)
+        s.power /= np.maximum(pmf[em], 1e-300)[:, None]
+        return s
+
+    def points_on(self, em: np.ndarray, u: np.ndarray) -> PointSamples:
+        """A point-light record on each emitter ``em`` from (N, 2) uniforms: power and pdf
+        (area or solid angle) as if that emitter had been chosen with probability 1."""
         n = len(u)
-        em = self.choose(u[:, 0])
         kind = np.zeros(n, np.int8)
         pos = np.zeros((n, 3))
         nrm = np.zeros((n, 3))
         power = np.zeros((n, 3))
         pdf = np.zeros(n)
-        pmf = np.maximum(self.pmf[em], 1e-300)
         for i in np.unique(em):
             e = self.scene.emitters[i]
             sel = np.nonzero(em == i)[0]
             if e.kind == AREA:
-                p, nn = self._area_points(np.full(len(sel), i), u[sel, 1:3])
+                p, nn = self._area_points(np.full(len(sel), i), u[sel, 0:2])
                 pos[sel], nrm[sel] = p, nn
                 kind[sel] = VPL_AREA
                 power[sel] = e.radiance * self.area_total[i]
-                pdf[sel] = self.pmf[i] / max(self.area_total[i], 1e-300)
+                pdf[sel] = 1.0 / max(self.area_total[i], 1e-300)
             elif e.kind in (POINT, SPOT):
                 pos[sel] = e.position
                 nrm[sel] = e.direction / np.linalg.norm(e.direction)
@@ -235,28 +250,30 @@ class LightSampler:
                 power[sel] = e.irradiance
             elif e.kind == CONSTANT:
                 # Light arriving from a uniformly chosen direction: E = L·4π per sample.
-                d = uniform_sphere(u[sel, 1:3])
+                d = uniform_sphere(u[sel, 0:2])
                 nrm[sel] = -d  # light travels along -d... i.e. comes from direction d
                 kind[sel] = VPL_DIRECTIONAL
                 power[sel] = e.radiance * 4 * np.pi
-                pdf[sel] = self.pmf[i] / (4 * np.pi)
-        power /= pmf[:, None]
-        return PointSamples(kind, pos, nrm, power, em.astype(np.int32), pdf)
+                pdf[sel] = 1.0 / (4 * np.pi)
+        return PointSamples(kind, pos, nrm, power, np.asarray(em, np.int32), pdf)
 
-    def area_pdf(self, emitter: np.ndarray) -> np.ndarray:
-        """Area pdf with which sample_points picks a point on area emitter ``emitter``."""
+    def area_pdf(self, emitter: np.ndarray, pmf: np.ndarray | None = None) -> np.ndarray:
+        """Area pdf with which sample_points (choosing by ``pmf``, None: by power) picks a point
+        on area emitter ``emitter``."""
+        pmf = self.pmf if pmf is None else pmf
         out = np.zeros(len(emitter))
         ok = emitter >= 0
         e = emitter[ok]
-        out[ok] = self.pmf[e] / np.maximum(self.area_total[e], 1e-300)
+        out[ok] = pmf[e] / np.maximum(self.area_total[e], 1e-300)
         return out
 
-    def environment_pdf(self) -> float:
+    def environment_pdf(self, pmf: np.ndarray | None = None) -> float:
         """Solid-angle pdf of one environment direction drawn by sample_points."""
+        pmf = self.pmf if pmf is None else pmf
         tot = 0.0
         for i, e in enumerate(self.scene.emitters):
             if e.kind == CONSTANT:
-                tot += self.pmf[i] / (4 * np.pi)
+                tot += pmf[i] / (4 * np.pi)
         return tot
 
     def emit_rays(self, u: np.ndarray) -> EmittedRays:

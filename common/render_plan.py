@@ -131,7 +131,8 @@ def analyze(scene: Scene, geom, lights: LightSampler) -> RenderPlan:
     else:
         reasons["point_light"] = f"{len(scene.emitters)} emitters"
     many = n_local > MANY_LIGHTS
-    reasons["light_subsampling"] = (f"{n_local} emitters > {MANY_LIGHTS}: direct VPLs pick emitters by power"
+    reasons["light_subsampling"] = (f"{n_local} emitters > {MANY_LIGHTS}: direct VPLs pick emitters (by power, and by "
+                                    f"their light on the view where VPL importance is on)"
                                     if many else f"{n_local} emitter(s): each can be sampled")
     del kinds
     return RenderPlan(caustics, specular_chains, glossy, textured, point, many, reasons)

@@ -28,7 +28,7 @@ from .indirect_caustics import lensed_reflection
 from .shading import LightMIS, bsdf_direct, clamp_compensation, gather_vpls, trace_bsdf_rays, trace_eye
 from .vpl import VPLSet, build_vpl_set
 from .portals import Portals
-from .vpl_importance import AUTO_ESS, View, build_importance_vpl_set, view_portals
+from .vpl_importance import AUTO_ESS, View, build_importance_vpl_set, view_emitter_pmf, view_portals
 
 DEFAULT_CLAMP = 1e-3  # minimum squared VPL distance, as a fraction of the squared scene diagonal
 
@@ -94,6 +94,7 @@ class Renderer:
         self._pilot: dict[tuple, object] = {}  # per view: importance sampling on? (pilot) and the portals
         self.importance_notes = ""
         self.portal_notes = ""
+        self.emitter_notes = ""
 
     # -- per-set preprocessing --------------------------------------------------------------
     def importance_on(self, params: Params, view: View | None) -> bool:
@@ -109,7 +110,7 @@ class Renderer:
             hit = self._pilot.get(key)
         if hit is None:
             # Decided on plain walks: portal walks even out the candidates they serve.
-            _, st = self._build_importance(0, 0, params, view, False, use_portals=False)
+            _, st = self._build_importance(0, 0, params, view, False, pilot=True)
             hit = st.ess < AUTO_ESS
             with self._lock:
                 self._pilot[key] = hit
@@ -136,14 +137,34 @@ class Renderer:
                                      f"opening(s): half the sky's light walks start there")
         return found
 
-    def _build_importance(self, seed, k, params, view, roulette, use_portals=True):
+    def emitter_pmf(self, params: Params, view: View):
+        """The view's choice of emitter for emitter samples (vpl_importance.view_emitter_pmf),
+        scored once per view; None: by power."""
+        key = ("emitter pmf", self.scene_version, view.key, params.max_depth, params.specular_depth,
+               params.filter_glossy_alpha, params.clamp, params.vpl_lobe_alpha, params.direct_vpls)
+        with self._lock:
+            if key in self._pilot:
+                return self._pilot[key]
+        pmf = view_emitter_pmf(self.scene, self.geom, self.lights, view, params.max_depth, params.specular_depth,
+                               clamp_distance2(params, self.geom.diagonal), params.filter_glossy_alpha,
+                               params.vpl_lobe_alpha, self._set_sizes(params)[0])
+        with self._lock:
+            self._pilot[key] = pmf
+            if pmf is not None:
+                moved = 0.5 * float(np.abs(pmf - self.lights.pmf).sum())
+                self.emitter_notes = (f"ON  emitter choice      {len(self.scene.emitters)} emitters scored on the "
+                                      f"view: {moved:.0%} of the emitter samples moved from choice by power")
+        return pmf
+
+    def _build_importance(self, seed, k, params, view, roulette, pilot=False):
         direct, indirect, length = self._set_sizes(params)
         return build_importance_vpl_set(
             self.scene, self.geom, self.lights, seed, k, direct, indirect, length, view,
             params.vpl_oversample, clamp_distance2(params, self.geom.diagonal), params.max_depth,
             params.specular_depth, roulette=roulette and params.max_depth < 0,
             glossy_split_alpha=params.filter_glossy_alpha, lobe_alpha=params.vpl_lobe_alpha,
-            portals=self.portals(params, view) if use_portals else None)
+            portals=None if pilot else self.portals(params, view),
+            emitter_pmf=None if pilot or direct == 0 else self.emitter_pmf(params, view))
 
     def _set_sizes(self, params: Params) -> tuple[int, int, int]:
         direct = params.direct_vpls
@@ -227,7 +248,7 @@ class Renderer:
             rng = make_rng(spec.seed, tile.k, tile.sx0, tile.sy0)
             eye = trace_eye(self.scene, self.geom, self.lights, o, d, params.max_depth,
                             params.specular_depth, rng, params.filter_glossy_alpha,
-                            LightMIS(vpls.direct_count, vpls.env_guide))
+                            LightMIS(vpls.direct_count, vpls.env_guide, vpls.emitter_pmf))
         clamp_d2 = clamp_distance2(params, self.geom.diagonal)
         # Regularized glossy senders: the bound shrinks like the photon radius (consistent)
         lobe_alpha = params.vpl_lobe_alpha * radius_scale(index, params)
@@ -254,7 +275,7 @@ class Renderer:
                                                clamp_d2, params.max_depth, rng, lobe_alpha, rays, photons)
         with self._stage("BSDF direct"):
             irr = irr + bsdf_direct(self.scene, self.geom, self.lights, end, albedo, vpls.direct_count,
-                                    params.max_depth, rng, vpls.env_guide, rays)
+                                    params.max_depth, rng, vpls.env_guide, rays, vpls.emitter_pmf)
         if lensed:
             with self._stage("indirect caustics"):
                 irr = irr + lensed_reflection(self.scene, self.geom, self.lights, end, albedo, vpls, rays,

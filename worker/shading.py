@@ -87,6 +87,7 @@ class LightMIS:
 
     direct_count: int
     env_guide: object = None
+    emitter_pmf: np.ndarray | None = None  # the samples' emitter choice (None: lights.pmf)
 
 
 def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.ndarray,
@@ -211,11 +212,12 @@ def emitter_pdf(lights: LightSampler, hits, valid: np.ndarray, dirs: np.ndarray,
     pl = np.zeros(len(dirs))
     if valid.any():
         cos_front = -np.einsum("ij,ij->i", dirs[valid], hits.ns[valid])
-        pl[valid] = lights.area_pdf(hits.emitter[valid]) * hits.t[valid] ** 2 / np.maximum(np.abs(cos_front), 1e-7)
+        pl[valid] = (lights.area_pdf(hits.emitter[valid], light_mis.emitter_pmf) * hits.t[valid] ** 2
+                     / np.maximum(np.abs(cos_front), 1e-7))
     miss = ~valid
     if miss.any() and np.any(lights.environment() > 0):
         g = light_mis.env_guide
-        pl[miss] = g.pmf * g.pdf(dirs[miss]) if g is not None else lights.environment_pdf()
+        pl[miss] = g.pmf * g.pdf(dirs[miss]) if g is not None else lights.environment_pdf(light_mis.emitter_pmf)
     return pl * light_mis.direct_count
 
 
@@ -577,10 +579,12 @@ def trace_bsdf_rays(geom: Geometry, lights: LightSampler, end: EndPoints, max_de
 
 def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints,
                 albedo: np.ndarray, direct_count: int, max_depth: int,
-                rng: np.random.Generator, env_guide=None, rays: BSDFRays | None = None) -> np.ndarray:
+                rng: np.random.Generator, env_guide=None, rays: BSDFRays | None = None,
+                emitter_pmf: np.ndarray | None = None) -> np.ndarray:
     """Emission reached by one BSDF-sampled ray per end point, MIS-weighted against the
     emitter samples (per unit albedo, so it joins the filtered irradiance). ``env_guide``: the
-    set's environment-direction pdf (worker.env_guide), when its samples were guided.
+    set's environment-direction pdf (worker.env_guide), when its samples were guided;
+    ``emitter_pmf``: the set's emitter choice (VPLSet.emitter_pmf).
     ``rays``: the end points' traced continuation rays (:func:`trace_bsdf_rays`), shared with
     the clamp compensation; None: sampled and traced here (only those that may reach a light)."""
     e = len(end)
@@ -602,7 +606,7 @@ def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoin
     if np.any(env > 0) and (~v).any():
         le[~v] = env
     # Solid-angle pdf of the emitter sampler for the same point.
-    pl = emitter_pdf(lights, hits, v, d, LightMIS(direct_count, env_guide))
+    pl = emitter_pdf(lights, hits, v, d, LightMIS(direct_count, env_guide, emitter_pmf))
     w_mis = np.where(delta, 1.0, pdf_b ** 2 / np.maximum(pdf_b ** 2 + pl ** 2, 1e-300))
     contrib = weight * le * w_mis[:, None] / np.maximum(albedo[ok], 1e-6)
     out[ok] = np.nan_to_num(contrib, nan=0.0, posinf=0.0, neginf=0.0)
@@ -674,7 +678,8 @@ def reflected_radiance(scene: Scene, geom: Geometry, lights: LightSampler, hits,
                   y_sp.subset(nd), np.ones((len(nd), 3)), np.asarray(segments)[nd], np.ones(len(nd), bool),
                   hits.t[s])
     a_y, irr_y = gather_vpls(geom, y, vpls, clamp_d2, max_depth, lobe_alpha=lobe_alpha)
-    irr_y = irr_y + bsdf_direct(scene, geom, lights, y, a_y, vpls.direct_count, max_depth, rng, vpls.env_guide)
+    irr_y = irr_y + bsdf_direct(scene, geom, lights, y, a_y, vpls.direct_count, max_depth, rng, vpls.env_guide,
+                                emitter_pmf=vpls.emitter_pmf)
     if photons is not None and len(photons):
         irr_y = irr_y + gather_photons(y, photons, a_y, max_depth)
     return nd, a_y * irr_y

@@ -43,6 +43,9 @@ class VPLSet:
     light_pdf: np.ndarray | None = None  # (M,) emitter samples' pdf (lights.PointSamples.pdf), 0 elsewhere
     direct_count: int = 0  # emitter samples per set (the MIS sample count)
     env_guide: object = None  # worker.env_guide.EnvGuide: the environment samples' direction pdf
+    # (E,) the emitter choice of the emitter samples (worker.vpl_importance.view_emitter_pmf);
+    # None: lights.pmf (by power). MIS against them must use the same.
+    emitter_pmf: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.kind)
@@ -70,12 +73,14 @@ MAX_WALK = 64  # hard cap of Russian-roulette walks (a safety net; survival fall
 
 def build_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: int, k: int,
                   direct_vpls: int, indirect_vpls: int, max_length: int,
-                  roulette: bool = False, portals=None) -> VPLSet:
+                  roulette: bool = False, portals=None, emitter_pmf: np.ndarray | None = None) -> VPLSet:
     """The VPL set P_k for frame seed ``seed``.
 
     ``roulette``: walks go on past ``max_length`` with Russian roulette (survival = the
     throughput ratio of the bounce), so the set is unbiased for paths of any length.
     ``portals`` (worker.portals.Portals): walks from the sky start where it enters the view.
+    ``emitter_pmf``: how the emitter samples choose their emitter (None: by power); the light
+    walks always leave the emitters by power.
     """
     if not lights.has_light:
         return _empty_set()
@@ -83,14 +88,14 @@ def build_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: int,
     parts = []
     if direct_vpls > 0:
         u = stream.padded(2 * k, direct_vpls, BLOCK, DIRECT_DIMS)
-        s = lights.sample_points(u)
+        s = lights.sample_points(u, emitter_pmf)
         m = len(s.kind)
         extra = np.zeros((m, 3))
         for j in np.nonzero(s.kind == VPL_SPOT)[0]:
             e = scene.emitters[s.emitter[j]]
             extra[j] = (0.0, e.beam_width, e.cutoff_angle)
         parts.append(VPLSet(s.kind, s.position, s.normal, s.normal.copy(), s.power / direct_vpls,
-                            np.zeros(m, np.int32), extra, None, True, s.pdf, direct_vpls))
+                            np.zeros(m, np.int32), extra, None, True, s.pdf, direct_vpls, None, emitter_pmf))
     walks = walk_count(indirect_vpls, max_length)
     if walks > 0 and max_length > 0:
         length = MAX_WALK if roulette else max_length
@@ -183,7 +188,8 @@ def subset_vpls(vpls: VPLSet, rows: np.ndarray, power_scale: np.ndarray | None =
     lp = vpls.light_pdf[rows] if vpls.light_pdf is not None else None
     return VPLSet(vpls.kind[rows], vpls.position[rows], vpls.normal[rows], vpls.ng[rows], power,
                   vpls.depth[rows], vpls.wi_local[rows], surface,
-                  bool(surface is None or np.all(surface.kind == 0)), lp, vpls.direct_count, vpls.env_guide)
+                  bool(surface is None or np.all(surface.kind == 0)), lp, vpls.direct_count, vpls.env_guide,
+                  vpls.emitter_pmf)
 
 
 def concat_surface(sps: list) -> "bsdf.SurfacePoints":
@@ -211,4 +217,5 @@ def _concat(parts: list[VPLSet]) -> VPLSet:
         np.concatenate([p.light_pdf if p.light_pdf is not None else np.zeros(len(p)) for p in parts]),
         max(p.direct_count for p in parts),
         next((p.env_guide for p in parts if p.env_guide is not None), None),
+        next((p.emitter_pmf for p in parts if p.emitter_pmf is not None), None),
     )

@@ -100,3 +100,25 @@ def glossy_floor_lamp(width=48, height=36, alpha=0.05) -> Scene:
     emitters = [Emitter(AREA, radiance=np.full(3, 40.0), mesh=1)]
     cam = Camera(look_at([0.0, 0.8, 2.5], [0.0, 0.0, 0.6], [0, 1, 0]), fov=50, width=width, height=height)
     return Scene(meshes, mats, emitters, cam, source="glossy floor lamp")
+
+
+def panel_and_lamp(width=32, height=24) -> Scene:
+    """A diffuse room 2 × 2 × 2 lit by a large, dim ceiling panel (most of the power) and a
+    small, bright lamp a hand's width from the wall the camera looks at: that wall's light
+    comes mostly from the lamp, which a choice of emitter by power rarely samples."""
+    mats = [Material("wall", DIFFUSE, diffuse=Texture.constant(0.6)),
+            Material("black", DIFFUSE, diffuse=Texture.constant(0.0))]
+    meshes = [Mesh(f"wall{i}", v, f, 0) for i, (v, f) in enumerate(box_faces(2.0))]
+
+    def facing(v, f, normal):
+        n = np.cross(v[f[0, 1]] - v[f[0, 0]], v[f[0, 2]] - v[f[0, 0]])
+        return f if np.dot(n, normal) > 0 else f[:, ::-1].copy()
+
+    pv, pf = quad([0.2, 1.99, 0.2], [1.6, 0, 0], [0, 0, 1.6])  # the panel, facing down
+    lv, lf = quad([0.95, 0.95, 0.15], [0.1, 0, 0], [0, 0.1, 0])  # the lamp, facing the wall z = 0
+    meshes.append(Mesh("panel", pv, facing(pv, pf, [0, -1, 0]), 1, emitter=0))
+    meshes.append(Mesh("lamp", lv, facing(lv, lf, [0, 0, -1]), 1, emitter=1))
+    emitters = [Emitter(AREA, radiance=np.full(3, 1.0), mesh=len(meshes) - 2),
+                Emitter(AREA, radiance=np.full(3, 60.0), mesh=len(meshes) - 1)]
+    cam = Camera(look_at([1.0, 1.0, 1.95], [1.0, 1.0, 0.0], [0, 1, 0]), fov=70, width=width, height=height)
+    return Scene(meshes, mats, emitters, cam, source="panel and lamp")

@@ -100,3 +100,72 @@ def test_auto_mode_turns_on_behind_a_door_and_says_why():
     assert r.importance_on(make_params(), _view(scene))
     assert "vpl_importance" in r.importance_notes and "ON" in r.importance_notes
     assert not r.importance_on(make_params(vpl_importance=0), _view(scene))
+
+
+def _direct_frames(scene, seeds, by_view: bool, monkeypatch) -> np.ndarray:
+    from igi.master.inprocess import render_local
+
+    with monkeypatch.context() as m:
+        if not by_view:
+            m.setattr(Renderer, "emitter_pmf", lambda self, params, view: None)
+        return np.stack([render_local(scene, {"max_depth": 2, "seed": s, "vpl_importance": 1, "direct_vpls": 1},
+                                      1, width=32, height=24) for s in seeds])
+
+
+def test_emitter_samples_chosen_by_the_view_favour_the_lamp_the_view_sees():
+    from tests.support.scenes_synthetic import panel_and_lamp
+
+    scene = panel_and_lamp()
+    r = Renderer(scene)
+    # no more emitters than a set's emitter samples: stratified counts beat any other choice
+    assert r.emitter_pmf(make_params(max_depth=2, direct_vpls=2), _view(scene)) is None
+    view_pmf = r.emitter_pmf(make_params(max_depth=2, direct_vpls=1), _view(scene))
+    assert view_pmf is not None
+    assert abs(view_pmf.sum() - 1.0) < 1e-9
+    assert view_pmf[1] > 1.15 * r.lights.pmf[1]  # the lamp by the wall gains
+    assert np.all(view_pmf >= 0.5 * r.lights.pmf - 1e-12)  # the defensive half by power
+    assert "emitter choice" in r.emitter_notes
+    # one emitter: nothing to choose
+    assert Renderer(two_rooms()).emitter_pmf(make_params(), _view(two_rooms())) is None
+
+
+def test_emitter_choice_by_the_view_is_unbiased_and_steadies_frames(monkeypatch):
+    """Direct light (emitter samples with their MIS against BSDF rays, which must use the same
+    choice of emitter): the mean over frames matches the choice by power; single frames vary
+    less, since the lamp that lights the wall is drawn more often."""
+    from tests.support.scenes_synthetic import panel_and_lamp
+
+    scene = panel_and_lamp()
+    power = _direct_frames(scene, range(32), False, monkeypatch)
+    view = _direct_frames(scene, range(32), True, monkeypatch)
+    m_p, m_v = power.mean(axis=0), view.mean(axis=0)
+    assert abs(m_v.mean() / m_p.mean() - 1) < 0.02
+    blocks = lambda a: a.reshape(6, 4, 8, 4, 3).mean(axis=(1, 3))  # noqa: E731 - 4×4 blocks
+    np.testing.assert_allclose(blocks(m_v), blocks(m_p), rtol=0.1, atol=0.01)
+    assert view.mean(axis=(1, 2, 3)).var() < 0.8 * power.mean(axis=(1, 2, 3)).var()
+
+
+def test_mis_reads_the_emitter_choice_the_samples_were_drawn_with():
+    """The BSDF ray's MIS weight needs the pdf with which the set's emitter samples would have
+    drawn the point it hits: with a view's choice of emitter, that choice, not the power's."""
+    from tests.support.scenes_synthetic import panel_and_lamp
+    from igi.worker.shading import LightMIS, emitter_pdf
+
+    scene = panel_and_lamp()
+    r = Renderer(scene)
+    pmf = r.emitter_pmf(make_params(direct_vpls=1), _view(scene))
+    vpls = build_vpl_set(scene, r.geom, r.lights, 5, 0, 64, 0, 1, emitter_pmf=pmf)
+    assert vpls.emitter_pmf is pmf
+    x = np.array([1.0, 0.5, 1.0])
+    to_y = vpls.position - x
+    dist = np.linalg.norm(to_y, axis=1)
+    d = to_y / dist[:, None]
+    hits = r.geom.intersect(np.repeat(x[None], len(d), axis=0), d)
+    hit_sample = hits.valid & (np.abs(hits.t - dist) < 1e-4)
+    assert hit_sample.sum() > 32
+    cos_y = np.abs(np.einsum("ij,ij->i", d, hits.ns))
+    expected = vpls.light_pdf * dist ** 2 / cos_y  # the sample's own pdf, per solid angle
+    for mis_pmf, same in ((pmf, True), (None, False)):
+        got = emitter_pdf(r.lights, hits, hits.valid, d, LightMIS(1, None, mis_pmf))
+        close = np.isclose(got[hit_sample], expected[hit_sample], rtol=1e-6)
+        assert close.all() if same else not close.all()
