@@ -307,3 +307,14 @@ def test_unexpected_failure_is_one_line_and_traceback_only_with_v(capsys, caplog
     err = capsys.readouterr().err
     assert "igi: error: RuntimeError: something unexpected" in err
     assert "Traceback" in err + caplog.text  # (pytest's log capture takes the logging output in-process)
+
+
+def test_render_plan_says_how_emitter_samples_choose_their_emitter():
+    """`igi render --plan`: a many-light hall scores its emitters on the view; a one-light box
+    says why its choice stays by power."""
+    hall = igi("render", SHARED / "scenes" / "modern-hall" / "scene.xml", "--plan")
+    assert hall.returncode == 0, hall.stderr
+    assert "ON  emitter choice      13 emitters scored on the view" in hall.stdout
+    box = igi("render", CORNELL, "--plan")
+    assert box.returncode == 0, box.stderr
+    assert "off emitter choice" in box.stdout
