@@ -181,9 +181,11 @@ class LightSampler:
     def has_light(self) -> bool:
         return bool(self.pmf.sum() > 0)
 
-    def choose(self, u: np.ndarray) -> np.ndarray:
-        idx = np.searchsorted(self.cdf, u * self.cdf[-1], side="right")
-        return np.minimum(idx, len(self.cdf) - 1)
+    def choose(self, u: np.ndarray, cdf: np.ndarray | None = None) -> np.ndarray:
+        """Emitters for uniforms ``u`` by the cumulative ``cdf`` (None: :attr:`cdf`, by power)."""
+        cdf = self.cdf if cdf is None else cdf
+        idx = np.searchsorted(cdf, u * cdf[-1], side="right")
+        return np.minimum(idx, len(cdf) - 1)
 
     def _area_points(self, em: np.ndarray, u: np.ndarray):
         pos = np.zeros((len(em), 3))
@@ -210,13 +212,11 @@ class LightSampler:
         Power is divided by the choice probability but NOT by N (the caller averages).
         """
         pmf = self.pmf if pmf is None else pmf
-        cdf = self.cdf if pmf is self.pmf else np.cumsum(pmf)
-        em = np.minimum(np.searchsorted(cdf, u[:, 0] * cdf[-1], side="right"), len(cdf) - 1)
+        em = self.choose(u[:, 0], None if pmf is self.pmf else np.cumsum(pmf))
         s = self.points_on(em, u[:, 1:3])
         area = s.kind == VPL_AREA
         s.pdf[area] = pmf[em[area]] / np.maximum(self.area_total[em[area]], 1e-300)
-        env = s.pdf > 0
-        env &= ~area
+        env = (s.pdf > 0) & ~area  # the environment's directions (delta lights have pdf 0)
         s.pdf[env] = pmf[em[env]] / (4 * np.pi)
         s.power /= np.maximum(pmf[em], 1e-300)[:, None]
         return s

@@ -200,12 +200,11 @@ def cmd_render(args: argparse.Namespace) -> int:
         view = View(tuple(np.asarray(cam, np.float64).ravel()), fov_x, w, h)
         if r.importance_on(params, view):
             r.portals(params, view)
-            if params.direct_vpls > 0:
-                r.emitter_pmf(params, view)
+            r.emitter_pmf(params, view)
         print(r.importance_notes or "off vpl_importance      no indirect VPLs or turned off")
         print(r.portal_notes or "off vpl_portals         no sky seen through an opening (or VPL importance off)")
         print(r.emitter_notes or "off emitter choice      by power (no more emitters than emitter samples "
-                                 "per set, or VPL importance off)")
+                                 "per set, none at all, or VPL importance off)")
         if not args.output:
             return 0
     if not args.output:

@@ -139,7 +139,10 @@ class Renderer:
 
     def emitter_pmf(self, params: Params, view: View):
         """The view's choice of emitter for emitter samples (vpl_importance.view_emitter_pmf),
-        scored once per view; None: by power."""
+        scored once per view; None: by power (also when the sets have no emitter samples)."""
+        direct = self._set_sizes(params)[0]
+        if direct == 0:
+            return None
         key = ("emitter pmf", self.scene_version, view.key, params.max_depth, params.specular_depth,
                params.filter_glossy_alpha, params.clamp, params.vpl_lobe_alpha, params.direct_vpls)
         with self._lock:
@@ -147,7 +150,7 @@ class Renderer:
                 return self._pilot[key]
         pmf = view_emitter_pmf(self.scene, self.geom, self.lights, view, params.max_depth, params.specular_depth,
                                clamp_distance2(params, self.geom.diagonal), params.filter_glossy_alpha,
-                               params.vpl_lobe_alpha, self._set_sizes(params)[0])
+                               params.vpl_lobe_alpha, direct)
         with self._lock:
             self._pilot[key] = pmf
             if pmf is not None:
@@ -164,7 +167,7 @@ class Renderer:
             params.specular_depth, roulette=roulette and params.max_depth < 0,
             glossy_split_alpha=params.filter_glossy_alpha, lobe_alpha=params.vpl_lobe_alpha,
             portals=None if pilot else self.portals(params, view),
-            emitter_pmf=None if pilot or direct == 0 else self.emitter_pmf(params, view))
+            emitter_pmf=None if pilot else self.emitter_pmf(params, view))
 
     def _set_sizes(self, params: Params) -> tuple[int, int, int]:
         direct = params.direct_vpls

@@ -13,7 +13,7 @@ import numpy as np
 
 from igi.common import bsdf
 from igi.common.geometry import Geometry
-from igi.common.lights import VPL_SPOT, VPL_SURFACE, LightSampler, to_local, to_world
+from igi.common.lights import VPL_SPOT, VPL_SURFACE, LightSampler, PointSamples, to_local, to_world
 from igi.common.scene import NULL, SPECULAR_KINDS, Scene, kind_in
 from igi.common.sobol_stream import SobolStream
 from igi.common.sobol_stream import rng as make_rng
@@ -88,14 +88,7 @@ def build_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: int,
     parts = []
     if direct_vpls > 0:
         u = stream.padded(2 * k, direct_vpls, BLOCK, DIRECT_DIMS)
-        s = lights.sample_points(u, emitter_pmf)
-        m = len(s.kind)
-        extra = np.zeros((m, 3))
-        for j in np.nonzero(s.kind == VPL_SPOT)[0]:
-            e = scene.emitters[s.emitter[j]]
-            extra[j] = (0.0, e.beam_width, e.cutoff_angle)
-        parts.append(VPLSet(s.kind, s.position, s.normal, s.normal.copy(), s.power / direct_vpls,
-                            np.zeros(m, np.int32), extra, None, True, s.pdf, direct_vpls, None, emitter_pmf))
+        parts.append(emitter_vpls(scene, lights.sample_points(u, emitter_pmf), direct_vpls, emitter_pmf))
     walks = walk_count(indirect_vpls, max_length)
     if walks > 0 and max_length > 0:
         length = MAX_WALK if roulette else max_length
@@ -109,6 +102,20 @@ def build_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: int,
         parts.append(_light_walks(scene, geom, lights, u, walks, length, max_length if roulette else None, rr,
                                   portals))
     return _concat(parts)
+
+
+def emitter_vpls(scene: Scene, s: PointSamples, count: int, emitter_pmf: np.ndarray | None = None,
+                 mis: bool = True) -> VPLSet:
+    """The VPLs of ``count`` emitter samples ``s`` (their power averaged over ``count``; spots
+    carry (_, beam, cutoff) degrees in wi_local). ``mis``: they take part in MIS against BSDF
+    rays (light_pdf, direct_count); False: plain point lights (scoring, not rendering)."""
+    m = len(s.kind)
+    extra = np.zeros((m, 3))
+    for j in np.nonzero(s.kind == VPL_SPOT)[0]:
+        e = scene.emitters[s.emitter[j]]
+        extra[j] = (0.0, e.beam_width, e.cutoff_angle)
+    return VPLSet(s.kind, s.position, s.normal, s.normal.copy(), s.power / count, np.zeros(m, np.int32), extra,
+                  None, True, s.pdf if mis else np.zeros(m), count if mis else 0, None, emitter_pmf)
 
 
 def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarray,

@@ -23,14 +23,14 @@ import numpy as np
 
 from igi.common.camera import camera_rays
 from igi.common.geometry import Geometry
-from igi.common.lights import VPL_SPOT, VPL_SURFACE, LightSampler
+from igi.common.lights import VPL_SURFACE, LightSampler
 from igi.common.scene import AREA, POINT, SPOT, Scene
 from igi.common.sobol_stream import rng as make_rng
 
 from .env_guide import ENV_SAMPLES, build_guide, guide_environment_samples, only_environment, single_environment
 from .portals import Portals, find_portals
 from .shading import contribution_per_vpl, trace_eye
-from .vpl import VPLSet, build_vpl_set, subset_vpls
+from .vpl import VPLSet, build_vpl_set, emitter_vpls, subset_vpls
 
 CAMERA_POINTS = 256  # eye paths per set that score the candidates
 EPSILON = 0.02  # lowest acceptance probability: VPLs the camera points miss stay possible
@@ -129,13 +129,7 @@ def view_emitter_pmf(scene: Scene, geom: Geometry, lights: LightSampler, view: V
     em = np.repeat(cand, per)
     u = make_rng(0, 0, "emitter scores").random((len(em), 2))
     u[:, 0] = (np.tile(np.arange(per), len(cand)) + u[:, 0]) / per  # stratified over each emitter
-    s = lights.points_on(em, u)
-    extra = np.zeros((len(em), 3))
-    for j in np.nonzero(s.kind == VPL_SPOT)[0]:
-        e = scene.emitters[em[j]]
-        extra[j] = (0.0, e.beam_width, e.cutoff_angle)
-    samples = VPLSet(s.kind, s.position, s.normal, s.normal.copy(), s.power / per, np.zeros(len(em), np.int32),
-                     extra, None, True, np.zeros(len(em)), 0)
+    samples = emitter_vpls(scene, lights.points_on(em, u), per, mis=False)
     phi = contribution_per_vpl(geom, end, samples, clamp_d2, max_depth, lobe_alpha)
     score = np.bincount(np.searchsorted(cand, em), weights=phi, minlength=len(cand))
     total = float(score.sum())
