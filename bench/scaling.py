@@ -334,7 +334,7 @@ def run_model(args, scene, params, results: dict, lasts: dict) -> dict:
             bg = p.get("background_cores") or 0.0
             # The other processes on this machine took `bg` cores during the run: our master and
             # workers shared what was left (processor sharing among themselves).
-            cfg = sm.Config(workers=p["workers"], width=w, height=h, interleave=n, task_pixels=tp,
+            cfg = sm.Config(workers=p["workers"], width=w, height=h, interleave=n, task_pixels=args.task_pixels,
                             frames=results["settings"]["frames"], warmup=0, network=sm.LOOPBACK,
                             shared_host_cores=max(0.05, cores - bg), master_cores=cores,
                             master_threads=parallel.threads(),
@@ -374,7 +374,9 @@ def run_model(args, scene, params, results: dict, lasts: dict) -> dict:
                 f"({(r.fps / p['fps'] - 1) * 100:+.0f}%; standalone calibration {standalone.fps:.3f})")
 
     workers = [int(x) for x in args.model_workers.split(",")]
-    kw = dict(master_cores=args.master_cores, master_threads=args.master_threads, interleave=n, task_pixels=tp)
+    # task_pixels None: the model cuts frames as the broker would for each worker count
+    kw = dict(master_cores=args.master_cores, master_threads=args.master_threads, interleave=n,
+              task_pixels=args.task_pixels)
     predictions, capacities = {}, {}
     for w, h in _parse_sizes(args.model_sizes):
         key = f"{w}x{h}"
@@ -510,7 +512,9 @@ def report(results: dict, model: dict, args) -> str:
       f"measured during every real run and given to the model), Python {m['python']}, numpy {m['numpy']}. "
       f"Scene `{Path(results['scene']).parent.name}`, interleave {st['params']['interleave']}, "
       f"{st['params'].get('direct_vpls')}+{st['params'].get('indirect_vpls')} VPLs, "
-      f"{st['params'].get('photons')} photons per set, tasks of ~{st['task_pixels'] or 4096} pixels.")
+      f"{st['params'].get('photons')} photons per set, "
+      + (f"tasks of ~{st['task_pixels']} pixels." if st['task_pixels'] else
+         "tasks sized per worker count by the broker's policy (`frame_assembly.task_pixels_for`)."))
     a("")
     a("## Calibration (measured in the same run, CPU time of one core)")
     a("")
@@ -690,7 +694,7 @@ def _findings(model: dict) -> str:
                    f"sets (or keeping sets across frames) are what scales.")
     if 256 in mv:
         out.append(f"- Past 64–128 workers at 640x480 a frame has too few tasks "
-                   f"({mv[256]['tasks_per_frame']} of ~4096 pixels) and the loop keeps 3 frames in flight: "
+                   f"({mv[256]['tasks_per_frame']} of ≥ 4096 pixels) and the loop keeps 3 frames in flight: "
                    f"{mv[256]['fps']:.1f} fps at 256 workers ({mv[256]['bottleneck']}). Smaller tasks or a deeper "
                    f"pipeline move that limit; the master's per-RESULT cost then matters more.")
     out.append("- Workers list their cached sets in a RESULT only when the list changed (issue 19), so the "

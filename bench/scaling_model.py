@@ -100,7 +100,7 @@ class Config:
     width: int = 640
     height: int = 480
     interleave: int = PARAM_BY_NAME["interleave"].default
-    task_pixels: int = 4096
+    task_pixels: int | None = None  # None: the broker's policy for these threads (task_pixels_for)
     threads_per_worker: int = 1
     credit_per_thread: int = 3
     pipeline: int = 3  # frames in flight (Broker.pipeline; 3 since issue 19: the set-aware policy
@@ -258,9 +258,11 @@ RESOURCES = ("workers", "master loop", "master finish", "master link", "worker l
 
 
 def _tiles(cfg: Config):
-    from igi.master.frame_assembly import task_tiles, tile_pixel_count
+    from igi.master.frame_assembly import task_pixels_for, task_tiles, tile_pixel_count
 
-    tiles = task_tiles(cfg.width, cfg.height, cfg.interleave, cfg.task_pixels)
+    tp = cfg.task_pixels or task_pixels_for(cfg.width * cfg.height, cfg.workers * cfg.threads_per_worker,
+                                            cfg.pipeline)
+    tiles = task_tiles(cfg.width, cfg.height, cfg.interleave, tp)
     out = []
     n = cfg.interleave
     for t in tiles:

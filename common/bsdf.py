@@ -150,6 +150,9 @@ def _material_tables(materials: list[Material]) -> dict:
     if rough.any():  # tables of every rough plastic of the list, computed once per process
         coat[rough] = coat_tables.rows(tables["alpha"][rough], tables["eta"][rough], tables["beck"][rough])
     tables["coat"] = coat
+    # materials with a texture to look up per point (gather runs per bounce: not recomputed there)
+    tables["textured"] = [i for i, mat in enumerate(materials)
+                          if mat.has_texture or not mat.specular_transmittance.is_constant]
     if len(_TABLES) > 16:
         _TABLES.clear()
     _TABLES[key] = (tuple(materials), tables)
@@ -181,7 +184,7 @@ def gather(materials: list[Material], mat_ids: np.ndarray, uv: np.ndarray | None
     spec_weight = t["spec_weight"][ids]
     coat = t["coat"][ids]
 
-    textured = [i for i, mat in enumerate(materials) if mat.has_texture or not mat.specular_transmittance.is_constant]
+    textured = t["textured"]
     if textured and n:
         uvs = np.zeros((n, 2), np.float64) if uv is None else np.asarray(uv)
         for i in textured:

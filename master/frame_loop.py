@@ -3,7 +3,8 @@
 Everything here runs on the broker's loop thread (``master/broker.py``), except
 :meth:`FrameLoop.alloc_frame`, which any thread may call.
 
-- A frame is cut into tasks (``frame_assembly.task_tiles``); their keys ``(frame, task)`` wait
+- A frame is cut into tasks (``frame_assembly.task_tiles``; by default as large as the render
+  threads connected allow, ``frame_assembly.task_pixels_for``); their keys ``(frame, task)`` wait
   in one queue, front first. Each task needs one VPL/photon set, key
   ``(scene_version, seed, k)``.
 - Dispatch asks the pure policy of ``master/scheduler.py`` (credit-based flow control,
@@ -34,7 +35,7 @@ from igi.common import protocol as P
 from igi.common.frame import FrameSpec
 
 from . import scheduler
-from .frame_assembly import FrameAssembler, task_tiles, tile_pixel_count
+from .frame_assembly import FrameAssembler, task_pixels_for, task_tiles, tile_pixel_count
 from .frames import Frame, FrameCancelled, FrameFailed, FrameResult, Task
 from .links import Links, Worker
 from .meters import Meters
@@ -48,11 +49,14 @@ MAX_TASK_FAILURES = 3  # a task that fails this often fails its frame
 class FrameLoop:
     """Open frames, the task queue and the dispatch/result cycle (see the module docstring)."""
 
-    def __init__(self, links: Links, scene: SceneState, *, task_pixels: int, task_timeout: float):
+    def __init__(self, links: Links, scene: SceneState, *, task_pixels: int | None, task_timeout: float,
+                 frames_in_flight: Callable[[], int] = lambda: 1):
         self.links = links
         self.scene = scene
         self.counters = links.counters  # shared with the links: one set of figures for stats()
-        self.task_pixels = int(task_pixels)
+        # None: sized per frame for the render threads connected (frame_assembly.task_pixels_for)
+        self.task_pixels = None if task_pixels is None else int(task_pixels)
+        self.frames_in_flight = frames_in_flight
         self.task_timeout = float(task_timeout)
         self.queue: collections.deque = collections.deque()  # (frame, task) keys, front first
         self.frames: collections.OrderedDict[int, Frame] = collections.OrderedDict()
@@ -80,7 +84,7 @@ class FrameLoop:
             fut.set_exception(e)
             return
         n = int(spec.params["interleave"])
-        tiles = task_tiles(spec.width, spec.height, n, self.task_pixels)
+        tiles = task_tiles(spec.width, spec.height, n, self.frame_task_pixels(spec.width * spec.height))
         tasks = {}
         for i, t in enumerate(tiles):
             tasks[i] = Task(spec.frame, i, t, (spec.scene_version, spec.seed, t.k))
@@ -88,6 +92,14 @@ class FrameLoop:
         self.frames[spec.frame] = Frame(spec, FrameAssembler(spec.width, spec.height, n), fut,
                                         tasks, len(tiles), time.monotonic(), stream_gen=stream_gen)
         self.dispatch()
+
+    def frame_task_pixels(self, pixels: int) -> int:
+        """Pixels per task of a new frame: the fixed size, or the policy's for the threads now."""
+        if self.task_pixels is not None:
+            return self.task_pixels
+        threads = sum(w.threads for w in self.links.workers.values()
+                      if not self.links.faults.quarantined(w.ident))
+        return task_pixels_for(pixels, threads, self.frames_in_flight())
 
     def _check_openable(self, spec: FrameSpec) -> None:
         if self.scene.hash is None:

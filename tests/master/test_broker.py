@@ -63,6 +63,33 @@ def test_credit_stale_and_duplicate_results(broker):
     a.close()
 
 
+def test_frames_are_cut_finer_as_render_threads_join():
+    """Task size follows the render threads connected (frame_assembly.task_pixels_for): one
+    thread gets a 640x480 frame in large tasks, 64 more threads get it in many small ones."""
+    b = Broker(mini_cornell(640, 480), bind="tcp://127.0.0.1:*", heartbeat=1.0).start()
+    workers = []
+    try:
+        def tasks_of_a_new_frame() -> int:
+            before = b.stats()["queued_tasks"]
+            b.submit_frame(b.frame_spec(0, IL3))  # nobody takes tasks: they stay queued
+            assert wait_until(lambda: b.stats()["queued_tasks"] > before, 5)
+            return b.stats()["queued_tasks"] - before
+
+        workers.append(FakeWorker(b.endpoint, "one", credit=1))
+        hello_ok(workers[-1])
+        workers[-1].tasks(1)  # its one slot: now busy
+        one = tasks_of_a_new_frame()
+        workers.append(FakeWorker(b.endpoint, "many", credit=1, threads=64))
+        hello_ok(workers[-1])
+        workers[-1].tasks(1)
+        many = tasks_of_a_new_frame()
+        assert many >= 3 * one
+    finally:
+        for w in workers:
+            w.close()
+        b.stop()
+
+
 def test_bye_puts_tasks_back_at_the_front(broker):
     a = FakeWorker(broker.endpoint, "a", credit=2)
     hello_ok(a)

@@ -7,7 +7,8 @@ import pytest
 from igi.common.frame import TileBuffers
 from igi.common.params import make_params, params_to_dict
 from igi.master.accumulation import Accumulator, accumulation_key, jitter_for, sequence_spec
-from igi.master.frame_assembly import FrameAssembler, task_tiles, tile_pixel_count
+from igi.master.frame_assembly import (LARGEST_TASK_PIXELS, SMALLEST_TASK_PIXELS, TASKS_PER_THREAD, FrameAssembler,
+                                       task_pixels_for, task_tiles, tile_pixel_count)
 
 
 @pytest.mark.parametrize("w,h,n,px", [(64, 48, 3, 4096), (65, 47, 3, 50), (7, 5, 4, 3), (2, 2, 3, 10), (640, 480, 3, 4096)])
@@ -18,6 +19,21 @@ def test_tiles_cover_every_pixel_once(w, h, n, px):
         assert len(xs) == tile_pixel_count(t, n, w, h) > 0
         seen[ys, xs] += 1
     assert (seen == 1).all()
+
+
+@pytest.mark.parametrize("w,h", [(640, 480), (1920, 1080), (320, 240)])
+def test_task_size_is_the_largest_that_keeps_every_thread_supplied(w, h):
+    """Few threads: the largest tasks (fewest per-bounce overheads); many: smaller, so the frames
+    in flight still hold TASKS_PER_THREAD tasks per thread; never below the smallest size."""
+    sizes = [task_pixels_for(w * h, t, 3) for t in range(1, 1000)]
+    assert sizes[0] == LARGEST_TASK_PIXELS and sizes[-1] == SMALLEST_TASK_PIXELS
+    assert all(b <= a for a, b in zip(sizes, sizes[1:]))  # more threads: never larger tasks
+    for threads, px in enumerate(sizes, 1):
+        tasks = len(task_tiles(w, h, 5, px))
+        if px > SMALLEST_TASK_PIXELS:  # the policy chose it: the open frames supply every thread
+            assert 3 * tasks >= TASKS_PER_THREAD * threads * 0.9
+    # fewer frames in flight: each frame is cut finer
+    assert task_pixels_for(640 * 480, 16, 1) < task_pixels_for(640 * 480, 16, 3)
 
 
 def test_assembler_scatters_and_completes():

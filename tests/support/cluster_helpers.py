@@ -50,18 +50,19 @@ def wait_until(pred, timeout: float = 30.0, step: float = 0.05) -> bool:
 class FakeWorker:
     """A DEALER speaking the protocol by hand: for precise broker tests without a renderer."""
 
-    def __init__(self, endpoint: str, name: str = "fake", credit: int = 3, scenes=(), ctx=None):
+    def __init__(self, endpoint: str, name: str = "fake", credit: int = 3, scenes=(), ctx=None,
+                 threads: int = 1):
         self.ctx = ctx or zmq.Context.instance()
         self.sock = self.ctx.socket(zmq.DEALER)
         self.sock.setsockopt(zmq.IDENTITY, f"{name}/{os.urandom(3).hex()}".encode())
         self.sock.setsockopt(zmq.LINGER, 0)
         self.sock.connect(endpoint)
-        self.name, self.credit = name, credit
+        self.name, self.credit, self.threads = name, credit, threads
         self.frames: dict[int, dict] = {}
         self.hello(scenes)
 
     def hello(self, scenes=()):
-        self.send(P.HELLO, {"name": self.name, "host": "test", "pid": os.getpid(), "threads": 1,
+        self.send(P.HELLO, {"name": self.name, "host": "test", "pid": os.getpid(), "threads": self.threads,
                             "credit": self.credit, "scenes": list(scenes)})
 
     def send(self, kind, body, **kw):
