@@ -334,7 +334,7 @@ def run_model(args, scene, params, results: dict, lasts: dict) -> dict:
             bg = p.get("background_cores") or 0.0
             # The other processes on this machine took `bg` cores during the run: our master and
             # workers shared what was left (processor sharing among themselves).
-            cfg = sm.Config(workers=p["workers"], width=w, height=h, interleave=n, task_pixels=args.task_pixels,
+            cfg = sm.Config(workers=p["workers"], width=w, height=h, interleave=n, task_pixels=tp,
                             frames=results["settings"]["frames"], warmup=0, network=sm.LOOPBACK,
                             shared_host_cores=max(0.05, cores - bg), master_cores=cores,
                             master_threads=parallel.threads(),
@@ -374,9 +374,9 @@ def run_model(args, scene, params, results: dict, lasts: dict) -> dict:
                 f"({(r.fps / p['fps'] - 1) * 100:+.0f}%; standalone calibration {standalone.fps:.3f})")
 
     workers = [int(x) for x in args.model_workers.split(",")]
-    # task_pixels None: the model cuts frames as the broker would for each worker count
+    # as the measured broker: its default size unless --task-pixels says otherwise
     kw = dict(master_cores=args.master_cores, master_threads=args.master_threads, interleave=n,
-              task_pixels=args.task_pixels)
+              task_pixels=tp)
     predictions, capacities = {}, {}
     for w, h in _parse_sizes(args.model_sizes):
         key = f"{w}x{h}"
@@ -496,6 +496,8 @@ def _baseline(rev, costs, lasts, src_key, n, pdict, tp, workers, kw, sizes) -> d
 
 def report(results: dict, model: dict, args) -> str:
     """docs/scaling.md: calibration, model vs measured, master throughput, predictions."""
+    from igi.master.frame_assembly import DEFAULT_TASK_PIXELS
+
     m = results["machine"]
     st = results["settings"]
     cal = model["calibration"]
@@ -512,9 +514,7 @@ def report(results: dict, model: dict, args) -> str:
       f"measured during every real run and given to the model), Python {m['python']}, numpy {m['numpy']}. "
       f"Scene `{Path(results['scene']).parent.name}`, interleave {st['params']['interleave']}, "
       f"{st['params'].get('direct_vpls')}+{st['params'].get('indirect_vpls')} VPLs, "
-      f"{st['params'].get('photons')} photons per set, "
-      + (f"tasks of ~{st['task_pixels']} pixels." if st['task_pixels'] else
-         "tasks sized per worker count by the broker's policy (`frame_assembly.task_pixels_for`)."))
+      f"{st['params'].get('photons')} photons per set, tasks of ~{st['task_pixels'] or DEFAULT_TASK_PIXELS} pixels.")
     a("")
     a("## Calibration (measured in the same run, CPU time of one core)")
     a("")

@@ -100,7 +100,7 @@ class Config:
     width: int = 640
     height: int = 480
     interleave: int = PARAM_BY_NAME["interleave"].default
-    task_pixels: int | None = None  # None: the broker's policy for these threads (task_pixels_for)
+    task_pixels: int | None = 16384  # the broker's default; None: its opt-in policy (task_pixels_for)
     threads_per_worker: int = 1
     credit_per_thread: int = 3
     pipeline: int = 3  # frames in flight (Broker.pipeline; 3 since issue 19: the set-aware policy

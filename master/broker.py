@@ -25,9 +25,10 @@ keep flowing while the master merges.
 
 API (thread-safe)
 -----------------
-    Broker(scene=None, bind="tcp://127.0.0.1:5555", heartbeat=1.0, liveness=3, task_pixels=None,
+    Broker(scene=None, bind="tcp://127.0.0.1:5555", heartbeat=1.0, liveness=3, task_pixels=16384,
            pipeline=3, task_timeout=60, configure_socket=None)   # configure_socket(sock): before bind;
-           # task_pixels None: sized per frame for the connected threads (frame_assembly.task_pixels_for)
+           # task_pixels None: sized per frame for the connected threads (frame_assembly.task_pixels_for;
+           # the image then depends on the cluster's size, so it is opt-in)
     .start() -> Broker / .stop() / context manager; .endpoint (the bound address)
     .set_scene(scene) / .apply_edit(edit) -> version / .scene / .scene_version
     .submit_frame(spec) -> Future[FrameResult];  .render_frame(spec) -> FrameResult
@@ -56,6 +57,7 @@ from igi.common.scene import Scene
 
 from . import scene_state
 from .accumulation import Accumulator, accumulation_key, sequence_spec
+from .frame_assembly import DEFAULT_TASK_PIXELS
 from .frame_loop import MAX_TASK_FAILURES, FrameLoop
 from .frames import FrameCancelled, FrameFailed, FrameResult, params_dict
 from .links import Links
@@ -105,7 +107,7 @@ class Broker:
 
     def __init__(self, scene: Scene | None = None, bind: str = DEFAULT_BIND, *,
                  heartbeat: float = P.HEARTBEAT_INTERVAL, liveness: int = P.HEARTBEAT_LIVENESS,
-                 task_pixels: int | None = None, pipeline: int = 3,
+                 task_pixels: int | None = DEFAULT_TASK_PIXELS, pipeline: int = 3,
                  task_timeout: float = 60.0, context: zmq.Context | None = None,
                  configure_socket: Callable[[zmq.Socket], None] | None = None):
         self._scene_state = SceneState()

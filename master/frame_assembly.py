@@ -36,12 +36,14 @@ from igi.master.kernels.discontinuity import finish_sub
 # (measured 640x480: 16384 against 4096 pixels, one process: 8-11% less CPU a frame on
 # grey-white-room and cornell-box-glossy, 11% on modern-hall; 2 workers on cornell-box-sphere
 # 1.49 -> 1.73 frames/s); but a frame must still be cut into enough tasks for every render
-# thread. Hence: the largest tasks that leave each thread TASKS_PER_THREAD tasks among the
-# frames in flight, never below SMALLEST_TASK_PIXELS.
+# thread. The default is one fixed size, so a frame's image never depends on how many workers
+# rendered it (DESIGN.md); ``Broker(task_pixels=None)`` opts in to task_pixels_for, the largest
+# tasks that leave each thread TASKS_PER_THREAD tasks among the frames in flight (clusters past
+# ~32 render threads, where 16384-pixel tasks run out: model at 64 workers 40.7 vs 51.8 fps).
 SMALLEST_TASK_PIXELS = 4096  # ~20-50 ms of worker time at 22 VPLs on this machine's cores
 LARGEST_TASK_PIXELS = 16384  # a whole 5x5 sub-image at 640x480
 TASKS_PER_THREAD = 4  # tasks per render thread among the frames in flight (balance, set affinity)
-DEFAULT_TASK_PIXELS = LARGEST_TASK_PIXELS  # one render thread (``render_local``)
+DEFAULT_TASK_PIXELS = LARGEST_TASK_PIXELS  # the broker's and render_local's fixed size
 
 
 def task_pixels_for(pixels: int, threads: int, frames_in_flight: int) -> int:

@@ -3,8 +3,9 @@
 Everything here runs on the broker's loop thread (``master/broker.py``), except
 :meth:`FrameLoop.alloc_frame`, which any thread may call.
 
-- A frame is cut into tasks (``frame_assembly.task_tiles``; by default as large as the render
-  threads connected allow, ``frame_assembly.task_pixels_for``); their keys ``(frame, task)`` wait
+- A frame is cut into tasks (``frame_assembly.task_tiles``; of a fixed size, or with
+  ``task_pixels=None`` as large as the render threads connected allow,
+  ``frame_assembly.task_pixels_for``); their keys ``(frame, task)`` wait
   in one queue, front first. Each task needs one VPL/photon set, key
   ``(scene_version, seed, k)``.
 - Dispatch asks the pure policy of ``master/scheduler.py`` (credit-based flow control,

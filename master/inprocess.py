@@ -19,7 +19,7 @@ from igi.common.params import make_params, params_to_dict
 from igi.common.scene import Scene
 
 from .accumulation import Accumulator, accumulation_key, sequence_spec
-from .frame_assembly import FrameAssembler, task_pixels_for, task_tiles
+from .frame_assembly import DEFAULT_TASK_PIXELS, FrameAssembler, task_tiles
 
 
 def roundtrip(buffers, enabled: bool = True):
@@ -34,7 +34,7 @@ def roundtrip(buffers, enabled: bool = True):
 def render_local(scene: Scene, params=None, frames: int = 1, camera=None,
                  on_frame: Callable[[int, np.ndarray], object] | None = None, *,
                  width: int | None = None, height: int | None = None, renderer=None,
-                 task_pixels: int | None = None, quantize: bool = True,
+                 task_pixels: int = DEFAULT_TASK_PIXELS, quantize: bool = True,
                  scene_version: int = 0) -> np.ndarray:
     """Render ``frames`` frames in this process and return the image (H, W, 3) float32, linear.
 
@@ -54,8 +54,7 @@ def render_local(scene: Scene, params=None, frames: int = 1, camera=None,
         renderer = Renderer(scene, scene_version=scene_version)
     cam, fov_x, w, h = resolve_camera(scene, camera, width, height)
     n = params.interleave
-    # None: the broker's policy for one render thread (frame_assembly.task_pixels_for)
-    tiles = task_tiles(w, h, n, task_pixels or task_pixels_for(w * h, 1, 1))
+    tiles = task_tiles(w, h, n, task_pixels)
     acc = Accumulator()
     image = None
     for i in range(max(1, int(frames))):

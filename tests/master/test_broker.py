@@ -64,9 +64,10 @@ def test_credit_stale_and_duplicate_results(broker):
 
 
 def test_frames_are_cut_finer_as_render_threads_join():
-    """Task size follows the render threads connected (frame_assembly.task_pixels_for): one
-    thread gets a 640x480 frame in large tasks, 64 more threads get it in many small ones."""
-    b = Broker(mini_cornell(640, 480), bind="tcp://127.0.0.1:*", heartbeat=1.0).start()
+    """With task_pixels=None the task size follows the render threads connected
+    (frame_assembly.task_pixels_for): one thread gets a 640x480 frame in large tasks, 64 more
+    threads get it in many small ones."""
+    b = Broker(mini_cornell(640, 480), bind="tcp://127.0.0.1:*", heartbeat=1.0, task_pixels=None).start()
     workers = []
     try:
         def tasks_of_a_new_frame() -> int:
