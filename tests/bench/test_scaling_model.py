@@ -296,8 +296,8 @@ def test_set_aware_policy_builds_few_sets_and_scales_at_16_workers():
 
 def test_a_deeper_pipeline_builds_fewer_sets():
     c = _calibrated_like()
-    two = simulate(c, Config(workers=16, pipeline=2))
-    three = simulate(c, Config(workers=16, pipeline=3))
+    two = simulate(c, Config(workers=16, pipeline=2, task_pixels=4096))
+    three = simulate(c, Config(workers=16, pipeline=3, task_pixels=4096))
     assert three.set_builds_per_frame <= two.set_builds_per_frame
     assert three.fps >= two.fps * (1 - 1e-9)
 
