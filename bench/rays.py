@@ -2,8 +2,10 @@
 where a frame's worker time goes, and what start-up costs.
 
 Per scene: one frame is rendered through ``Renderer.render_tile`` (the first frame of a fresh
-renderer: sets are built here, ``first_frame_seconds``), then ``--frames`` steady frames with
-the Geometry recording every ray batch; the batches are then replayed on the bare Embree scene.
+renderer: sets are built here, ``first_frame_seconds``), then ``--frames`` steady frames (the
+same seed: the sets are cached, as while the camera moves) with the Geometry recording every
+ray batch, then ``--frames`` accumulating frames (new seeds: every set rebuilt,
+``set_share_accumulating`` is the sets' share of such a frame); the batches are then replayed on the bare Embree scene.
 The ratio says how much of the pipeline's time is ray tracing (1.0 would be a renderer that is
 all Embree).
 
@@ -156,12 +158,21 @@ def measure(scene_path: str, width: int | None = None, height: int | None = None
     r.geom.record = []
     steady = [_frame(r, spec, tiles) for _ in range(frames)]
     r.geom.time_embree(False)
+    counted = dict(r.geom.counters)  # the steady frames' rays (the accumulating ones add theirs)
+    # Accumulating frames (camera still): each has its own seed, so every set is rebuilt.
+    r.geom.time_embree(True)
+    record, r.geom.record = r.geom.record, None
+    acc = [_frame(r, sequence_spec(i, i, cam, fov_x, w, h, pd), tiles) for i in range(1, frames + 1)]
+    r.geom.record = record
+    r.geom.time_embree(False)
+    acc_frame = _scaled(_sum_frames(acc), 1.0 / max(1, frames))
+    set_s = sum(acc_frame["stages"].get(n, {}).get("seconds", 0.0) for n in ("VPL set", "photon set"))
     pipeline = sum(f["render_seconds"] for f in steady)
     batches = r.geom.record
     r.geom.record = None
     raw = r.geom.replay(batches)
-    prim = r.geom.counters["intersect_rays"]
-    shadow = r.geom.counters["occluded_rays"]
+    prim = counted["intersect_rays"]
+    shadow = counted["occluded_rays"]
     raw_prim = r.geom.replay([b for b in batches if b[0] == "intersect"])
     raw_shadow = r.geom.replay([b for b in batches if b[0] == "occluded"])
     per_frame = _scaled(_sum_frames(steady), 1.0 / max(1, frames))
@@ -181,7 +192,10 @@ def measure(scene_path: str, width: int | None = None, height: int | None = None
         "frame_seconds": pipeline / frames,
         "renderer_init_seconds": init_s,
         "first_frame_seconds": first["render_seconds"] + first["encode_seconds"],
-        "stages": {"first_frame": first, "steady_frame": per_frame},
+        "stages": {"first_frame": first, "steady_frame": per_frame, "accumulating_frame": acc_frame},
+        # what rebuilding the sets costs while frames accumulate (issue 16: < 10% of a task)
+        "accumulating_frame_seconds": acc_frame["render_seconds"] + acc_frame["encode_seconds"],
+        "set_share_accumulating": set_s / max(acc_frame["render_seconds"], 1e-12),
         "sets_built": r.stats["sets_built"],
     }
     if out:
@@ -269,6 +283,10 @@ def markdown(doc: dict) -> list[str]:
                      f"{r['raw_rays_per_s'] / 1e6:.2f}", f"{r['pipeline_over_raw']:.2f}"])
     lines += md_table(["scene", "size", "frame s", "first frame s", "pipeline Mrays/s", "raw Mrays/s",
                        "pipeline/raw"], rows)
+    lines.append("")
+    lines.append("Accumulating (camera still, every set rebuilt): " + "; ".join(
+        f"{n} {r['accumulating_frame_seconds']:.2f} s a frame, sets {r['set_share_accumulating']:.0%}"
+        for n, r in doc["scenes"].items() if "accumulating_frame_seconds" in r) + ".")
     lines.append("")
     names = list(doc["scenes"])
     stage_names = list(STAGES) + ["buffers", "encode"]

@@ -188,8 +188,9 @@ class LightSampler:
         return np.minimum(idx, len(cdf) - 1)
 
     def _area_points(self, em: np.ndarray, u: np.ndarray):
-        pos = np.zeros((len(em), 3))
-        nrm = np.zeros((len(em), 3))
+        tri = np.zeros(len(em), np.int64)
+        ur = np.zeros((len(em), 2))
+        ur[:, 1] = u[:, 1]
         for i in np.unique(em):
             sel = em == i
             cdf = self.area_cdf[i]
@@ -197,11 +198,9 @@ class LightSampler:
             # Reuse the fraction of u0 inside the chosen triangle's CDF interval: stays stratified.
             lo = np.where(j > 0, cdf[np.maximum(j - 1, 0)], 0.0)
             w = np.maximum(cdf[j] - lo, 1e-300)
-            ur = np.clip((u[sel, 0] - lo) / w, 0, 1 - 1e-12)
-            tri = self.area_tris[i][j]
-            p, n, _ = self.geom.sample_triangles(tri, np.stack([ur, u[sel, 1]], axis=1))
-            pos[sel] = p
-            nrm[sel] = n
+            ur[sel, 0] = np.clip((u[sel, 0] - lo) / w, 0, 1 - 1e-12)
+            tri[sel] = self.area_tris[i][j]
+        pos, nrm, _ = self.geom.sample_triangles(tri, ur)  # all emitters' points in one call
         return pos, nrm
 
     def sample_points(self, u: np.ndarray, pmf: np.ndarray | None = None) -> PointSamples:

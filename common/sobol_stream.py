@@ -175,8 +175,8 @@ class SobolStream:
 
         Dimensions are cut into groups of ``group_dims``; group g is an independent
         scrambled Sobol' instance of its own, drawn over the same rows as :meth:`block`.
-        The rows of every group but the first are shuffled (a permutation seeded by
-        (seed, g, k, count)), which pairs the groups at random: each group's projection
+        The rows of every group but the first are shuffled (successive permutations of one
+        generator seeded by (seed, k, count)), which pairs the groups at random: each group's projection
         keeps the stratification of a Sobol' prefix, while the whole point set is a
         valid randomized sample of the high-dimensional cube.
         """
@@ -184,11 +184,13 @@ class SobolStream:
         if total_dims < 1 or group_dims < 1:
             raise ValueError(f"total_dims and group_dims must be >= 1, got {total_dims}, {group_dims}")
         out = np.empty((count, total_dims), dtype=np.float64)
+        shuffle = None  # one generator per block for all its groups' shuffles (they are cheap to draw, not to seed)
         for g, d0 in enumerate(range(0, total_dims, group_dims)):
             d = min(group_dims, total_dims - d0)
             pts = _draw(_scrambling(d, self.seed, _TAG_GROUP, g), k * block_size, count)
             if g:
-                pts = pts[rng(self.seed, _TAG_PERM, g, k, count).permutation(count)]
+                shuffle = shuffle or rng(self.seed, _TAG_PERM, k, count)
+                pts = pts[shuffle.permutation(count)]
             out[:, d0:d0 + d] = pts
         return out
 

@@ -277,16 +277,17 @@ class ErrorTracker:
 
 def _render_frames(args, scene, params, on_frame):
     if args.workers == 0:
+        from igi.master.frame_assembly import DEFAULT_TASK_PIXELS
         from igi.master.inprocess import render_local
 
         image = render_local(scene, params, frames=args.frames, width=args.width, height=args.height,
-                             on_frame=on_frame)
+                             on_frame=on_frame, task_pixels=args.task_pixels or DEFAULT_TASK_PIXELS)
     else:
         from igi.master.broker import Broker
 
         from igi.master.broker import FrameCancelled
 
-        with Broker(scene, bind="tcp://127.0.0.1:*") as broker:
+        with Broker(scene, bind="tcp://127.0.0.1:*", task_pixels=args.task_pixels) as broker:
             workers = LocalWorkers(broker.endpoint, args.workers, threads=max(1, args.threads))
             done, dead = threading.Event(), threading.Event()
 
@@ -348,7 +349,7 @@ def _serve(args, scene, local_workers: int) -> int:
         except (OSError, ValueError) as e:
             raise UsageError(f"CURVE keys in {keys}: {e}") from None
     try:
-        broker = Broker(scene, bind=args.bind, configure_socket=curve).start()
+        broker = Broker(scene, bind=args.bind, configure_socket=curve, task_pixels=args.task_pixels).start()
     except OSError as e:
         raise UsageError(str(e)) from None
     workers = None
@@ -487,6 +488,29 @@ def _add_render_params(p: argparse.ArgumentParser) -> None:
                         "and '..', inside DIR")
 
 
+def _task_pixels(text: str) -> int | None:
+    """--task-pixels: a pixel count, or 'auto' (None: sized per frame for the threads connected)."""
+    if text.strip().lower() == "auto":
+        return None
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a pixel count or 'auto', got {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"task pixels must be >= 1, got {n}")
+    return n
+
+
+def _add_task_pixels(p: argparse.ArgumentParser) -> None:
+    from igi.master.frame_assembly import DEFAULT_TASK_PIXELS, LARGEST_TASK_PIXELS, SMALLEST_TASK_PIXELS
+
+    p.add_argument("--task-pixels", type=_task_pixels, default=DEFAULT_TASK_PIXELS, metavar="N|auto",
+                   help=f"pixels per task (default {DEFAULT_TASK_PIXELS}: a frame's image never depends on "
+                        f"the cluster); 'auto': as large as still gives every connected render thread work "
+                        f"({SMALLEST_TASK_PIXELS}-{LARGEST_TASK_PIXELS}), for clusters past ~32 threads, "
+                        f"where the image then depends on the cluster's size")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from igi.master.broker import DEFAULT_BIND
 
@@ -513,6 +537,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="render threads per local worker process (they share one scene and set cache)")
     r.add_argument("--direct-only", action="store_true", help="direct light only (same as --max-depth 2)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    _add_task_pixels(r)
     _add_render_params(r)
     r.set_defaults(func=cmd_render)
 
@@ -525,6 +550,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "anything but loopback exposes the master to the network)")
     m.add_argument("--http", default=None, help="viewer address HOST:PORT (when the viewer is installed)")
     m.add_argument("--stats-interval", type=float, default=5.0, help="seconds between stats lines (0: none)")
+    _add_task_pixels(m)
     _add_render_params(m)
     m.set_defaults(func=cmd_master)
 
@@ -555,6 +581,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--height", type=int, default=None, help="stream height (default: the scene's)")
     s.add_argument("--stats-interval", type=float, default=5.0, help="seconds between stats lines (0: none)")
     s.add_argument("--pub", default=None, help="ZeroMQ frame feed (default tcp://127.0.0.1:5556; none: off)")
+    _add_task_pixels(s)
     _add_render_params(s)
     s.set_defaults(func=cmd_serve)
 

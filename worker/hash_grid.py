@@ -16,6 +16,9 @@ from .kernels import photon_query
 # precision long before); photons there are refused, queries there simply find nothing.
 _CELL_LIMIT = float(2 ** 60)
 _RADIX_LIMIT = 2 ** 62
+# Key spaces up to this many cells keep an occupancy bitmap (at most 2 MiB a set) that lets a
+# query skip the binary search for empty cells.
+_BITMAP_CELLS = 2 ** 24
 
 KERNELS = ("constant", "cone", "epanechnikov")
 
@@ -50,6 +53,7 @@ class HashGrid:
             self._starts = np.empty(0, np.int64)
             self._counts = np.empty(0, np.int64)
             self._order = np.empty(0, np.int64)
+            self._occupied = np.empty(0, np.uint8)
             return
         cells = _cells(pts, self._inv)
         if np.any(cells[:, 0] == np.iinfo(np.int64).min):
@@ -60,6 +64,11 @@ class HashGrid:
         self._order = np.argsort(keys, kind="stable")
         self._keys, self._starts, self._counts = np.unique(
             keys[self._order], return_index=True, return_counts=True)
+        self._occupied = np.empty(0, np.uint8)
+        if self._axes is None and int(np.prod(self._ext.astype(np.float64))) <= _BITMAP_CELLS:
+            cells_total = int(np.prod(self._ext))
+            self._occupied = np.zeros((cells_total + 7) // 8, np.uint8)
+            np.bitwise_or.at(self._occupied, self._keys >> 3, (1 << (self._keys & 7)).astype(np.uint8))
 
     # -- collision-free cell keys ------------------------------------------------------
     def _build_key_space(self, cells: np.ndarray) -> None:
@@ -112,7 +121,8 @@ class HashGrid:
         r = self.radius
         if self._axes is None:  # the usual mixed-radix key space: the compiled query
             return photon_query.query(q, r, self._inv, self._origin, np.asarray(self._ext, np.int64),
-                                      self._keys, self._starts, self._counts, self._order, self.points)
+                                      self._keys, self._starts, self._counts, self._order, self.points,
+                                      self._occupied)
         return self._query_numpy(q)
 
     def _query_numpy(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

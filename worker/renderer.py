@@ -28,7 +28,8 @@ from .indirect_caustics import lensed_reflection
 from .shading import LightMIS, bsdf_direct, clamp_compensation, gather_vpls, trace_bsdf_rays, trace_eye
 from .vpl import VPLSet, build_vpl_set
 from .portals import Portals
-from .vpl_importance import AUTO_ESS, View, build_importance_vpl_set, view_emitter_pmf, view_portals
+from .vpl_importance import (AUTO_ESS, CameraPool, View, build_importance_vpl_set, camera_pool, view_emitter_pmf,
+                             view_portals)
 
 DEFAULT_CLAMP = 1e-3  # minimum squared VPL distance, as a fraction of the squared scene diagonal
 
@@ -66,6 +67,9 @@ class _StageTimer:
 _NO_STAGE = contextlib.nullcontext()
 
 
+MAX_VIEW_ENTRIES = 32  # per-view results kept (4 per view: the last 8 views)
+
+
 class Renderer:
     """Owns the scene's geometry and light sampler, and caches per-set preprocessing."""
 
@@ -91,12 +95,20 @@ class Renderer:
         self._lock = threading.Lock()
         self.stats = {"sets_built": 0, "set_hits": 0}
         self._specular_targets = specular_targets(scene, self.geom)  # mirror/glass bounding spheres
-        self._pilot: dict[tuple, object] = {}  # per view: importance sampling on? (pilot) and the portals
+        # Per view: importance sampling on? (pilot), the camera pool, the portals, the emitter
+        # choice; the most recent views only (a drag visits a new view every frame).
+        self._pilot: OrderedDict[tuple, object] = OrderedDict()
         self.importance_notes = ""
         self.portal_notes = ""
         self.emitter_notes = ""
 
     # -- per-set preprocessing --------------------------------------------------------------
+    def _remember(self, key: tuple, value) -> None:
+        """Keep a per-view result (call with the lock held), dropping the oldest views'."""
+        self._pilot[key] = value
+        while len(self._pilot) > MAX_VIEW_ENTRIES:
+            self._pilot.popitem(last=False)
+
     def importance_on(self, params: Params, view: View | None) -> bool:
         """Importance-sample this view's VPLs? Auto: a pilot candidate set (seed 0, k 0) scored
         on the view; on when its contributions are uneven (few candidates carry the light)."""
@@ -113,11 +125,25 @@ class Renderer:
             _, st = self._build_importance(0, 0, params, view, False, pilot=True)
             hit = st.ess < AUTO_ESS
             with self._lock:
-                self._pilot[key] = hit
+                self._remember(key, hit)
                 self.importance_notes = (f"{'ON ' if hit else 'off'} vpl_importance      pilot: effective "
                                          f"share {st.ess:.2f} of {st.candidates} candidate VPLs "
                                          f"(on below {AUTO_ESS})")
         return hit
+
+    def camera_pool(self, params: Params, view: View) -> CameraPool:
+        """The view's camera points (vpl_importance.camera_pool), traced once per view: the
+        pilot, the portals, the emitter choice and every set's scoring draw from them."""
+        key = ("camera pool", self.scene_version, view.key, params.max_depth, params.specular_depth,
+               params.filter_glossy_alpha)
+        with self._lock:
+            if key in self._pilot:
+                return self._pilot[key]
+        pool = camera_pool(self.scene, self.geom, self.lights, view, params.max_depth, params.specular_depth,
+                           params.filter_glossy_alpha)
+        with self._lock:
+            self._remember(key, pool)
+        return pool
 
     def portals(self, params: Params, view: View) -> Portals | None:
         """The view's portals for light walks from the sky (worker.portals), found once per view."""
@@ -129,9 +155,9 @@ class Renderer:
             if key in self._pilot:
                 return self._pilot[key]
         found = view_portals(self.scene, self.geom, self.lights, view, params.max_depth, params.specular_depth,
-                             params.filter_glossy_alpha)
+                             params.filter_glossy_alpha, self.camera_pool(params, view))
         with self._lock:
-            self._pilot[key] = found
+            self._remember(key, found)
             if found is not None:
                 self.portal_notes = (f"ON  vpl_portals         sky enters the view through {len(found)} "
                                      f"opening(s): half the sky's light walks start there")
@@ -150,9 +176,9 @@ class Renderer:
                 return self._pilot[key]
         pmf = view_emitter_pmf(self.scene, self.geom, self.lights, view, params.max_depth, params.specular_depth,
                                clamp_distance2(params, self.geom.diagonal), params.filter_glossy_alpha,
-                               params.vpl_lobe_alpha, direct)
+                               params.vpl_lobe_alpha, direct, self.camera_pool(params, view))
         with self._lock:
-            self._pilot[key] = pmf
+            self._remember(key, pmf)
             if pmf is not None:
                 moved = 0.5 * float(np.abs(pmf - self.lights.pmf).sum())
                 self.emitter_notes = (f"ON  emitter choice      {len(self.scene.emitters)} emitters scored on the "
@@ -167,7 +193,7 @@ class Renderer:
             params.specular_depth, roulette=roulette and params.max_depth < 0,
             glossy_split_alpha=params.filter_glossy_alpha, lobe_alpha=params.vpl_lobe_alpha,
             portals=None if pilot else self.portals(params, view),
-            emitter_pmf=None if pilot else self.emitter_pmf(params, view))
+            emitter_pmf=None if pilot else self.emitter_pmf(params, view), pool=self.camera_pool(params, view))
 
     def _set_sizes(self, params: Params) -> tuple[int, int, int]:
         direct = params.direct_vpls

@@ -352,9 +352,15 @@ def _chunks(e: int, m: int):
 
 
 def contribution_per_vpl(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
-                         max_depth: int, lobe_alpha: float = 0.0) -> np.ndarray:
+                         max_depth: int, lobe_alpha: float = 0.0, rng: np.random.Generator | None = None,
+                         visibility_samples: int = 0) -> np.ndarray:
     """(M,) luminance each VPL sends toward the eye through the end points (radiance ×
-    path throughput, summed over end points): the importance of a VPL to this view."""
+    path throughput, summed over end points): the importance of a VPL to this view.
+
+    ``visibility_samples`` > 0 (with ``rng``): an unbiased estimate from that many of each
+    VPL's pairs, drawn in proportion to their unshadowed Lambertian terms (systematic
+    sampling): only the drawn pairs get a shadow ray and a BSDF evaluation, a fixed cost per
+    VPL instead of one per end point."""
     e, m = len(end), len(vpls)
     out = np.zeros(m)
     if e == 0 or m == 0:
@@ -362,14 +368,56 @@ def contribution_per_vpl(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2:
     albedo = bsdf.albedo(end.sp, end.wi).astype(np.float64)
     cols = _VPLColumns(vpls, geom, clamp_d2, lobe_alpha=lobe_alpha)
     receivers = _Receivers(end, albedo)
+    sampled = visibility_samples > 0 and rng is not None
     for sl in _chunks(e, m):
-        pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, receivers)
-        rgb = cols.color[pj] * (albedo[sl][pi] * end.throughput[sl][pi])
-        if len(factor):
-            rgb = rgb * factor
-        lum = np.where(blocked, 0.0, luminance(rgb) * w)
-        out += np.bincount(pj, weights=np.nan_to_num(lum, nan=0.0, posinf=0.0, neginf=0.0), minlength=m)
+        if not sampled:
+            pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, receivers)
+            out += np.bincount(pj, weights=_pair_luminance(cols, albedo[sl], end.throughput[sl], pi, pj, w,
+                                                           blocked, factor), minlength=m)
+            continue
+        pi, pj, w, row, pl, o, d, t = _pair_rays(geom, end, sl, vpls, cols, max_depth)
+        plain = _pair_luminance(cols, albedo[sl], end.throughput[sl], pi, pj, w, np.zeros(len(pi), bool),
+                                np.zeros((0, 3)))
+        draw, share = _systematic_pairs(pj, plain, m, visibility_samples, rng)
+        if len(draw) == 0:
+            continue
+        u, inv = np.unique(draw, return_inverse=True)  # a heavy pair drawn twice is traced once
+        blocked = geom.occluded_local(o[u], d[u], t[u])
+        factor = _bsdf_factors(sl, cols, row, pi[u], pj[u], pl[u], d[u], blocked, receivers)
+        full = _pair_luminance(cols, albedo[sl], end.throughput[sl], pi[u], pj[u], w[u], blocked, factor)
+        ratio = np.divide(full, plain[u], out=np.zeros(len(u)), where=plain[u] > 0)
+        out += np.bincount(pj[draw], weights=share * ratio[inv], minlength=m)
     return out
+
+
+def _pair_luminance(cols: "_VPLColumns", albedo: np.ndarray, throughput: np.ndarray, pi: np.ndarray,
+                    pj: np.ndarray, w: np.ndarray, blocked: np.ndarray, factor: np.ndarray) -> np.ndarray:
+    """Luminance toward the eye of each pair (0 where blocked or not finite)."""
+    rgb = cols.color[pj] * (albedo[pi] * throughput[pi])
+    if len(factor):
+        rgb = rgb * factor
+    lum = np.where(blocked, 0.0, luminance(rgb) * w)
+    return np.maximum(np.nan_to_num(lum, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
+
+
+def _systematic_pairs(pj: np.ndarray, weight: np.ndarray, m: int, samples: int,
+                      rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """``samples`` pairs per column j drawn ∝ ``weight`` among j's pairs (one uniform per column,
+    evenly spaced draws): (pair indices, what each draw stands for: W_j / samples)."""
+    order = np.argsort(pj, kind="stable")
+    cs = np.cumsum(weight[order])
+    total = np.bincount(pj, weights=weight, minlength=m)
+    count = np.bincount(pj, minlength=m)
+    stop = np.cumsum(count)
+    start = stop - count
+    lit = np.nonzero(total > 0)[0]
+    if len(lit) == 0:
+        return np.zeros(0, np.int64), np.zeros(0)
+    base = np.where(start[lit] > 0, cs[np.maximum(start[lit] - 1, 0)], 0.0)
+    at = base[:, None] + (rng.random(len(lit))[:, None] + np.arange(samples)[None, :]) / samples * total[lit, None]
+    k = np.searchsorted(cs, at.ravel(), side="right")
+    k = np.clip(k, np.repeat(start[lit], samples), np.repeat(stop[lit] - 1, samples))
+    return order[k], np.repeat(total[lit] / samples, samples)
 
 
 def regularized_senders(surface: "bsdf.SurfacePoints", lobe_alpha: float) -> "bsdf.SurfacePoints":
@@ -470,6 +518,17 @@ def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, c
                       max_depth: int, receivers: _Receivers) -> tuple:
     """The chunk's live (end point, VPL) pairs after Embree's occlusion test: (row, column,
     scalar weight, blocked, per-pair RGB factor or an empty (0, 3) array)."""
+    pi, pj, w, row, pl, o, d, t = _pair_rays(geom, end, sl, vpls, cols, max_depth)
+    blocked = geom.occluded_local(o, d, t) if len(pi) else np.zeros(0, bool)
+    factor = _bsdf_factors(sl, cols, row, pi, pj, pl, d, blocked, receivers)
+    return pi, pj, w, blocked, factor
+
+
+def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,
+               max_depth: int) -> tuple:
+    """The chunk's live (end point, VPL) pairs and their shadow rays, untraced: (row, column,
+    scalar weight, receiver row kind, light pdf, origins, directions, tfar) — the rays in the
+    centred float32 frame for Embree."""
     f32 = np.float32
     pos = end.position[sl]
     x = np.ascontiguousarray(pos - geom.center, dtype=f32)
@@ -512,10 +571,7 @@ def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, c
                         cols.side, cols.spot_cutoff, cols.spot_beam, cols.depth, cols.mis,
                         cols.light_pdf, cols.area, cols.direct_count, f32(2 * geom.eps),
                         tables, row_tab, inv_tavg, pi, pj, w, pl, o, d, t)
-    pi, pj, w, pl, o, d, t = pi[:k], pj[:k], w[:k], pl[:k], o[:k], d[:k], t[:k]
-    blocked = geom.occluded_local(o, d, t) if k else np.zeros(0, bool)
-    factor = _bsdf_factors(sl, cols, row, pi, pj, pl, d, blocked, receivers)
-    return pi, pj, w, blocked, factor
+    return pi[:k], pj[:k], w[:k], row, pl[:k], o[:k], d[:k], t[:k]
 
 
 def _bsdf_factors(sl: slice, cols: _VPLColumns, row: np.ndarray, pi: np.ndarray, pj: np.ndarray,

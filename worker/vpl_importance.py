@@ -29,10 +29,14 @@ from igi.common.sobol_stream import rng as make_rng
 
 from .env_guide import ENV_SAMPLES, build_guide, guide_environment_samples, only_environment, single_environment
 from .portals import Portals, find_portals
-from .shading import contribution_per_vpl, trace_eye
+from .shading import EndPoints, contribution_per_vpl, trace_eye
 from .vpl import VPLSet, build_vpl_set, emitter_vpls, subset_vpls
 
 CAMERA_POINTS = 256  # eye paths per set that score the candidates
+# Shadow rays per candidate VPL for its score: its visibility from the camera points is
+# estimated from this many of its (point, VPL) pairs drawn by their unshadowed light, not all
+# 256 (the scoring was a quarter of a set's build; the acceptance needs the score only roughly).
+VISIBILITY_SAMPLES = 32
 EPSILON = 0.02  # lowest acceptance probability: VPLs the camera points miss stay possible
 # Half the kept VPLs by importance, half as plain instant radiosity would keep them: a kept VPL
 # never weighs more than twice a plain one, however badly the camera points scored it.
@@ -68,7 +72,7 @@ def camera_end_points(scene: Scene, geom: Geometry, lights: LightSampler, view: 
                       k: int, count: int, max_depth: int, specular_depth: int,
                       glossy_split_alpha: float = 0.0):
     """End points of ``count`` eye paths through random pixels of the view (deterministic in
-    (seed, k), so all workers score candidates alike)."""
+    (seed, k), so all workers score candidates alike); ``pixel`` is the path's index."""
     g = make_rng(seed, k, "camera points")
     px = np.floor(g.random(count) * view.width)
     py = np.floor(g.random(count) * view.height)
@@ -77,19 +81,55 @@ def camera_end_points(scene: Scene, geom: Geometry, lights: LightSampler, view: 
     return trace_eye(scene, geom, lights, o, d, max_depth, specular_depth, g, glossy_split_alpha).end
 
 
+# Eye paths traced once per view; every set draws its camera points from them. Tracing 256
+# fresh paths per set cost a quarter of a set's build (their glass and mirror chains are many
+# small batches); drawing a different subset per (seed, k) keeps the sets' scores varied.
+POOL_PATHS = 8192
+
+
+@dataclass(frozen=True)
+class CameraPool:
+    """End points of ``paths`` eye paths through uniformly random pixels of one view."""
+
+    end: EndPoints
+    paths: int
+
+    def first(self, count: int) -> EndPoints:
+        """The end points of the first ``count`` paths (a uniform sample of the view's pixels)."""
+        return self.end.subset(np.nonzero(self.end.pixel < count)[0])
+
+    def draw(self, seed: int, k: int, count: int) -> EndPoints:
+        """The end points of ``count`` paths drawn without replacement for set (seed, k)."""
+        if count >= self.paths:
+            return self.end
+        take = np.zeros(self.paths, bool)
+        take[make_rng(seed, k, "camera pool").choice(self.paths, count, replace=False)] = True
+        return self.end.subset(np.nonzero(take[self.end.pixel])[0])
+
+
+def camera_pool(scene: Scene, geom: Geometry, lights: LightSampler, view: View, max_depth: int,
+                specular_depth: int, glossy_split_alpha: float = 0.0, paths: int = POOL_PATHS,
+                seed: int = 0, k: int = 0) -> CameraPool:
+    """The view's camera-point pool (the view's is seed 0, k 0: the same in every worker)."""
+    return CameraPool(camera_end_points(scene, geom, lights, view, seed, k, paths, max_depth, specular_depth,
+                                        glossy_split_alpha), paths)
+
+
 PORTAL_POINTS = 1024  # camera points whose escaped rays find the openings (once per view)
 
 
 def view_portals(scene: Scene, geom: Geometry, lights: LightSampler, view: View, max_depth: int,
-                 specular_depth: int, glossy_split_alpha: float = 0.0) -> Portals | None:
+                 specular_depth: int, glossy_split_alpha: float = 0.0,
+                 pool: CameraPool | None = None) -> Portals | None:
     """The openings through which the view sees its sky (worker.portals), from the escaped rays
     of camera points drawn once per view (seed 0): None without a single environment emitter or
-    an enclosure around the view."""
+    an enclosure around the view. ``pool``: the view's camera pool (None: traced here)."""
     ei = single_environment(scene, lights)
     if ei < 0:
         return None
-    end = camera_end_points(scene, geom, lights, view, 0, 0, PORTAL_POINTS, max_depth, specular_depth,
-                            glossy_split_alpha)
+    if pool is None:
+        pool = camera_pool(scene, geom, lights, view, max_depth, specular_depth, glossy_split_alpha, PORTAL_POINTS)
+    end = pool.first(PORTAL_POINTS)
     guide = build_guide(scene, geom, lights, end, make_rng(0, 0, "portal rays"))
     if guide is None or guide.escape_origin is None:
         return None
@@ -103,7 +143,8 @@ EMITTER_MIX = 0.5  # share of the emitter choice made by the view; the rest stay
 
 def view_emitter_pmf(scene: Scene, geom: Geometry, lights: LightSampler, view: View, max_depth: int,
                      specular_depth: int, clamp_d2: float, glossy_split_alpha: float = 0.0,
-                     lobe_alpha: float = 0.0, samples_per_set: int = 0) -> np.ndarray | None:
+                     lobe_alpha: float = 0.0, samples_per_set: int = 0,
+                     pool: CameraPool | None = None) -> np.ndarray | None:
     """How the emitter samples of this view's sets choose their emitter: half by power (as
     ``lights.pmf``), half by each emitter's direct light on camera points (shadow rays
     included), scored once per view from seed 0 so every worker gets the same pmf.
@@ -121,8 +162,10 @@ def view_emitter_pmf(scene: Scene, geom: Geometry, lights: LightSampler, view: V
     cand = np.nonzero((pmf > 0) & np.array([e.kind in (AREA, POINT, SPOT) for e in scene.emitters], bool))[0]
     if len(cand) < 2 or len(cand) <= samples_per_set or len(cand) > MAX_SCORED_EMITTERS:
         return None
-    end = camera_end_points(scene, geom, lights, view, 0, 0, CAMERA_POINTS * 2, max_depth, specular_depth,
-                            glossy_split_alpha)
+    if pool is None:
+        pool = camera_pool(scene, geom, lights, view, max_depth, specular_depth, glossy_split_alpha,
+                           CAMERA_POINTS * 2)
+    end = pool.first(CAMERA_POINTS * 2)
     if len(end) == 0:
         return None
     per = max(4, EMITTER_POINTS // len(cand))
@@ -165,14 +208,21 @@ def acceptance(phi: np.ndarray, target: float, mix: float = 1.0, epsilon: float 
     phi = np.where(np.isfinite(phi) & (phi > 0), phi, 0.0)
     if not np.any(phi > 0) or mix <= 0:
         return np.full(n, target / n)
-    lo, hi = np.log(phi[phi > 0].min()) - 50.0, np.log(phi.max()) + 50.0
-    for _ in range(100):
-        mid = 0.5 * (lo + hi)
-        if np.clip(floor + mix * phi / np.exp(mid), 0.0, 1.0).sum() > target:
-            lo = mid
-        else:
-            hi = mid
-    return np.clip(floor + mix * phi / np.exp(hi), 0.0, 1.0)
+    # Σ_j min(1, floor + a_j/τ) = target, a = mix·Φ, solved exactly: with the c largest a_j
+    # saturated, τ = Σ_{j>c} a_j / (target - c - (n - c)·floor); the right c is the one whose τ
+    # saturates exactly those c (a sort and a cumulative sum instead of a bisection).
+    a = np.sort(mix * phi)[::-1]
+    rest = np.cumsum(a[::-1])[::-1]  # rest[c] = Σ_{j>=c} a_j (0-based: c saturated before j = c)
+    c = np.arange(n)
+    free = target - c - (n - c) * floor
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tau = np.where(free > 0, rest / free, np.inf)
+    below = np.concatenate([[np.inf], a[:-1]])  # a_{c-1}: must saturate (>= (1 - floor)·τ)
+    ok = (a < (1 - floor) * tau) & (below >= (1 - floor) * tau) & (rest > 0) & np.isfinite(tau)
+    if not ok.any():  # too few lit candidates to reach the target: keep every lit one
+        return np.where(phi > 0, 1.0, floor)
+    t = tau[np.argmax(ok)]
+    return np.clip(floor + mix * phi / t, 0.0, 1.0)
 
 
 def build_importance_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: int, k: int,
@@ -181,15 +231,18 @@ def build_importance_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler,
                              roulette: bool = False, camera_points: int = CAMERA_POINTS,
                              glossy_split_alpha: float = 0.0,
                              lobe_alpha: float = 0.0, portals: Portals | None = None,
-                             emitter_pmf: np.ndarray | None = None,
+                             emitter_pmf: np.ndarray | None = None, pool: CameraPool | None = None,
                              ) -> tuple[VPLSet, ImportanceStats]:
     """P_k with its indirect VPLs importance-sampled for ``view`` (see the module docstring);
     ``portals`` (:func:`view_portals`): walks from the sky start where it enters the view;
-    ``emitter_pmf`` (:func:`view_emitter_pmf`): the emitter samples' choice of emitter."""
+    ``emitter_pmf`` (:func:`view_emitter_pmf`): the emitter samples' choice of emitter;
+    ``pool`` (:func:`camera_pool`): the view's camera points (None: traced here)."""
     if direct_vpls > 0 and only_environment(scene, lights):
         direct_vpls = max(direct_vpls, ENV_SAMPLES)
-    end = camera_end_points(scene, geom, lights, view, seed, k, camera_points, max_depth, specular_depth,
-                            glossy_split_alpha)
+    if pool is None:  # the set's own camera points
+        pool = camera_pool(scene, geom, lights, view, max_depth, specular_depth, glossy_split_alpha,
+                           camera_points, seed, k)
+    end = pool.draw(seed, k, camera_points)
     # The sky seen through openings: environment samples drawn where camera points see it, and
     # light walks from the sky started where it enters (the escaped rays are the portals).
     guide = build_guide(scene, geom, lights, end, make_rng(seed, k, "env guide rays"))
@@ -201,7 +254,8 @@ def build_importance_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler,
         cand.env_guide = guide
     if len(surf) == 0:
         return cand, ImportanceStats(0, 0, 0.0)
-    phi = contribution_per_vpl(geom, end, subset_vpls(cand, surf), clamp_d2, max_depth, lobe_alpha)
+    phi = contribution_per_vpl(geom, end, subset_vpls(cand, surf), clamp_d2, max_depth, lobe_alpha,
+                               make_rng(seed, k, "visibility samples"), VISIBILITY_SAMPLES)
     target = len(surf) / oversample
     p = acceptance(phi, target, MIX)
     u = make_rng(seed, k, "vpl acceptance").random(len(surf))

@@ -62,6 +62,10 @@ def test_direct_only_matches_mitsuba_reference(name):
     err = relmse(img, ref)
     noise = relmse(a, b) / 4
     bias = err - noise - noise_ref / block ** 2
-    print(f"{name}: relMSE {err:.5f}, igi noise {noise:.5f}, bias estimate {bias:.5f}")
+    # The bias estimate is itself a mean over pixels of noisy terms: its standard error says
+    # how far one pair of seeds may put it above a true zero.
+    terms = ((img - ref) ** 2 - (a - b) ** 2 / 4) / (ref * ref + 0.01)
+    se = float(terms.std() / np.sqrt(terms.size))
+    print(f"{name}: relMSE {err:.5f}, igi noise {noise:.5f}, bias estimate {bias:.5f} ± {se:.5f}")
     assert noise <= 0.1
-    assert bias <= 0.002
+    assert bias <= 0.002 + 2 * se

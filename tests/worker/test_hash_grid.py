@@ -202,3 +202,17 @@ def test_compiled_query_equals_numpy_query_pair_for_pair(seed):
     assert len(want[0]) > 0
     np.testing.assert_array_equal(got[0], want[0])
     np.testing.assert_array_equal(got[1], want[1])
+
+
+def test_occupancy_bitmap_skips_only_cells_without_photons():
+    """The query with the grid's occupancy bitmap finds exactly what it finds without it."""
+    g = np.random.default_rng(11)
+    pts = np.concatenate([g.normal(0.5, 0.05, (300, 3)), g.random((50, 3))])
+    grid = HashGrid(pts, 0.02)
+    assert len(grid._occupied) > 0  # a small key space keeps a bitmap
+    qs = g.random((4000, 3))
+    qs[:300] = pts[:300] + g.normal(0, 0.01, (300, 3))  # many queries near photons
+    with_bits = _pairs(*grid.query(qs))
+    assert len(with_bits) > 100
+    grid._occupied = np.empty(0, np.uint8)
+    assert _pairs(*grid.query(qs)) == with_bits == _kdtree_pairs(pts, qs, 0.02)

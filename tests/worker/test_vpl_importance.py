@@ -169,3 +169,53 @@ def test_mis_reads_the_emitter_choice_the_samples_were_drawn_with():
         got = emitter_pdf(r.lights, hits, hits.valid, d, LightMIS(1, None, mis_pmf))
         close = np.isclose(got[hit_sample], expected[hit_sample], rtol=1e-6)
         assert close.all() if same else not close.all()
+
+
+def test_sampled_visibility_scores_are_unbiased_estimates_of_the_exact_scores():
+    """contribution_per_vpl with a few shadow rays per VPL (drawn by unshadowed light): the mean
+    over draws equals the all-pairs score, VPLs nobody sees score 0, each draw is within the
+    VPL's unshadowed bound."""
+    from igi.worker.shading import contribution_per_vpl
+
+    r = Renderer(two_rooms())
+    end = _end_points(r)
+    c2 = clamp_distance2(make_params(), r.geom.diagonal)
+    v = build_vpl_set(r.scene, r.geom, r.lights, 3, 0, 0, 64, 4)
+    exact = contribution_per_vpl(r.geom, end, v, c2, -1)
+    assert (exact > 0).sum() >= 8
+    draws = np.stack([contribution_per_vpl(r.geom, end, v, c2, -1, 0.0, rng(9, s), 8) for s in range(60)])
+    assert np.all(draws[:, exact == 0] == 0)
+    lit = exact > 0.01 * exact.max()
+    mean = draws.mean(axis=0)
+    se = draws.std(axis=0, ddof=1) / np.sqrt(len(draws))
+    assert np.all(np.abs(mean - exact)[lit] <= 4 * se[lit] + 1e-9 * exact[lit])
+    assert np.abs(mean.sum() / exact.sum() - 1) < 0.05
+
+
+def test_camera_pool_draws_are_deterministic_subsets_that_vary_by_set():
+    from igi.worker.vpl_importance import camera_pool
+
+    scene = two_rooms()
+    r = Renderer(scene)
+    pool = camera_pool(r.scene, r.geom, r.lights, _view(scene), -1, 8, paths=512)
+    a, b, c = pool.draw(4, 1, 64), pool.draw(4, 1, 64), pool.draw(4, 2, 64)
+    np.testing.assert_array_equal(a.position, b.position)  # every worker draws the same points
+    assert not np.array_equal(np.unique(a.pixel), np.unique(c.pixel))
+    assert len(np.unique(a.pixel)) <= 64 and set(a.pixel) <= set(pool.end.pixel)
+    # a path's end points come whole (a split path keeps all its branches)
+    for p in np.unique(a.pixel)[:10]:
+        assert (a.pixel == p).sum() == (pool.end.pixel == p).sum()
+    assert set(pool.first(100).pixel) <= set(range(100))
+
+
+def test_a_renderer_keeps_the_per_view_results_of_recent_views_only():
+    from igi.worker import renderer as rmod
+
+    scene = two_rooms()
+    r = Renderer(scene)
+    params = make_params(vpl_importance=1)
+    base = _view(scene)
+    for i in range(3 * rmod.MAX_VIEW_ENTRIES):
+        view = View(base.to_world[:3] + (base.to_world[3] + 1e-3 * i,) + base.to_world[4:], base.fov_x, 16, 12)
+        r.camera_pool(params, view)
+    assert len(r._pilot) == rmod.MAX_VIEW_ENTRIES

@@ -1,6 +1,8 @@
 """The hashed-grid photon query (Wald et al. 2002 §4.1), compiled: per query, the 2×2×2 cells
 of size 2r around it (a third layer where rounding widens the ball's cell span), each found by
-binary search in the sorted occupied-cell keys, and the photons within r.
+binary search in the sorted occupied-cell keys (skipped for cells an occupancy bitmap marks
+empty: photon sets are sparse, most cells a query touches hold nothing), and the photons
+within r.
 
 Two passes (count, then fill) so the pair arrays are allocated once at their exact size.
 """
@@ -37,8 +39,9 @@ def _find(keys, key) -> int:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _visit(q, r, inv, origin, ext, keys, starts, counts, order, points, out_p, out_q, fill):
+def _visit(q, r, inv, origin, ext, keys, starts, counts, order, points, occupied, out_p, out_q, fill):
     r2 = r * r
+    bitmap = occupied.shape[0] > 0
     ey, ez = ext[1], ext[2]
     total = 0
     for i in range(q.shape[0]):
@@ -64,7 +67,10 @@ def _visit(q, r, inv, origin, ext, keys, starts, counts, order, points, out_p, o
                     rz = cz - origin[2]
                     if rz < 0 or rz >= ez:
                         continue
-                    h = _find(keys, (rx * ey + ry) * ez + rz)
+                    key = (rx * ey + ry) * ez + rz
+                    if bitmap and (occupied[key >> 3] >> (key & 7)) & 1 == 0:
+                        continue
+                    h = _find(keys, key)
                     if h < 0:
                         continue
                     s = starts[h]
@@ -82,12 +88,13 @@ def _visit(q, r, inv, origin, ext, keys, starts, counts, order, points, out_p, o
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def query(q, r, inv, origin, ext, keys, starts, counts, order, points):
+def query(q, r, inv, origin, ext, keys, starts, counts, order, points, occupied):
     """(photon index, query index) of every photon within r of each query, grouped by
-    ascending query index; queries outside the grid's key space find nothing."""
+    ascending query index; queries outside the grid's key space find nothing. ``occupied``:
+    one bit per key of the key space (bit key & 7 of byte key >> 3), or empty: none kept."""
     empty = np.empty(0, np.int64)
-    n = _visit(q, r, inv, origin, ext, keys, starts, counts, order, points, empty, empty, False)
+    n = _visit(q, r, inv, origin, ext, keys, starts, counts, order, points, occupied, empty, empty, False)
     out_p = np.empty(n, np.int64)
     out_q = np.empty(n, np.int64)
-    _visit(q, r, inv, origin, ext, keys, starts, counts, order, points, out_p, out_q, True)
+    _visit(q, r, inv, origin, ext, keys, starts, counts, order, points, occupied, out_p, out_q, True)
     return out_p, out_q
