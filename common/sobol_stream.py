@@ -59,6 +59,12 @@ def rng(seed: int, *keys: int | str | bytes) -> np.random.Generator:
     return np.random.Generator(np.random.PCG64(ss))
 
 
+def stream_seed(seed: int, *keys: int | str | bytes) -> int:
+    """A seed for a SobolStream of its own, derived from (seed, *keys): streams of different
+    uses in one frame are independent scramblings."""
+    return int(rng(seed, "stream", *keys).integers(0, 1 << 62))
+
+
 def _sobol(d: int, seed: int, *keys: int) -> qmc.Sobol:
     return qmc.Sobol(d, scramble=True, seed=rng(seed, *keys))
 

@@ -17,12 +17,12 @@ from igi.common import bsdf
 from igi.common.geometry import Geometry
 from igi.common.lights import LightSampler, spot_falloff, to_local, to_world, uniform_sphere
 from igi.common.scene import AREA, NULL, POINT, SPECULAR_KINDS, SPOT, Scene, kind_in
-from igi.common.sobol_stream import SobolStream
+from igi.common.sobol_stream import SobolStream, stream_seed
 from igi.common.specular import specular_targets
 
 from .hash_grid import HashGrid
 
-BLOCK = 1 << 14
+PHOTON_STREAM = "caustic photons"
 EMIT_DIMS = 5  # 2 position, 1 target, 2 direction in the cone
 BOUNCE_DIMS = 3
 
@@ -75,17 +75,17 @@ def build_photon_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: i
     centres, radii = specular_targets(scene, geom)
     if photons_per_light <= 0 or len(radii) == 0 or not lights.has_light:
         return _empty(radius)
-    stream = SobolStream(seed ^ 0x5EED)
+    stream = SobolStream(stream_seed(seed, PHOTON_STREAM))
     dims = EMIT_DIMS + BOUNCE_DIMS * max_bounces
-    block = max(BLOCK, 1 << int(np.ceil(np.log2(photons_per_light))))
     n = photons_per_light
-    # Each light's photons from its own block of the stream; everything after is per photon,
-    # so all lights are emitted in one pass (same values as light by light).
+    # Each light's photons from its own rows of the stream; everything after is per photon,
+    # so all lights are emitted in one pass (same values as light by light). Set k's rows of
+    # light e are chunk k·E + e of n rows: a frame's sets together are one Sobol prefix.
     shooting = [ei for ei, e in enumerate(scene.emitters)
                 if e.kind in (AREA, POINT, SPOT) and lights.powers[ei] > 0]  # distant: see docs
     if not shooting:
         return _empty(radius)
-    u = np.concatenate([stream.padded(k * len(scene.emitters) + ei, n, block, dims) for ei in shooting])
+    u = np.concatenate([stream.padded(k * len(scene.emitters) + ei, n, n, dims) for ei in shooting])
     em = np.repeat(np.asarray(shooting, np.int64), n)
     shot = len(em)
     kind = np.array([e.kind for e in scene.emitters])[em]

@@ -15,7 +15,7 @@ from igi.common import bsdf
 from igi.common.geometry import Geometry
 from igi.common.lights import VPL_SPOT, VPL_SURFACE, LightSampler, PointSamples, to_local, to_world
 from igi.common.scene import NULL, SPECULAR_KINDS, Scene, kind_in
-from igi.common.sobol_stream import SobolStream
+from igi.common.sobol_stream import SobolStream, stream_seed
 from igi.common.sobol_stream import rng as make_rng
 
 from .portals import portal_walks
@@ -25,8 +25,13 @@ from .portals import portal_walks
 DIRECT_DIMS = 3
 WALK_DIMS_START = 5
 WALK_DIMS_PER_BOUNCE = 3
-# Stream layout per set: direct samples and walks come from separate blocks of the stream.
-BLOCK = 1 << 12
+# Stream layout (interleaved sampling, Keller & Heidrich 2001): the emitter samples and the
+# walks each have a sequence of their own per frame seed, and set k takes its rows
+# [k·n, (k+1)·n) of it, so the n² sets of a frame together are one Sobol prefix of n²·n points,
+# stratified as a whole: the discontinuity buffer averages a pixel's light over the sets. (Blocks
+# of a fixed 4096 rows put every set's first point in the same 1/4096 of the leading dimension:
+# all sets of a frame chose the same emitter and started their walks alike.)
+WALK_STREAM = "light walks"
 
 
 @dataclass
@@ -84,16 +89,15 @@ def build_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: int,
     """
     if not lights.has_light:
         return _empty_set()
-    stream = SobolStream(seed)
     parts = []
     if direct_vpls > 0:
-        u = stream.padded(2 * k, direct_vpls, BLOCK, DIRECT_DIMS)
+        u = SobolStream(seed).padded(k, direct_vpls, direct_vpls, DIRECT_DIMS)
         parts.append(emitter_vpls(scene, lights.sample_points(u, emitter_pmf), direct_vpls, emitter_pmf))
     walks = walk_count(indirect_vpls, max_length)
     if walks > 0 and max_length > 0:
         length = MAX_WALK if roulette else max_length
         dims = WALK_DIMS_START + WALK_DIMS_PER_BOUNCE * max_length
-        u = stream.padded(2 * k + 1, walks, BLOCK, dims)
+        u = SobolStream(stream_seed(seed, WALK_STREAM)).padded(k, walks, walks, dims)
         rr = make_rng(seed, k, "roulette") if roulette else None
         if roulette:
             # Bounces past max_length are rare: plain pseudo-random numbers serve them.

@@ -63,13 +63,17 @@ def _photons(scene, count, aim, seed=3):
 
 
 def test_photons_through_glass_slab_carry_fresnel_transmitted_flux():
-    ph = _photons(slab_scene(), 20000, aim=True)
-    # Aiming: ~half the photons are stored (the six faces' spheres overlap the slab), against
-    # the ~6% of the sphere of directions the slab subtends from the light.
-    assert len(ph) > 0.3 * 20000
-    assert np.all(ph.position[:, 1] == pytest.approx(0.0, abs=1e-6))  # stored on the floor only
-    got = ph.power[:, 0].sum()
-    assert got == pytest.approx(expected_transmitted_flux(), rel=0.01)
+    # One set of 20000 photons spreads ~0.7% around the flux with the seed (the Fresnel choices
+    # and the randomly paired higher dimensions): four sets, so the 1% bound is ~3 sigma.
+    got = []
+    for seed in range(4):
+        ph = _photons(slab_scene(), 20000, aim=True, seed=seed)
+        # Aiming: ~half the photons are stored (the six faces' spheres overlap the slab), against
+        # the ~6% of the sphere of directions the slab subtends from the light.
+        assert len(ph) > 0.3 * 20000
+        assert np.all(ph.position[:, 1] == pytest.approx(0.0, abs=1e-6))  # stored on the floor only
+        got.append(ph.power[:, 0].sum())
+    assert np.mean(got) == pytest.approx(expected_transmitted_flux(), rel=0.01)
 
 
 def test_aiming_on_and_off_agree_in_expectation():

@@ -43,15 +43,16 @@ def test_white_furnace_equals_truncated_geometric_series(length):
     # seen from the first eye hit makes a path of 2 + d segments, so with walks of at most
     # `length` bounces the image is Le * sum_{i=0}^{length+1} rho^i everywhere. No clamp:
     # the estimator is unbiased, but its 1/d² terms are heavy-tailed (a frame's mean spreads
-    # 0.4-1.2% per 64 frames with the seed), so the bound is 4 standard errors measured from
-    # the frames themselves, and those must be small enough (< 1.5%) for a bias of a few
-    # percent to fail. Plain instant radiosity: importance-sampled sets (which move VPLs toward
+    # 0.4-1.5% per 64 frames with the seed, and 64 frames may not yet have drawn the tail, which
+    # leaves the mean low by more than its measured standard error), so 128 frames, and the
+    # bound is 4 standard errors measured from the frames themselves, which must be small enough
+    # (< 1.5%) for a bias of a few percent to fail. Plain instant radiosity: importance-sampled sets (which move VPLs toward
     # what the camera sees) are compared with plain ones under the clamp instead
     # (tests/worker/test_vpl_importance.py).
     rho = 0.5
     scene = furnace_box(rho, 1.0, 12, 12)
     r = Renderer(scene)
-    frames = _furnace_frames(r, scene, 64, light_path_length=length, indirect_vpls=4 * length,
+    frames = _furnace_frames(r, scene, 128, light_path_length=length, indirect_vpls=4 * length,
                              direct_vpls=16, vpl_importance=0)
     expected = sum(rho ** i for i in range(length + 2))
     se = frames.std(ddof=1) / np.sqrt(len(frames))
@@ -99,18 +100,33 @@ def test_vpl_set_identical_in_two_processes():
     assert np.concatenate([local.position.ravel(), local.power.ravel()]).tobytes().hex() == outs[0]
 
 
-def test_set_k_uses_block_k_of_the_stream():
-    # The direct VPLs of set k are drawn from block 2k of the frame's stream: rebuilding
-    # them from those exact points gives the same positions.
+def test_set_k_takes_chunk_k_of_the_frames_sequence():
+    # The direct VPLs of set k are rows [8k, 8k + 8) of the frame's stream: rebuilding them
+    # from those exact points gives the same positions.
     scene = furnace_box(0.5, 1.0)
     r = Renderer(scene)
     p = make_params(direct_vpls=8, indirect_vpls=0)
     for k in (0, 3):
         s = r.vpl_set(5, k, p)
-        u = SobolStream(5).padded(2 * k, 8, vpl_mod.BLOCK, vpl_mod.DIRECT_DIMS)
+        u = SobolStream(5).padded(k, 8, 8, vpl_mod.DIRECT_DIMS)
         np.testing.assert_allclose(s.position, r.lights.sample_points(u).position)
-        other = SobolStream(5).padded(2 * k + 2, 8, vpl_mod.BLOCK, vpl_mod.DIRECT_DIMS)
+        other = SobolStream(5).padded(k + 1, 8, 8, vpl_mod.DIRECT_DIMS)
         assert not np.allclose(s.position, r.lights.sample_points(other).position)
+
+
+def test_the_sets_of_a_frame_together_stratify_the_light():
+    """Interleaved sampling: the 16 sets of a 4×4 interleave are consecutive chunks of one Sobol
+    sequence, so their 128 emitter samples and 128 walk starts put exactly one point in each
+    1/128 of the leading dimension (independent blocks piled them into one interval)."""
+    from igi.common.sobol_stream import stream_seed
+
+    direct = np.concatenate([SobolStream(9).padded(k, 8, 8, vpl_mod.DIRECT_DIMS) for k in range(16)])
+    walks = np.concatenate([SobolStream(stream_seed(9, vpl_mod.WALK_STREAM)).padded(k, 8, 8, 11)
+                            for k in range(16)])
+    for u in (direct, walks):
+        assert np.array_equal(np.sort(np.floor(u[:, 0] * 128)), np.arange(128))
+        cells = np.floor(u[:, 0] * 8) * 16 + np.floor(u[:, 1] * 16)  # 8 × 16 elementary boxes
+        assert len(np.unique(cells)) == 128
 
 
 def test_roulette_walks_converge_to_the_untruncated_series():
