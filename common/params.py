@@ -81,6 +81,10 @@ PARAMS: tuple[Param, ...] = (
     Param("consistent", bool, True,
           "while accumulating, remove the biases frames cannot average away: Russian-roulette light "
           "walks, shrinking photon radius, fading image filter", "accumulate"),
+    Param("consistent_first_frame", bool, True,
+          "the first frame after a reset already takes the consistent estimators (Russian-roulette "
+          "walks, clamp compensation): ~20% more time for a first frame without their bias; a "
+          "streamed view skips them on the frames of a moving camera", "accumulate", viewer=False),
     Param("ppm_alpha", float, 2 / 3, "photon radius shrink per accumulated frame: r²ᵢ₊₁ = r²ᵢ(i+α)/(i+1)",
           "accumulate", 0.05, 1.0),
     Param("filter_frames", int, 32,
@@ -135,6 +139,11 @@ def params_to_dict(params: "Params") -> dict:
     return {f.name: getattr(params, f.name) for f in fields(params)}
 
 
+def _argparse_text(text: str) -> str:
+    """Help text as argparse wants it: a literal % doubled (it formats help with %)."""
+    return text.replace("%", "%%")
+
+
 def add_arguments(parser: argparse.ArgumentParser, exclude: tuple[str, ...] = ()) -> None:
     """Add one flag per declared parameter (defaults left to the declaration)."""
     group = parser.add_argument_group("render parameters")
@@ -143,10 +152,10 @@ def add_arguments(parser: argparse.ArgumentParser, exclude: tuple[str, ...] = ()
             continue
         if p.type is bool:
             group.add_argument(p.flag, dest=p.name, action=argparse.BooleanOptionalAction,
-                               default=None, help=f"{p.help} (default: {p.default})")
+                               default=None, help=_argparse_text(f"{p.help} (default: {p.default})"))
         else:
             group.add_argument(p.flag, dest=p.name, type=p.type, default=None,
-                               help=f"{p.help} (default: {p.default})")
+                               help=_argparse_text(f"{p.help} (default: {p.default})"))
 
 
 def params_from_args(args: argparse.Namespace) -> "Params":

@@ -78,14 +78,14 @@ def build_photon_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: i
     stream = SobolStream(stream_seed(seed, PHOTON_STREAM))
     dims = EMIT_DIMS + BOUNCE_DIMS * max_bounces
     n = photons_per_light
-    # Each light's photons from its own rows of the stream; everything after is per photon,
-    # so all lights are emitted in one pass (same values as light by light). Set k's rows of
-    # light e are chunk k·E + e of n rows: a frame's sets together are one Sobol prefix.
+    # Each light's photons from its own n rows of the stream; everything after is per photon,
+    # so all lights are emitted in one pass (same values as light by light). Set k's rows are
+    # chunk k of S·n rows for the S shooting lights: a frame's sets together are one Sobol prefix.
     shooting = [ei for ei, e in enumerate(scene.emitters)
                 if e.kind in (AREA, POINT, SPOT) and lights.powers[ei] > 0]  # distant: see docs
     if not shooting:
         return _empty(radius)
-    u = np.concatenate([stream.padded(k * len(scene.emitters) + ei, n, n, dims) for ei in shooting])
+    u = stream.padded(k, len(shooting) * n, len(shooting) * n, dims)
     em = np.repeat(np.asarray(shooting, np.int64), n)
     shot = len(em)
     kind = np.array([e.kind for e in scene.emitters])[em]

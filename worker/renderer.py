@@ -267,8 +267,11 @@ class Renderer:
         index = accumulation_index(spec)
         view = View(tuple(np.asarray(spec.camera_to_world, np.float64).ravel()), spec.fov_x, spec.width,
                     spec.height)
+        # The consistent estimators (walks of any length, the clamp's energy given back) from the
+        # first frame on unless the view is moving (the stream's frames at index 0).
+        consistent = params.consistent and (index > 0 or params.consistent_first_frame)
         with self._stage("VPL set"):
-            vpls = self.vpl_set(spec.seed, tile.k, params, roulette=index > 0 and params.consistent, view=view)
+            vpls = self.vpl_set(spec.seed, tile.k, params, roulette=consistent, view=view)
         with self._stage("eye paths"):
             # Accumulating: each pixel walks its own rotation of the frames' jitter sequence.
             jitter = spec.jitter if index == 0 else pixel_jitter(spec.jitter, xs, ys)
@@ -286,7 +289,7 @@ class Renderer:
                                       force_general=self.plan is None, lobe_alpha=lobe_alpha)
         end = eye.end
         rays = None
-        compensate = index > 0 and params.consistent  # not while the view moves
+        compensate = consistent
         lensed = self.plan is None or self.plan.specular_chains
         if compensate or lensed:
             # One traced BSDF ray per end point serves BSDF-direct lighting, the compensation and

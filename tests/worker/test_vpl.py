@@ -150,6 +150,28 @@ def test_roulette_walks_converge_to_the_untruncated_series():
     assert abs(np.mean(means) - 1.875) > 0.06
 
 
+def test_a_first_frame_takes_the_roulette_walks_unless_the_view_moves():
+    # Index-0 frames (seed = params.seed: the first after a reset) of a batch render continue
+    # their walks by Russian roulette too (consistent_first_frame): Le / (1 - rho) = 2; the
+    # frames of a moving camera (the stream turns it off) keep the paper's truncated walks, 1.875.
+    scene = furnace_box(0.5, 1.0, 18, 18)
+    r = Renderer(scene)
+    w, h = scene.camera.width, scene.camera.height
+    got = {}
+    for first in (True, False):
+        means = []
+        for seed in range(1, 61):
+            p = make_params(interleave=3, clamp=0.0, light_path_length=2, indirect_vpls=8, direct_vpls=16,
+                            seed=seed, consistent_first_frame=first)
+            spec = FrameSpec(0, seed, tuple(scene.camera.to_world.ravel()), scene.camera.fov_x, w, h,
+                             params_to_dict(p))
+            means.append(np.mean([float((b.reflectance * b.irradiance + b.unfiltered).mean())
+                                  for b in (r.render_tile(spec, Tile(k, 0, 0, 6, 6)) for k in range(9))]))
+        got[first] = np.mean(means)
+    assert got[True] == pytest.approx(2.0, rel=0.015)
+    assert got[False] == pytest.approx(1.875, rel=0.015)
+
+
 def test_clamp_compensation_restores_the_clamped_energy():
     # A deliberately large clamp (d_min² = 0.05 diag²) darkens the furnace by ~4% at
     # max_depth 3 (1 + 0.5 + 0.25 expected). While accumulating, the short gather rays give
