@@ -118,32 +118,32 @@ class Renderer:
             return True
         key = ("pilot", self.scene_version, view.key, params.indirect_vpls, params.light_path_length,
                params.vpl_oversample, params.max_depth, params.clamp, params.vpl_lobe_alpha)
+        # Decided on plain walks: portal walks even out the candidates they serve.
+        st, fresh = self._per_view(key, lambda: self._build_importance(0, 0, params, view, False, pilot=True)[1])
+        if fresh:
+            self.importance_notes = (f"{'ON ' if st.ess < AUTO_ESS else 'off'} vpl_importance      pilot: "
+                                     f"effective share {st.ess:.2f} of {st.candidates} candidate VPLs "
+                                     f"(on below {AUTO_ESS})")
+        return st.ess < AUTO_ESS
+
+    def _per_view(self, key: tuple, compute) -> tuple:
+        """(the per-view result under ``key``, whether it was computed now): computed once per
+        view, outside the lock (two threads may both compute it; both get equal values)."""
         with self._lock:
-            hit = self._pilot.get(key)
-        if hit is None:
-            # Decided on plain walks: portal walks even out the candidates they serve.
-            _, st = self._build_importance(0, 0, params, view, False, pilot=True)
-            hit = st.ess < AUTO_ESS
-            with self._lock:
-                self._remember(key, hit)
-                self.importance_notes = (f"{'ON ' if hit else 'off'} vpl_importance      pilot: effective "
-                                         f"share {st.ess:.2f} of {st.candidates} candidate VPLs "
-                                         f"(on below {AUTO_ESS})")
-        return hit
+            if key in self._pilot:
+                return self._pilot[key], False
+        value = compute()
+        with self._lock:
+            self._remember(key, value)
+        return value, True
 
     def camera_pool(self, params: Params, view: View) -> CameraPool:
         """The view's camera points (vpl_importance.camera_pool), traced once per view: the
         pilot, the portals, the emitter choice and every set's scoring draw from them."""
         key = ("camera pool", self.scene_version, view.key, params.max_depth, params.specular_depth,
                params.filter_glossy_alpha)
-        with self._lock:
-            if key in self._pilot:
-                return self._pilot[key]
-        pool = camera_pool(self.scene, self.geom, self.lights, view, params.max_depth, params.specular_depth,
-                           params.filter_glossy_alpha)
-        with self._lock:
-            self._remember(key, pool)
-        return pool
+        return self._per_view(key, lambda: camera_pool(self.scene, self.geom, self.lights, view, params.max_depth,
+                                                       params.specular_depth, params.filter_glossy_alpha))[0]
 
     def portals(self, params: Params, view: View) -> Portals | None:
         """The view's portals for light walks from the sky (worker.portals), found once per view."""
@@ -151,16 +151,12 @@ class Renderer:
             return None
         key = ("portals", self.scene_version, view.key, params.max_depth, params.specular_depth,
                params.filter_glossy_alpha)
-        with self._lock:
-            if key in self._pilot:
-                return self._pilot[key]
-        found = view_portals(self.scene, self.geom, self.lights, view, params.max_depth, params.specular_depth,
-                             params.filter_glossy_alpha, self.camera_pool(params, view))
-        with self._lock:
-            self._remember(key, found)
-            if found is not None:
-                self.portal_notes = (f"ON  vpl_portals         sky enters the view through {len(found)} "
-                                     f"opening(s): half the sky's light walks start there")
+        found, fresh = self._per_view(key, lambda: view_portals(
+            self.scene, self.geom, self.lights, view, params.max_depth, params.specular_depth,
+            params.filter_glossy_alpha, self.camera_pool(params, view)))
+        if fresh and found is not None:
+            self.portal_notes = (f"ON  vpl_portals         sky enters the view through {len(found)} "
+                                 f"opening(s): half the sky's light walks start there")
         return found
 
     def emitter_pmf(self, params: Params, view: View):
@@ -171,18 +167,14 @@ class Renderer:
             return None
         key = ("emitter pmf", self.scene_version, view.key, params.max_depth, params.specular_depth,
                params.filter_glossy_alpha, params.clamp, params.vpl_lobe_alpha, params.direct_vpls)
-        with self._lock:
-            if key in self._pilot:
-                return self._pilot[key]
-        pmf = view_emitter_pmf(self.scene, self.geom, self.lights, view, params.max_depth, params.specular_depth,
-                               clamp_distance2(params, self.geom.diagonal), params.filter_glossy_alpha,
-                               params.vpl_lobe_alpha, direct, self.camera_pool(params, view))
-        with self._lock:
-            self._remember(key, pmf)
-            if pmf is not None:
-                moved = 0.5 * float(np.abs(pmf - self.lights.pmf).sum())
-                self.emitter_notes = (f"ON  emitter choice      {len(self.scene.emitters)} emitters scored on the "
-                                      f"view: {moved:.0%} of the emitter samples moved from choice by power")
+        pmf, fresh = self._per_view(key, lambda: view_emitter_pmf(
+            self.scene, self.geom, self.lights, view, params.max_depth, params.specular_depth,
+            clamp_distance2(params, self.geom.diagonal), params.filter_glossy_alpha, params.vpl_lobe_alpha,
+            direct, self.camera_pool(params, view)))
+        if fresh and pmf is not None:
+            moved = 0.5 * float(np.abs(pmf - self.lights.pmf).sum())
+            self.emitter_notes = (f"ON  emitter choice      {len(self.scene.emitters)} emitters scored on the "
+                                  f"view: {moved:.0%} of the emitter samples moved from choice by power")
         return pmf
 
     def _build_importance(self, seed, k, params, view, roulette, pilot=False):
