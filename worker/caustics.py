@@ -66,13 +66,14 @@ def _cone_mixture_pdf(origin, dirs, centres, radii):
 
 def build_photon_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: int, k: int,
                      photons_per_light: int, radius: float, max_bounces: int,
-                     aim: bool = True) -> PhotonSet:
+                     aim: bool = True, targets: tuple | None = None) -> PhotonSet:
     """The caustic photon set C_k for frame seed ``seed``.
 
     ``aim=False`` emits photons over the light's whole emission distribution instead of the
     target cones (same expectation, many photons wasted): the check that aiming is unbiased.
+    ``targets``: the mirror/glass bounding spheres (common.specular.specular_targets), if known.
     """
-    centres, radii = specular_targets(scene, geom)
+    centres, radii = targets if targets is not None else specular_targets(scene, geom)
     if photons_per_light <= 0 or len(radii) == 0 or not lights.has_light:
         return _empty(radius)
     stream = SobolStream(stream_seed(seed, PHOTON_STREAM))

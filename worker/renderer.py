@@ -238,7 +238,7 @@ class Renderer:
                 self._sets.move_to_end(key)
                 return hit
         s = build_photon_set(self.scene, self.geom, self.lights, seed, k, params.photons, radius,
-                             params.specular_depth)
+                             params.specular_depth, targets=self._specular_targets)
         with self._lock:
             self._sets[key] = s
             while len(self._sets) > self._max_sets:
