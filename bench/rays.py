@@ -157,10 +157,8 @@ def measure(scene_path: str, width: int | None = None, height: int | None = None
                             "occluded_seconds": 0.0})
     r.geom.record = []
     steady = [_frame(r, spec, tiles) for _ in range(frames)]
-    r.geom.time_embree(False)
     counted = dict(r.geom.counters)  # the steady frames' rays (the accumulating ones add theirs)
     # Accumulating frames (camera still): each has its own seed, so every set is rebuilt.
-    r.geom.time_embree(True)
     record, r.geom.record = r.geom.record, None
     acc = [_frame(r, sequence_spec(i, i, cam, fov_x, w, h, pd), tiles) for i in range(1, frames + 1)]
     r.geom.record = record

@@ -65,9 +65,9 @@ class HashGrid:
         self._keys, self._starts, self._counts = np.unique(
             keys[self._order], return_index=True, return_counts=True)
         self._occupied = np.empty(0, np.uint8)
-        if self._axes is None and int(np.prod(self._ext.astype(np.float64))) <= _BITMAP_CELLS:
-            cells_total = int(np.prod(self._ext))
-            self._occupied = np.zeros((cells_total + 7) // 8, np.uint8)
+        cells_total = float(np.prod(self._ext.astype(np.float64))) if self._axes is None else np.inf
+        if cells_total <= _BITMAP_CELLS:
+            self._occupied = np.zeros((int(cells_total) + 7) // 8, np.uint8)
             np.bitwise_or.at(self._occupied, self._keys >> 3, (1 << (self._keys & 7)).astype(np.uint8))
 
     # -- collision-free cell keys ------------------------------------------------------

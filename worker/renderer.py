@@ -97,18 +97,12 @@ class Renderer:
         self._specular_targets = specular_targets(scene, self.geom)  # mirror/glass bounding spheres
         # Per view: importance sampling on? (pilot), the camera pool, the portals, the emitter
         # choice; the most recent views only (a drag visits a new view every frame).
-        self._pilot: OrderedDict[tuple, object] = OrderedDict()
+        self._views: OrderedDict[tuple, object] = OrderedDict()
         self.importance_notes = ""
         self.portal_notes = ""
         self.emitter_notes = ""
 
     # -- per-set preprocessing --------------------------------------------------------------
-    def _remember(self, key: tuple, value) -> None:
-        """Keep a per-view result (call with the lock held), dropping the oldest views'."""
-        self._pilot[key] = value
-        while len(self._pilot) > MAX_VIEW_ENTRIES:
-            self._pilot.popitem(last=False)
-
     def importance_on(self, params: Params, view: View | None) -> bool:
         """Importance-sample this view's VPLs? Auto: a pilot candidate set (seed 0, k 0) scored
         on the view; on when its contributions are uneven (few candidates carry the light)."""
@@ -130,11 +124,13 @@ class Renderer:
         """(the per-view result under ``key``, whether it was computed now): computed once per
         view, outside the lock (two threads may both compute it; both get equal values)."""
         with self._lock:
-            if key in self._pilot:
-                return self._pilot[key], False
+            if key in self._views:
+                return self._views[key], False
         value = compute()
         with self._lock:
-            self._remember(key, value)
+            self._views[key] = value
+            while len(self._views) > MAX_VIEW_ENTRIES:  # the oldest views' go first
+                self._views.popitem(last=False)
         return value, True
 
     def camera_pool(self, params: Params, view: View) -> CameraPool:

@@ -218,4 +218,4 @@ def test_a_renderer_keeps_the_per_view_results_of_recent_views_only():
     for i in range(3 * rmod.MAX_VIEW_ENTRIES):
         view = View(base.to_world[:3] + (base.to_world[3] + 1e-3 * i,) + base.to_world[4:], base.fov_x, 16, 12)
         r.camera_pool(params, view)
-    assert len(r._pilot) == rmod.MAX_VIEW_ENTRIES
+    assert len(r._views) == rmod.MAX_VIEW_ENTRIES
