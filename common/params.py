@@ -52,6 +52,11 @@ PARAMS: tuple[Param, ...] = (
           "VPL's, so no spikes where a smooth floor's VPL faces a wall); shrinks like the photon "
           "radius while accumulating consistently; 0: off",
           "vpl", 0.0, 1.0),
+    Param("shadow_roulette", float, 0.5,
+          "Russian roulette on shadow rays: a (Lambertian end point, Lambertian VPL) pair whose "
+          "unshadowed light is below this fraction of the end point's mean pair traces its ray with "
+          "probability light/(fraction x mean) and counts 1/p (unbiased; skips the rays of pairs "
+          "that carry little light); 0: every pair traces", "vpl", 0.0, 1.0),
     Param("light_samples", int, 0,
           "emitters sampled per set in many-light scenes (0: all emitters share the direct VPLs by power)",
           "vpl", 0, 1024),

@@ -11,6 +11,10 @@ Random walks need more dimensions than one Sobol' instance should carry, so
 independent low-dimensional scrambled Sobol' instances, one per group of dimensions, whose
 points are shuffled per group so every group's projection stays low-discrepancy while the
 groups are paired at random.
+
+Accumulated frames continue the sequence (worker.renderer): frame i after a reset takes the
+blocks after frame i-1's, so the frames of an accumulation are jointly stratified. A block
+past an instance's ``POINTS`` points continues in a fresh scrambling (a new "lap").
 """
 from __future__ import annotations
 
@@ -63,6 +67,9 @@ def stream_seed(seed: int, *keys: int | str | bytes) -> int:
     """A seed for a SobolStream of its own, derived from (seed, *keys): streams of different
     uses in one frame are independent scramblings."""
     return int(rng(seed, "stream", *keys).integers(0, 1 << 62))
+
+
+POINTS = 1 << 30  # points of one scrambled instance (scipy's 30-bit direction numbers)
 
 
 def _sobol(d: int, seed: int, *keys: int) -> qmc.Sobol:
@@ -163,9 +170,15 @@ class SobolStream:
 
     def points(self, start: int, count: int) -> np.ndarray:
         """Points [start, start+count) of the stream: (count, dims) float64 in [0, 1)."""
-        if start < 0 or count < 0:
-            raise ValueError(f"start and count must be >= 0, got {start}, {count}")
+        if start < 0 or count < 0 or start + count > POINTS:
+            raise ValueError(f"need 0 <= start, 0 <= count, start + count <= 2^30; got {start}, {count}")
         return _draw(self._main, start, count)
+
+    def _lap(self, k: int, block_size: int) -> tuple[int, int]:
+        """(scrambling seed, first row) of block k: blocks that would pass the instance's
+        POINTS continue from row 0 of a derived scrambling."""
+        lap, j = divmod(k, POINTS // block_size)
+        return (self.seed if lap == 0 else stream_seed(self.seed, "lap", lap)), j * block_size
 
     def block(self, k: int, count: int, block_size: int) -> np.ndarray:
         """The first ``count`` points of block k: rows [k*block_size, k*block_size+count).
@@ -173,7 +186,8 @@ class SobolStream:
         Interleave set k uses block k, so sets are consecutive pieces of one sequence.
         """
         _check_block(k, count, block_size)
-        return self.points(k * block_size, count)
+        seed, start = self._lap(k, block_size)
+        return _draw(self._main if seed == self.seed else _scrambling(self.dims, seed, _TAG_MAIN), start, count)
 
     def padded(self, k: int, count: int, block_size: int, total_dims: int,
                group_dims: int = 4) -> np.ndarray:
@@ -191,9 +205,10 @@ class SobolStream:
             raise ValueError(f"total_dims and group_dims must be >= 1, got {total_dims}, {group_dims}")
         out = np.empty((count, total_dims), dtype=np.float64)
         shuffle = None  # one generator per block for all its groups' shuffles (they are cheap to draw, not to seed)
+        seed, start = self._lap(k, block_size)
         for g, d0 in enumerate(range(0, total_dims, group_dims)):
             d = min(group_dims, total_dims - d0)
-            pts = _draw(_scrambling(d, self.seed, _TAG_GROUP, g), k * block_size, count)
+            pts = _draw(_scrambling(d, seed, _TAG_GROUP, g), start, count)
             if g:
                 shuffle = shuffle or rng(self.seed, _TAG_PERM, k, count)
                 pts = pts[shuffle.permutation(count)]
@@ -206,3 +221,5 @@ def _check_block(k: int, count: int, block_size: int) -> None:
         raise ValueError(f"need k >= 0, count >= 0, block_size >= 1; got {k}, {count}, {block_size}")
     if count > block_size:
         raise ValueError(f"count {count} exceeds block_size {block_size}: blocks would overlap")
+    if block_size > POINTS:
+        raise ValueError(f"block_size {block_size} exceeds the {POINTS} points of one instance")

@@ -49,6 +49,17 @@ def clamp_distance2(params: Params, diagonal: float) -> float:
     return frac * diagonal * diagonal
 
 
+def _set_block(seed: int, k: int, params: Params, index: int) -> tuple[int, int]:
+    """(stream seed, block) of set k of the frame with ``seed`` at accumulation index ``index``.
+
+    Accumulated frames continue the first frame's sequence (frame i after a reset with seed
+    params.seed has seed params.seed + i): frame i's K sets are blocks [i·K, (i+1)·K) of the
+    first frame's streams, so the frames of an accumulation are jointly stratified
+    (randomized QMC across frames) rather than independent realizations."""
+    sets = params.interleave ** 2
+    return (seed, k) if index == 0 else (params.seed, index * sets + k)
+
+
 class _StageTimer:
     """Adds a stage's wall time to ``times[name]`` (Renderer.stage_times, benchmarks only)."""
 
@@ -196,9 +207,10 @@ class Renderer:
         return (direct if params.max_depth != 1 else 0), indirect, max(length, 1)
 
     def vpl_set(self, seed: int, k: int, params: Params, roulette: bool = False,
-                view: View | None = None) -> VPLSet:
+                view: View | None = None, index: int = 0) -> VPLSet:
+        """P_k of the frame with ``seed`` at accumulation index ``index``."""
         importance = self.importance_on(params, view)
-        key = (self.scene_version, seed, k, params.direct_vpls, params.indirect_vpls,
+        key = (self.scene_version, seed, k, index, params.interleave, params.direct_vpls, params.indirect_vpls,
                params.light_path_length, params.max_depth, roulette,
                (view.key, params.vpl_oversample, params.clamp, params.specular_depth, params.filter_glossy_alpha,
                 params.vpl_lobe_alpha, params.vpl_portals)
@@ -209,11 +221,12 @@ class Renderer:
                 self._sets.move_to_end(key)
                 self.stats["set_hits"] += 1
                 return hit
+        stream, block = _set_block(seed, k, params, index)
         if importance:
-            s, _ = self._build_importance(seed, k, params, view, roulette)
+            s, _ = self._build_importance(stream, block, params, view, roulette)
         else:
             direct, indirect, length = self._set_sizes(params)
-            s = build_vpl_set(self.scene, self.geom, self.lights, seed, k, direct, indirect, length,
+            s = build_vpl_set(self.scene, self.geom, self.lights, stream, block, direct, indirect, length,
                               roulette=roulette and params.max_depth < 0)
         with self._lock:
             self._sets[key] = s
@@ -227,13 +240,15 @@ class Renderer:
         # Caustic paths have >= 4 segments (light, specular, diffuse, eye).
         if (self.plan is not None and not self.plan.caustics) or 0 <= params.max_depth < 4:
             return PhotonSet(*(np.zeros((0, 3)),) * 4, np.zeros(0, np.int32), radius, None)
-        key = ("photons", self.scene_version, seed, k, params.photons, radius, params.specular_depth)
+        key = ("photons", self.scene_version, seed, k, index, params.interleave, params.photons, radius,
+               params.specular_depth)
         with self._lock:
             hit = self._sets.get(key)
             if hit is not None:
                 self._sets.move_to_end(key)
                 return hit
-        s = build_photon_set(self.scene, self.geom, self.lights, seed, k, params.photons, radius,
+        stream, block = _set_block(seed, k, params, index)
+        s = build_photon_set(self.scene, self.geom, self.lights, stream, block, params.photons, radius,
                              params.specular_depth, targets=self._specular_targets)
         with self._lock:
             self._sets[key] = s
@@ -259,7 +274,7 @@ class Renderer:
         # first frame on unless the view is moving (the stream's frames at index 0).
         consistent = params.consistent and (index > 0 or params.consistent_first_frame)
         with self._stage("VPL set"):
-            vpls = self.vpl_set(spec.seed, tile.k, params, roulette=consistent, view=view)
+            vpls = self.vpl_set(spec.seed, tile.k, params, roulette=consistent, view=view, index=index)
         with self._stage("eye paths"):
             # Accumulating: each pixel walks its own rotation of the frames' jitter sequence.
             jitter = spec.jitter if index == 0 else pixel_jitter(spec.jitter, xs, ys)
@@ -274,7 +289,8 @@ class Renderer:
         lobe_alpha = params.vpl_lobe_alpha * radius_scale(index, params)
         with self._stage("VPL gather"):
             albedo, irr = gather_vpls(self.geom, eye.end, vpls, clamp_d2, params.max_depth,
-                                      force_general=self.plan is None, lobe_alpha=lobe_alpha)
+                                      force_general=self.plan is None, lobe_alpha=lobe_alpha,
+                                      shadow_roulette=params.shadow_roulette, seed=int(rng.integers(1 << 62)))
         end = eye.end
         rays = None
         compensate = consistent

@@ -321,14 +321,16 @@ def _concat_ends(ends: list[EndPoints]) -> EndPoints:
 
 def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
                 max_depth: int, force_general: bool = False,
-                lobe_alpha: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+                lobe_alpha: float = 0.0, shadow_roulette: float = 0.0,
+                seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Light from the VPL set at each end point, split as (albedo, irradiance).
 
     Radiance toward the eye = albedo · irradiance. For Lambertian end points the albedo is the
     diffuse reflectance and irradiance is E/π; for glossy ones the radiance is evaluated with
     the full BSDF and divided by the BSDF's albedo (a smooth demodulation), so the image-space
     filter blurs lighting, never texture. ``lobe_alpha``: glossy VPLs radiate through lobes at
-    least this rough (:func:`regularized_senders`).
+    least this rough (:func:`regularized_senders`). ``shadow_roulette`` > 0: Russian roulette
+    on the shadow rays of small pairs (kernels.vpl_gather.shadow_roulette), drawn from ``seed``.
     """
     e = len(end)
     albedo = bsdf.albedo(end.sp, end.wi).astype(np.float64) if e else np.zeros((0, 3))
@@ -338,8 +340,9 @@ def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
         return albedo, irr
     cols = _VPLColumns(vpls, geom, clamp_d2, force_general, lobe_alpha)
     receivers = _Receivers(end, albedo)
+    roulette = (float(shadow_roulette), int(seed)) if shadow_roulette > 0 else None
     for sl in _chunks(e, m):
-        pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, receivers)
+        pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, receivers, roulette)
         vg.accumulate(sl.stop - sl.start, pi, pj, w, blocked, cols.color, factor, irr[sl])
     return albedo, irr
 
@@ -498,6 +501,7 @@ class _VPLColumns:
         self.vwi = np.ascontiguousarray(vpls.wi_local, dtype=np.float64)
         self.vnormal = np.ascontiguousarray(vpls.normal, dtype=np.float64)
         self.color = np.ascontiguousarray(color)
+        self.lum = np.ascontiguousarray(luminance(color), dtype=np.float64)
         # Spots carry (_, beam, cutoff) degrees in wi_local; cutoff < 0 marks "not a spot".
         self.spot_cutoff = np.where(spot, vpls.wi_local[:, 2], -1.0).astype(np.float64)
         self.spot_beam = np.where(spot, vpls.wi_local[:, 1], 0.0).astype(np.float64)
@@ -515,10 +519,15 @@ class _VPLColumns:
 
 
 def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,
-                      max_depth: int, receivers: _Receivers) -> tuple:
+                      max_depth: int, receivers: _Receivers, roulette: tuple | None = None) -> tuple:
     """The chunk's live (end point, VPL) pairs after Embree's occlusion test: (row, column,
-    scalar weight, blocked, per-pair RGB factor or an empty (0, 3) array)."""
+    scalar weight, blocked, per-pair RGB factor or an empty (0, 3) array). ``roulette``:
+    (fraction, seed) of the shadow rays' Russian roulette, None for none."""
     pi, pj, w, row, pl, o, d, t = _pair_rays(geom, end, sl, vpls, cols, max_depth)
+    if roulette is not None and len(pi):
+        k = vg.shadow_roulette(len(pi), pi, pj, w, pl, o, d, t, row, cols.lum, cols.glossy, roulette[0],
+                               roulette[1], sl.start)
+        pi, pj, w, pl, o, d, t = pi[:k], pj[:k], w[:k], pl[:k], o[:k], d[:k], t[:k]
     blocked = geom.occluded_local(o, d, t) if len(pi) else np.zeros(0, bool)
     factor = _bsdf_factors(sl, cols, row, pi, pj, pl, d, blocked, receivers)
     return pi, pj, w, blocked, factor

@@ -122,6 +122,24 @@ def test_padded_first_group_is_a_plain_prefix_and_blocks_differ():
     np.testing.assert_array_equal(s.padded(1, 16, 64, 4), p1[:16, :4])
 
 
+def test_blocks_past_one_instance_continue_in_a_fresh_scrambling():
+    # 2^30 points per instance: block k of size 2^28 wraps to row 0 every 4 blocks, in a new
+    # scrambling (never the silently repeated points a 30-bit engine would give).
+    from igi.common.sobol_stream import POINTS
+
+    s = SobolStream(3)
+    size = POINTS // 4
+    first = s.block(0, 16, size)
+    lapped = s.block(4, 16, size)
+    assert not np.array_equal(first, lapped)
+    np.testing.assert_array_equal(s.block(3, 16, size), s.points(3 * size, 16))  # the last of lap 0
+    assert np.array_equal(np.sort(np.floor(lapped[:, 0] * 16)), np.arange(16))  # still a Sobol prefix
+    pf, pl = s.padded(0, 16, size, 6), s.padded(4, 16, size, 6)
+    assert not np.array_equal(pf, pl)
+    with pytest.raises(ValueError):
+        s.points(POINTS - 4, 8)
+
+
 def test_rng_is_deterministic_and_keys_are_independent():
     a = rng(5, "vpl", 3).random(16)
     np.testing.assert_array_equal(a, rng(5, "vpl", 3).random(16))

@@ -129,6 +129,27 @@ def test_the_sets_of_a_frame_together_stratify_the_light():
         assert len(np.unique(cells)) == 128
 
 
+def test_accumulated_frames_continue_the_first_frames_sequence():
+    """Frame i after a reset (seed params.seed + i) takes the blocks after frame i-1's: the direct
+    VPLs of set k of frame i are block i·K + k of the first frame's stream, so two frames' 2·K sets
+    of 8 put one emitter sample in each 1/(16·K) of the leading dimension (K = 16) (independent frames
+    would not), while a frame with no accumulation behind it keeps its own seed's blocks."""
+    scene = furnace_box(0.5, 1.0)
+    r = Renderer(scene)
+    sets = 16
+    p = make_params(direct_vpls=8, indirect_vpls=0, interleave=4, seed=40)
+    u = np.concatenate([SobolStream(40).padded(i * sets + k, 8, 8, vpl_mod.DIRECT_DIMS)
+                        for i in (0, 1) for k in range(sets)])
+    assert np.array_equal(np.sort(np.floor(u[:, 0] * 2 * sets * 8)), np.arange(2 * sets * 8))
+    for k in (0, 5):
+        s = r.vpl_set(41, k, p, index=1)
+        u = SobolStream(40).padded(sets + k, 8, 8, vpl_mod.DIRECT_DIMS)
+        np.testing.assert_allclose(s.position, r.lights.sample_points(u).position)
+    own = r.vpl_set(41, 5, make_params(direct_vpls=8, indirect_vpls=0, interleave=4, seed=41))
+    np.testing.assert_allclose(own.position, r.lights.sample_points(
+        SobolStream(41).padded(5, 8, 8, vpl_mod.DIRECT_DIMS)).position)
+
+
 def test_roulette_walks_converge_to_the_untruncated_series():
     # While accumulating (seed > params.seed, `consistent` on), light walks continue past
     # light_path_length by Russian roulette, so the image is Le / (1 - rho) = 2, not the

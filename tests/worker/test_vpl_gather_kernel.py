@@ -119,3 +119,63 @@ def test_kernel_matches_numpy_on_split_diffuse_layers():
         assert np.any(end.sp.kind == ROUGHPLASTIC_DIFFUSE)
         lit = sum(_agree(r, end, _set(r, k))[end.sp.kind == ROUGHPLASTIC_DIFFUSE].sum() for k in range(4))
         assert lit > 0  # not vacuous: some set lights the layers
+
+
+@pytest.mark.parametrize("name", ["cornell-box", "cornell-box-glossy"])
+def test_shadow_roulette_is_unbiased_and_traces_fewer_rays(name):
+    """Russian roulette on the small pairs' shadow rays: over many seeds the mean of the
+    gathered light equals the gather that traces every pair (per end point, within its
+    standard error), with fewer shadow rays."""
+    r = Renderer(load_shared(name))
+    end = eye_end_points(r, 16, 16)
+    vpls = _set(r, 2)
+    c2 = CLAMP * r.geom.diagonal ** 2
+    before = r.geom.counters["occluded_rays"]
+    _, exact = gather_vpls(r.geom, end, vpls, c2, -1)
+    all_rays = r.geom.counters["occluded_rays"] - before
+    runs = []
+    before = r.geom.counters["occluded_rays"]
+    for seed in range(400):
+        runs.append(gather_vpls(r.geom, end, vpls, c2, -1, shadow_roulette=0.5, seed=seed)[1])
+    rays = (r.geom.counters["occluded_rays"] - before) / 400
+    runs = np.array(runs)
+    assert rays < 0.9 * all_rays
+    mean, se = runs.mean(axis=0), runs.std(axis=0) / np.sqrt(len(runs))
+    assert np.any(se > 0)  # some pairs were rouletted: the comparison is not vacuous
+    z = np.abs(mean - exact) / np.maximum(se, 1e-12 * np.abs(exact).max())
+    assert np.mean(z > 4) < 0.002
+    assert abs(mean.sum() / exact.sum() - 1) < 0.005
+    # A different seed draws other pairs; the same seed the same ones.
+    a = gather_vpls(r.geom, end, vpls, c2, -1, shadow_roulette=0.5, seed=7)[1]
+    np.testing.assert_array_equal(a, runs[7])
+    assert not np.array_equal(a, runs[8])
+
+
+def test_shadow_roulette_keeps_the_big_pairs_and_glossy_rows():
+    """Pairs at or above the fraction of their row's mean always trace, with their weight
+    unchanged; a kept small pair counts the threshold; glossy rows are never thinned."""
+    from igi.worker.kernels import vpl_gather as vg
+
+    w = np.array([10.0, 0.1, 0.1, 0.1, 0.1, 10.0, 0.1, 0.1], np.float32)
+    pi = np.array([0, 0, 0, 0, 0, 1, 1, 1], np.int64)
+    pj = np.array([0, 1, 2, 3, 4, 0, 1, 2], np.int64)
+    row = np.array([vg.ROW_LAMBERT, vg.ROW_GLOSSY], np.int8)
+    lum, glossy = np.ones(5), np.zeros(5, bool)
+    kept = []
+    for seed in range(200):
+        args = [a.copy() for a in (pi, pj, w)]
+        k = len(w)
+        pl, o, d, t = np.zeros(k, np.float32), np.zeros((k, 3), np.float32), np.zeros((k, 3), np.float32), \
+            np.arange(k, dtype=np.float32)
+        n = vg.shadow_roulette(k, args[0], args[1], args[2], pl, o, d, t, row, lum, glossy, 0.5, seed, 0)
+        ki, kj, kw = args[0][:n], args[1][:n], args[2][:n]
+        assert (0, 0) in zip(ki.tolist(), kj.tolist())
+        assert np.sum(ki == 1) == 3  # the glossy row keeps every pair
+        small = (ki == 0) & (kj > 0)
+        threshold = 0.5 * np.float32(10.4) / 5
+        np.testing.assert_allclose(kw[small], threshold, rtol=1e-6)
+        assert kw[(ki == 0) & (kj == 0)][0] == np.float32(10.0)
+        np.testing.assert_array_equal(t[:n][ki == 1], [5, 6, 7])  # rays move with their pairs
+        kept.append(small.sum())
+    # each small pair survives with p = 0.1 / threshold
+    assert np.mean(kept) / 4 == pytest.approx(0.1 / (0.5 * 10.4 / 5), abs=0.05)

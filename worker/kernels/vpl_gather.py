@@ -6,6 +6,8 @@ Three steps per chunk of end points, none with an (end points × VPLs) temporary
    1/max(d², c) term, emitter cosine, spot falloff, path-length limit, Lambertian receiver
    cos/π and the MIS weight of emitter samples against the BSDF ray; pairs that can carry
    light are written, in row-major order, straight into Embree's float32 shadow-ray arrays.
+   :func:`shadow_roulette` then thins the pairs whose unshadowed contribution is small
+   against their end point's mean (Russian roulette on shadow rays: kept pairs count 1/p).
 2. Embree's occlusion query on that batch (outside: it releases the GIL itself).
 3. :func:`accumulate` — the unoccluded pairs' weight × VPL colour (× per-pair BSDF factors
    for glossy receivers or senders, computed by the caller on the compact pair list) summed
@@ -140,6 +142,68 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
                 out_t[k] = max(t, np.float32(0.0))
             k += 1
     return k
+
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_MIX_J = np.uint64(0xC2B2AE3D27D4EB4F)
+
+
+@njit(cache=True, nogil=True)
+def pair_uniform(seed, i, j):
+    """A uniform in [0, 1) for pair (i, j) under ``seed`` (splitmix64 of the three): the same
+    in every thread and process, no generator state."""
+    z = np.uint64(seed) ^ (np.uint64(i) * _GOLDEN) ^ (np.uint64(j) * _MIX_J)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    z = z ^ (z >> np.uint64(31))
+    return np.float64(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def shadow_roulette(k, pi, pj, w, pl, o, d, t, row, lum, glossy, fraction, seed, base):
+    """Russian roulette on the first ``k`` pairs (row-major, as pair_weights writes them), in
+    place; returns how many remain.
+
+    Per end point, a pair of a Lambertian (or plastic-layer) row and a Lambertian column whose
+    unshadowed contribution c = w · lum[j] is below ``fraction`` of the row's mean such
+    contribution keeps its shadow ray with probability p = c / (fraction · mean) and then
+    counts 1/p (unbiased); the added variance per end point is at most fraction · mean · Σc.
+    Glossy rows and columns always trace: their BSDF factors, applied later, could make a
+    small c large. Pair (i, j) draws pair_uniform(seed, base + i, j)."""
+    out = 0
+    s = 0
+    while s < k:
+        i = pi[s]
+        e = s
+        total = 0.0
+        count = 0
+        eligible_row = row[i] == ROW_LAMBERT or row[i] == ROW_LAYER
+        while e < k and pi[e] == i:
+            if eligible_row and not glossy[pj[e]]:
+                total += np.float64(w[e]) * lum[pj[e]]
+                count += 1
+            e += 1
+        threshold = fraction * total / count if count > 0 else 0.0
+        for a in range(s, e):
+            j = pj[a]
+            if threshold > 0.0 and eligible_row and not glossy[j]:
+                c = np.float64(w[a]) * lum[j]
+                if c < threshold:
+                    if pair_uniform(seed, base + i, j) * threshold >= c:
+                        continue
+                    w[a] = np.float32(threshold / lum[j])  # c / p
+            if out != a:
+                pi[out] = pi[a]
+                pj[out] = j
+                w[out] = w[a]
+                pl[out] = pl[a]
+                for c3 in range(3):
+                    o[out, c3] = o[a, c3]
+                    d[out, c3] = d[a, c3]
+                t[out] = t[a]
+            out += 1
+        s = e
+    return out
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

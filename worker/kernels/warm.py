@@ -125,6 +125,7 @@ def _direct_calls() -> dict:
     out1 = np.zeros(0, np.float32)
     return {
         "igi.worker.kernels.vpl_gather.spot_falloff": lambda: vpl_gather.spot_falloff(0.9, 30.0, 20.0),
+        "igi.worker.kernels.vpl_gather.pair_uniform": lambda: vpl_gather.pair_uniform(0, 0, 0),
         # the tiny scene has no bitmap (a textured scene's first hit would load it)
         "igi.common.kernels.texture.lookup": lambda: texture.lookup(
             np.zeros((1, 1, 3), np.float32), np.zeros((1, 2)), 1.0, 1.0, 0.0, 0.0, False, np.zeros((1, 3), np.float32)),
