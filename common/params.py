@@ -57,6 +57,10 @@ PARAMS: tuple[Param, ...] = (
           "unshadowed light is below this fraction of the end point's mean pair traces its ray with "
           "probability light/(fraction x mean) and counts 1/p (unbiased; skips the rays of pairs "
           "that carry little light); 0: every pair traces", "vpl", 0.0, 1.0),
+    Param("lobe_light_samples", int, 4,
+          "emitter samples per set that a split glossy lobe takes for its direct light (MIS with the "
+          "lobe's sampled ray; the first of the set's, reweighted): the lobe's direct light costs "
+          "this many shadow rays, not the set's every sample; 0: all", "vpl", 0, 256),
     Param("light_samples", int, 0,
           "emitters sampled per set in many-light scenes (0: all emitters share the direct VPLs by power)",
           "vpl", 0, 1024),

@@ -25,7 +25,8 @@ from igi.common.specular import specular_targets
 
 from .caustics import PhotonSet, build_photon_set, default_radius, gather_photons
 from .indirect_caustics import lensed_reflection
-from .shading import LightMIS, bsdf_direct, clamp_compensation, gather_vpls, trace_bsdf_rays, trace_eye
+from .shading import (LightMIS, bsdf_direct, clamp_compensation, gather_vpls, lobe_light_count, trace_bsdf_rays,
+                      trace_eye)
 from .vpl import VPLSet, build_vpl_set
 from .portals import Portals
 from .vpl_importance import (AUTO_ESS, CameraPool, View, build_importance_vpl_set, camera_pool, view_emitter_pmf,
@@ -281,16 +282,20 @@ class Renderer:
             o, d = camera_rays(np.asarray(spec.camera_to_world).reshape(4, 4), spec.fov_x, spec.width,
                                spec.height, xs, ys, jitter)
             rng = make_rng(spec.seed, tile.k, tile.sx0, tile.sy0)
+            # A split lobe's direct-only end point takes the first lobe_lights emitter samples;
+            # its sampled ray's MIS weight must count the same samples.
+            lobe_lights = lobe_light_count(vpls, params.lobe_light_samples)
             eye = trace_eye(self.scene, self.geom, self.lights, o, d, params.max_depth,
                             params.specular_depth, rng, params.filter_glossy_alpha,
-                            LightMIS(vpls.direct_count, vpls.env_guide, vpls.emitter_pmf))
+                            LightMIS(lobe_lights, vpls.env_guide, vpls.emitter_pmf))
         clamp_d2 = clamp_distance2(params, self.geom.diagonal)
         # Regularized glossy senders: the bound shrinks like the photon radius (consistent)
         lobe_alpha = params.vpl_lobe_alpha * radius_scale(index, params)
         with self._stage("VPL gather"):
             albedo, irr = gather_vpls(self.geom, eye.end, vpls, clamp_d2, params.max_depth,
                                       force_general=self.plan is None, lobe_alpha=lobe_alpha,
-                                      shadow_roulette=params.shadow_roulette, seed=int(rng.integers(1 << 62)))
+                                      shadow_roulette=params.shadow_roulette, seed=int(rng.integers(1 << 62)),
+                                      lobe_lights=lobe_lights)
         end = eye.end
         rays = None
         compensate = consistent

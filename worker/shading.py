@@ -28,7 +28,7 @@ from igi.common.scene import (DIFFUSE, NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGH
 
 from .caustics import PhotonSet, gather_photons
 from .kernels import vpl_gather as vg
-from .vpl import VPLSet, concat_surface
+from .vpl import VPLSet, concat_surface, subset_vpls
 
 PAIR_CHUNK = 1 << 17  # (end point, VPL) pairs per kernel call: bounds memory, keeps Embree batches large
 
@@ -319,10 +319,28 @@ def _concat_ends(ends: list[EndPoints]) -> EndPoints:
         np.concatenate([e.main for e in ends]), np.concatenate([e.distance for e in ends]), direct)
 
 
+def lobe_light_count(vpls: VPLSet, samples: int) -> int:
+    """How many of the set's emitter samples a split lobe's direct-only end point takes: the
+    first ``samples`` (0: all). All of them where the set's emitter samples are not its first
+    ``direct_count`` VPLs (then no subset is drawn)."""
+    n = int(vpls.direct_count)
+    if samples <= 0 or samples >= n or not np.array_equal(np.nonzero(vpls.depth == 0)[0], np.arange(n)):
+        return n
+    return int(samples)
+
+
+def _lobe_light_set(vpls: VPLSet, count: int) -> VPLSet:
+    """The first ``count`` emitter samples of the set as a set of their own (powers × N/count,
+    direct_count = count): an unbiased estimate from fewer samples whose MIS weights use the
+    samples actually taken."""
+    scale = np.full(len(vpls), vpls.direct_count / count)
+    return replace(subset_vpls(vpls, np.arange(count), scale), direct_count=count)
+
+
 def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
                 max_depth: int, force_general: bool = False,
                 lobe_alpha: float = 0.0, shadow_roulette: float = 0.0,
-                seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+                seed: int = 0, lobe_lights: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Light from the VPL set at each end point, split as (albedo, irradiance).
 
     Radiance toward the eye = albedo · irradiance. For Lambertian end points the albedo is the
@@ -331,8 +349,20 @@ def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
     filter blurs lighting, never texture. ``lobe_alpha``: glossy VPLs radiate through lobes at
     least this rough (:func:`regularized_senders`). ``shadow_roulette`` > 0: Russian roulette
     on the shadow rays of small pairs (kernels.vpl_gather.shadow_roulette), drawn from ``seed``.
+    ``lobe_lights``: the emitter samples the direct-only end points take (:func:`lobe_light_count`;
+    0: all of the set's; trace_eye's LightMIS must name the same count).
     """
     e = len(end)
+    if 0 < lobe_lights < vpls.direct_count and end.direct_only is not None and end.direct_only.any():
+        own = np.nonzero(~end.direct_only)[0]
+        lobe = np.nonzero(end.direct_only)[0]
+        kw = dict(force_general=force_general, lobe_alpha=lobe_alpha, shadow_roulette=shadow_roulette)
+        a1, i1 = gather_vpls(geom, end.subset(own), vpls, clamp_d2, max_depth, seed=seed, **kw)
+        a2, i2 = gather_vpls(geom, end.subset(lobe), _lobe_light_set(vpls, lobe_lights), clamp_d2, max_depth,
+                             seed=seed + 1, **kw)
+        albedo, irr = np.empty((e, 3)), np.empty((e, 3))
+        albedo[own], irr[own], albedo[lobe], irr[lobe] = a1, i1, a2, i2
+        return albedo, irr
     albedo = bsdf.albedo(end.sp, end.wi).astype(np.float64) if e else np.zeros((0, 3))
     irr = np.zeros((e, 3))
     m = len(vpls)

@@ -48,7 +48,7 @@ def test_smooth_rough_conductor_floor_has_no_vpl_lit_end_point():
     assert not smooth_first.any()
 
 
-def _frames(scene, n, params=None):
+def _frames(scene, n, params=None, renderer=None):
     """Per-frame images of a consistent accumulation (seeds 0..n-1)."""
     from igi.master.inprocess import render_local
 
@@ -60,7 +60,7 @@ def _frames(scene, n, params=None):
         frames.append(cur * (i + 1) - (prev * i if prev is not None else 0.0))
         prev = cur
 
-    render_local(scene, params, n, on_frame=keep)
+    render_local(scene, params, n, on_frame=keep, renderer=renderer)
     return np.stack(frames)
 
 
@@ -86,3 +86,25 @@ def test_lobe_light_samples_cut_the_noise_of_a_lamp_seen_in_a_smooth_floor(monke
     se = np.sqrt(var_alone * lit.sum() / len(alone)) / lit.sum()
     m_mis, m_alone = with_mis.mean(axis=(0, 3))[lit].mean(), alone.mean(axis=(0, 3))[lit].mean()
     assert abs(m_mis - m_alone) < 4 * se + 0.02 * m_alone, (m_mis, m_alone, se)
+
+
+def test_a_lobe_taking_fewer_emitter_samples_estimates_the_same_image_with_fewer_rays():
+    # 16 emitter samples per set; the split lobe takes the first 4 (reweighted, MIS counting
+    # 4): the same reflection in expectation, with fewer shadow rays.
+    from igi.worker.renderer import Renderer
+    from tests.support.scenes_synthetic import glossy_floor_lamp
+
+    scene = glossy_floor_lamp()
+    frames, rays = {}, {}
+    for samples in (0, 4):
+        r = Renderer(scene)
+        params = {"photons": 0, "indirect_vpls": 0, "filter_window": 1, "direct_vpls": 16,
+                  "lobe_light_samples": samples}
+        frames[samples] = _frames(scene, 24, params, renderer=r)
+        rays[samples] = r.geom.counters["occluded_rays"]
+    assert rays[4] < 0.5 * rays[0]
+    lit = frames[0].mean(axis=(0, 3)) > 0.01
+    assert lit.mean() > 0.05
+    means = {s: f.mean(axis=(0, 3))[lit].mean() for s, f in frames.items()}
+    se = np.sqrt(sum(f.mean(axis=-1)[:, lit].mean(axis=1).var() / len(f) for f in frames.values()))
+    assert abs(means[4] - means[0]) < 4 * se + 0.01 * means[0], (means, se)
