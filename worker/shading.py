@@ -525,6 +525,9 @@ class _VPLColumns:
             self.glossy[rows[~lam]] = True
             if not lam.all():
                 self.P = bsdf.pack(regularized_senders(sp, lobe_alpha))
+                g = np.nonzero(~lam)[0]
+                # the shadow roulette's guess of a glossy sender's light: a Lambertian VPL of its albedo
+                glossy_guess = vpls.power[rows[g]] * bsdf.albedo(sp.subset(g), vpls.wi_local[rows[g]]) / np.pi
         # glossy columns' BSDF rows in P (their surface VPLs in order), -1 elsewhere
         self.vpl_row = np.full(m, -1, np.int64)
         self.vpl_row[self.surf_rows] = np.arange(len(self.surf_rows))
@@ -532,6 +535,8 @@ class _VPLColumns:
         self.vnormal = np.ascontiguousarray(vpls.normal, dtype=np.float64)
         self.color = np.ascontiguousarray(color)
         self.lum = np.ascontiguousarray(luminance(color), dtype=np.float64)
+        if self.P is not None:
+            self.lum[rows[g]] = luminance(glossy_guess)
         # Spots carry (_, beam, cutoff) degrees in wi_local; cutoff < 0 marks "not a spot".
         self.spot_cutoff = np.where(spot, vpls.wi_local[:, 2], -1.0).astype(np.float64)
         self.spot_beam = np.where(spot, vpls.wi_local[:, 1], 0.0).astype(np.float64)
@@ -555,8 +560,8 @@ def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, c
     (fraction, seed) of the shadow rays' Russian roulette, None for none."""
     pi, pj, w, row, pl, o, d, t = _pair_rays(geom, end, sl, vpls, cols, max_depth)
     if roulette is not None and len(pi):
-        k = vg.shadow_roulette(len(pi), pi, pj, w, pl, o, d, t, row, cols.lum, cols.glossy, roulette[0],
-                               roulette[1], sl.start)
+        k = vg.shadow_roulette(len(pi), pi, pj, w, pl, o, d, t, row, cols.lum, roulette[0], roulette[1],
+                               sl.start)
         pi, pj, w, pl, o, d, t = pi[:k], pj[:k], w[:k], pl[:k], o[:k], d[:k], t[:k]
     blocked = geom.occluded_local(o, d, t) if len(pi) else np.zeros(0, bool)
     factor = _bsdf_factors(sl, cols, row, pi, pj, pl, d, blocked, receivers)

@@ -120,7 +120,7 @@ def test_camera_move_rebuilds_importance_sampled_sets_only():
 def test_plan_off_renders_the_same_image():
     # Forcing every pass on (no plan) must not change the result on a Lambertian scene:
     # the skipped passes contribute nothing there. (Shadow roulette off: without a plan every
-    # surface VPL is a general BSDF column, which the roulette leaves alone.)
+    # surface VPL is a general BSDF column, whose roulette guess differs from a Lambertian's.)
     scene = load_scene(SHARED / "scenes" / "cornell-box" / "scene.xml")
     from igi.master.inprocess import render_local
 

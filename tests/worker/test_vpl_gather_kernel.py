@@ -160,14 +160,14 @@ def test_shadow_roulette_keeps_the_big_pairs_and_glossy_rows():
     pi = np.array([0, 0, 0, 0, 0, 1, 1, 1], np.int64)
     pj = np.array([0, 1, 2, 3, 4, 0, 1, 2], np.int64)
     row = np.array([vg.ROW_LAMBERT, vg.ROW_GLOSSY], np.int8)
-    lum, glossy = np.ones(5), np.zeros(5, bool)
+    lum = np.ones(5)
     kept = []
     for seed in range(200):
         args = [a.copy() for a in (pi, pj, w)]
         k = len(w)
         pl, o, d, t = np.zeros(k, np.float32), np.zeros((k, 3), np.float32), np.zeros((k, 3), np.float32), \
             np.arange(k, dtype=np.float32)
-        n = vg.shadow_roulette(k, args[0], args[1], args[2], pl, o, d, t, row, lum, glossy, 0.5, seed, 0)
+        n = vg.shadow_roulette(k, args[0], args[1], args[2], pl, o, d, t, row, lum, 0.5, seed, 0)
         ki, kj, kw = args[0][:n], args[1][:n], args[2][:n]
         assert (0, 0) in zip(ki.tolist(), kj.tolist())
         assert np.sum(ki == 1) == 3  # the glossy row keeps every pair

@@ -160,16 +160,17 @@ def pair_uniform(seed, i, j):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def shadow_roulette(k, pi, pj, w, pl, o, d, t, row, lum, glossy, fraction, seed, base):
+def shadow_roulette(k, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base):
     """Russian roulette on the first ``k`` pairs (row-major, as pair_weights writes them), in
     place; returns how many remain.
 
-    Per end point, a pair of a Lambertian (or plastic-layer) row and a Lambertian column whose
-    unshadowed contribution c = w · lum[j] is below ``fraction`` of the row's mean such
-    contribution keeps its shadow ray with probability p = c / (fraction · mean) and then
-    counts 1/p (unbiased); the added variance per end point is at most fraction · mean · Σc.
-    Glossy rows and columns always trace: their BSDF factors, applied later, could make a
-    small c large. Pair (i, j) draws pair_uniform(seed, base + i, j)."""
+    Per end point of a Lambertian (or plastic-layer) row, a pair whose unshadowed contribution
+    c = w · lum[j] is below ``fraction`` of the row's mean keeps its shadow ray with probability
+    p = c / (fraction · mean) and then counts 1/p (unbiased; the added variance per end point is
+    at most fraction · mean · Σc). A glossy column's lum[j] is a guess (a Lambertian sender of
+    its albedo): its true light, applied later by its BSDF factor, only makes p less apt, never
+    the estimate biased. Glossy rows always trace: their own lobe can make any pair large.
+    Pair (i, j) draws pair_uniform(seed, base + i, j)."""
     out = 0
     s = 0
     while s < k:
@@ -179,14 +180,14 @@ def shadow_roulette(k, pi, pj, w, pl, o, d, t, row, lum, glossy, fraction, seed,
         count = 0
         eligible_row = row[i] == ROW_LAMBERT or row[i] == ROW_LAYER
         while e < k and pi[e] == i:
-            if eligible_row and not glossy[pj[e]]:
+            if eligible_row:
                 total += np.float64(w[e]) * lum[pj[e]]
                 count += 1
             e += 1
         threshold = fraction * total / count if count > 0 else 0.0
         for a in range(s, e):
             j = pj[a]
-            if threshold > 0.0 and eligible_row and not glossy[j]:
+            if threshold > 0.0 and eligible_row:
                 c = np.float64(w[a]) * lum[j]
                 if c < threshold:
                     if pair_uniform(seed, base + i, j) * threshold >= c:
