@@ -225,6 +225,17 @@ def acceptance(phi: np.ndarray, target: float, mix: float = 1.0, epsilon: float 
     return np.clip(floor + mix * phi / t, 0.0, 1.0)
 
 
+def systematic_keep(p: np.ndarray, u: float) -> np.ndarray:
+    """Which candidates to keep, each with probability min(p, 1), by systematic sampling: one
+    uniform ``u`` offsets the running sum of the probabilities and a candidate is kept where the
+    sum passes an integer. Each is kept with exactly its probability (so the 1/p weights stay
+    unbiased) and the number kept is within one of Σp, where independent coin flips let it
+    wander by its square root."""
+    q = np.minimum(np.asarray(p, np.float64), 1.0)
+    c = np.cumsum(q) + u
+    return np.floor(c) > np.floor(c - q)
+
+
 def build_importance_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: int, k: int,
                              direct_vpls: int, indirect_vpls: int, max_length: int, view: View,
                              oversample: int, clamp_d2: float, max_depth: int, specular_depth: int,
@@ -258,8 +269,7 @@ def build_importance_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler,
                                make_rng(seed, k, "visibility samples"), VISIBILITY_SAMPLES)
     target = len(surf) / oversample
     p = acceptance(phi, target, MIX)
-    u = make_rng(seed, k, "vpl acceptance").random(len(surf))
-    keep = u < p
+    keep = systematic_keep(p, make_rng(seed, k, "vpl acceptance").random())
     rows = np.concatenate([np.nonzero(cand.kind != VPL_SURFACE)[0], surf[keep]])
     scale = np.ones(len(cand))
     scale[surf[keep]] = 1.0 / p[keep]

@@ -42,6 +42,18 @@ def test_acceptance_sums_to_target_within_floor_and_one():
     assert np.all(acceptance(phi[:5], 10.0) == 1.0)  # fewer candidates than wanted: keep all
 
 
+def test_systematic_acceptance_keeps_each_candidate_with_its_probability():
+    from igi.worker.vpl_importance import systematic_keep
+
+    p = np.random.default_rng(3).random(200) ** 3 * 1.3  # some above 1: always kept
+    us = (np.arange(4000) + 0.5) / 4000
+    keeps = np.array([systematic_keep(p, u) for u in us])
+    np.testing.assert_allclose(keeps.mean(axis=0), np.minimum(p, 1.0), atol=1e-3)
+    counts = keeps.sum(axis=1)
+    total = np.minimum(p, 1.0).sum()
+    assert counts.min() >= np.floor(total) and counts.max() <= np.ceil(total)
+
+
 def test_effective_share():
     assert effective_share(np.ones(10)) == pytest.approx(1.0)
     assert effective_share(np.array([1.0, 0, 0, 0])) == pytest.approx(0.25)
