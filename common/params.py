@@ -37,6 +37,11 @@ PARAMS: tuple[Param, ...] = (
     Param("clamp", float, -1.0,
           "minimum squared VPL distance as a fraction of the squared scene diagonal (-1: scene default 1e-3)",
           "vpl", -1.0, 1.0),
+    Param("clamp_first", float, 0.01,
+          "with consistent accumulation, the first frame's squared clamp distance as a fraction of the "
+          "squared scene diagonal; frame i clamps at the larger of clamp and clamp_first/(i+1), the "
+          "clamped light given back by the compensation (a wide clamp takes the first frames' VPL "
+          "spikes); 0: the plain clamp from the first frame", "vpl", 0.0, 1.0),
     Param("vpl_importance", int, -1,
           "indirect VPLs kept by their contribution to the view (Georgiev & Slusallek 2010): "
           "-1 auto (when a pilot set's contributions are uneven), 0 off, 1 on", "vpl", -1, 1),

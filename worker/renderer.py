@@ -50,6 +50,18 @@ def clamp_distance2(params: Params, diagonal: float) -> float:
     return frac * diagonal * diagonal
 
 
+def frame_clamp_distance2(params: Params, diagonal: float, index: int, consistent: bool) -> float:
+    """The squared clamp distance of accumulation frame ``index``: with the clamp's energy
+    given back (``consistent``), the larger of the clamp and clamp_first/(index + 1) of the
+    squared diagonal — a wide clamp takes the first frames' VPL spikes (their light returns
+    through the compensation's BSDF rays, filtered) and narrows to the plain clamp within
+    ~clamp_first/clamp frames; without compensation the plain clamp."""
+    d2 = clamp_distance2(params, diagonal)
+    if not consistent:
+        return d2
+    return max(d2, params.clamp_first / (index + 1.0) * diagonal * diagonal)
+
+
 def _set_block(seed: int, k: int, params: Params, index: int) -> tuple[int, int]:
     """(stream seed, block) of set k of the frame with ``seed`` at accumulation index ``index``.
 
@@ -288,7 +300,7 @@ class Renderer:
             eye = trace_eye(self.scene, self.geom, self.lights, o, d, params.max_depth,
                             params.specular_depth, rng, params.filter_glossy_alpha,
                             LightMIS(lobe_lights, vpls.env_guide, vpls.emitter_pmf))
-        clamp_d2 = clamp_distance2(params, self.geom.diagonal)
+        clamp_d2 = frame_clamp_distance2(params, self.geom.diagonal, index, consistent)
         # Regularized glossy senders: the bound shrinks like the photon radius (consistent)
         lobe_alpha = params.vpl_lobe_alpha * radius_scale(index, params)
         with self._stage("VPL gather"):
