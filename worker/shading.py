@@ -525,18 +525,19 @@ class _VPLColumns:
             self.glossy[rows[~lam]] = True
             if not lam.all():
                 self.P = bsdf.pack(regularized_senders(sp, lobe_alpha))
-                g = np.nonzero(~lam)[0]
-                # the shadow roulette's guess of a glossy sender's light: a Lambertian VPL of its albedo
-                glossy_guess = vpls.power[rows[g]] * bsdf.albedo(sp.subset(g), vpls.wi_local[rows[g]]) / np.pi
         # glossy columns' BSDF rows in P (their surface VPLs in order), -1 elsewhere
         self.vpl_row = np.full(m, -1, np.int64)
         self.vpl_row[self.surf_rows] = np.arange(len(self.surf_rows))
         self.vwi = np.ascontiguousarray(vpls.wi_local, dtype=np.float64)
         self.vnormal = np.ascontiguousarray(vpls.normal, dtype=np.float64)
         self.color = np.ascontiguousarray(color)
-        self.lum = np.ascontiguousarray(luminance(color), dtype=np.float64)
-        if self.P is not None:
-            self.lum[rows[g]] = luminance(glossy_guess)
+        # The shadow roulette's light per unit pair weight; a glossy sender's is a guess: a
+        # Lambertian VPL of its albedo.
+        self.lum = luminance(color)
+        gl = np.nonzero(self.glossy)[0]
+        if len(gl):
+            self.lum[gl] = luminance(vpls.power[gl] * bsdf.albedo(vpls.surface.subset(self.vpl_row[gl]),
+                                                                  vpls.wi_local[gl]) / np.pi)
         # Spots carry (_, beam, cutoff) degrees in wi_local; cutoff < 0 marks "not a spot".
         self.spot_cutoff = np.where(spot, vpls.wi_local[:, 2], -1.0).astype(np.float64)
         self.spot_beam = np.where(spot, vpls.wi_local[:, 1], 0.0).astype(np.float64)
