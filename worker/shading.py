@@ -31,6 +31,12 @@ from .kernels import vpl_gather as vg
 from .vpl import VPLSet, concat_surface, subset_vpls
 
 PAIR_CHUNK = 1 << 17  # (end point, VPL) pairs per kernel call: bounds memory, keeps Embree batches large
+# Clamp compensation recurses (Kollig & Keller 2004): the point y that a short gather ray finds is
+# lit by a clamped gather too, which darkens creases and corners by the square of the clamped share.
+# In a crease most of y's own short rays meet a surface again, so past the second level a near hit
+# goes on with probability 1/2 (Russian roulette, weight 2): the expected work per level halves.
+COMPENSATION_ROULETTE_LEVEL = 2
+COMPENSATION_MAX_LEVEL = 8  # safety net
 
 
 @dataclass
@@ -717,11 +723,13 @@ def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoin
 def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints,
                        albedo: np.ndarray, vpls: VPLSet, clamp_d2: float, max_depth: int,
                        rng: np.random.Generator, lobe_alpha: float = 0.0,
-                       rays: BSDFRays | None = None, photons: PhotonSet | None = None) -> np.ndarray:
+                       rays: BSDFRays | None = None, photons: PhotonSet | None = None,
+                       level: int = 1) -> np.ndarray:
     """Energy the VPL clamp removed, added back by short BSDF-sampled gather rays
     (Kollig & Keller 2004; pbrt-v2's igi integrator), per unit albedo. ``rays``: the end
     points' traced continuation rays (:func:`trace_bsdf_rays`), shared with BSDF-direct; None:
-    sampled and traced here.
+    sampled and traced here. ``level``: the recursion depth of this call (1: the eye path's end
+    points; the points y it finds are compensated at level 2, and so on).
 
     The clamp replaces 1/d² by 1/max(d², c) for surface VPLs, i.e. it drops the fraction
     (1 - d²/c) of the light a point y closer than √c sends to x. A BSDF-sampled ray from x
@@ -739,17 +747,22 @@ def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: 
     near = hits.valid & (hits.t < r) & ~rays.delta  # a delta sample never meets a clamped VPL
     if max_depth >= 0:
         near &= end.segments[ok] + 2 <= max_depth
+    survive = 1.0
+    if level >= COMPENSATION_ROULETTE_LEVEL:
+        survive = 0.5
+        near &= rng.random(len(near)) < survive
     if not near.any():
         return out
     sel = np.nonzero(near)[0]
     keep, l_y = reflected_radiance(scene, geom, lights, hits, sel, d[sel], end.segments[ok[sel]] + 1, vpls,
-                                   clamp_d2, max_depth, rng, lobe_alpha, photons)
+                                   clamp_d2, max_depth, rng, lobe_alpha, photons,
+                                   compensate=level + 1 if level < COMPENSATION_MAX_LEVEL else 0)
     if len(keep) == 0:
         return out
     t = hits.t[sel][keep]
     share = np.clip(1.0 - t * t / clamp_d2, 0.0, 1.0)
     rows = ok[sel][keep]
-    contrib = weight[sel][keep] * l_y * share[:, None] / np.maximum(albedo[rows], 1e-6)
+    contrib = weight[sel][keep] * l_y * (share / survive)[:, None] / np.maximum(albedo[rows], 1e-6)
     np.add.at(out, rows, np.nan_to_num(contrib, nan=0.0, posinf=0.0, neginf=0.0))
     return out
 
@@ -757,12 +770,13 @@ def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: 
 def reflected_radiance(scene: Scene, geom: Geometry, lights: LightSampler, hits, sel: np.ndarray,
                        d: np.ndarray, segments: np.ndarray, vpls: VPLSet, clamp_d2: float,
                        max_depth: int, rng: np.random.Generator, lobe_alpha: float = 0.0,
-                       photons: PhotonSet | None = None) -> tuple[np.ndarray, np.ndarray]:
+                       photons: PhotonSet | None = None, compensate: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Radiance that the surfaces hit by rays ``sel`` of ``hits`` (world directions ``d``,
     reached after ``segments`` segments) reflect back along the rays: the VPL set's light and the
     emitter samples there, with their own MIS-weighted BSDF ray, and the caustic ``photons``
     there (L S+ D: the light walks behind the VPLs pass through glass, so the VPLs stand for it
-    too); their emission is not included.
+    too); their emission is not included. ``compensate`` > 0: y's clamped VPL light is completed
+    by :func:`clamp_compensation` at that recursion level.
     Returns ``(k, L)``: the positions in ``sel`` of the non-specular, non-black hits and their
     (len(k), 3) radiance.
 
@@ -783,4 +797,7 @@ def reflected_radiance(scene: Scene, geom: Geometry, lights: LightSampler, hits,
                                 emitter_pmf=vpls.emitter_pmf)
     if photons is not None and len(photons):
         irr_y = irr_y + gather_photons(y, photons, a_y, max_depth)
+    if compensate > 0:
+        irr_y = irr_y + clamp_compensation(scene, geom, lights, y, a_y, vpls, clamp_d2, max_depth, rng, lobe_alpha,
+                                           photons=photons, level=compensate)
     return nd, a_y * irr_y
