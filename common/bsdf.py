@@ -331,6 +331,33 @@ def sample(sp: SurfacePoints, wi: np.ndarray, u1: np.ndarray, u2: np.ndarray, mo
     return wo.astype(dt, copy=False), weight.astype(dt, copy=False), p.astype(dt, copy=False), delta
 
 
+_ALBEDO_POINTS: dict[int, np.ndarray] = {}
+
+
+def _albedo_points(samples: int) -> np.ndarray:
+    pts = _ALBEDO_POINTS.get(samples)
+    if pts is None:
+        from scipy.stats import qmc
+        pts = _ALBEDO_POINTS[samples] = qmc.Sobol(3, scramble=True, seed=0x5EED).random(samples)
+    return pts
+
+
+def directional_albedo(sp: SurfacePoints, wi: np.ndarray, samples: int = 256) -> np.ndarray:
+    """(N, 3) directional albedo ∫ f(wi, wo) |cos θo| dωo of each point, estimated by its own
+    importance sampling over one fixed set of ``samples`` scrambled Sobol' points (the same for
+    every point and call, so two BSDFs compared at one wi share most of their quadrature error).
+    Unlike :func:`albedo` (a smooth estimate for demodulation) it includes what single-scattering
+    microfacets lose to shadowing at their roughness."""
+    n = len(sp)
+    if n == 0:
+        return np.zeros((0, 3))
+    u = _albedo_points(samples)
+    big = sp.subset(np.repeat(np.arange(n), samples))
+    _wo, w, _p, _delta = sample(big, np.repeat(_dirs(wi, n), samples, axis=0), np.tile(u[:, 0], n),
+                                np.tile(u[:, 1:], (n, 1)))
+    return w.reshape(n, samples, 3).mean(axis=1)
+
+
 def sample_lobe(sp: SurfacePoints, wi: np.ndarray, u2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Sample only the glossy lobe of rough conductors and rough plastics (the paper's split of
     an eye path per BSDF component): ``(wo (N, 3), weight (N, 3))`` with weight = lobe value ×

@@ -28,6 +28,7 @@ from igi.common.scene import (DIFFUSE, NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGH
 
 from .caustics import PhotonSet, gather_photons
 from .kernels import vpl_gather as vg
+from .regularization import regularization_gain, regularized_senders
 from .vpl import VPLSet, concat_surface, subset_vpls
 
 PAIR_CHUNK = 1 << 17  # (end point, VPL) pairs per kernel call: bounds memory, keeps Embree batches large
@@ -459,23 +460,6 @@ def _systematic_pairs(pj: np.ndarray, weight: np.ndarray, m: int, samples: int,
     return order[k], np.repeat(total[lit] / samples, samples)
 
 
-def regularized_senders(surface: "bsdf.SurfacePoints", lobe_alpha: float) -> "bsdf.SurfacePoints":
-    """The surface VPLs' BSDFs with every microfacet lobe at least ``lobe_alpha`` rough.
-
-    A VPL on a smooth glossy surface sends its light into a narrow lobe: the pixels it hits get
-    a spike of ~1/(π α²) times what a Lambertian VPL would give them (the clamp bounds only the
-    1/d² term), one firefly per set that frames cannot average away quickly. Widening the lobe
-    (Kaplanyan & Dachsbacher 2013, path-space regularization) blurs its direction and keeps
-    most of its energy (what single-scattering microfacets lose at the wider roughness is not
-    compensated: ≤ 15% toward the normal, up to ~35% for a plastic's coat at grazing angles);
-    with ``lobe_alpha`` shrinking as frames accumulate the estimate stays consistent. Smooth *receivers* need nothing: they are split at the first hit."""
-    glossy = (surface.kind == ROUGHCONDUCTOR) | (surface.kind == ROUGHPLASTIC)
-    if lobe_alpha <= 0 or not np.any(glossy & (surface.alpha < lobe_alpha)):
-        return surface
-    alpha = np.where(glossy, np.maximum(surface.alpha, lobe_alpha), surface.alpha).astype(surface.alpha.dtype)
-    return replace(surface, alpha=alpha)
-
-
 class _Receivers:
     """The end points' BSDFs for the compiled per-pair evaluation, packed once per gather and
     only when a pair needs them (Lambertian scenes never do)."""
@@ -530,7 +514,10 @@ class _VPLColumns:
             color[rows[lam]] *= sp.diffuse[lam] / np.pi
             self.glossy[rows[~lam]] = True
             if not lam.all():
-                self.P = bsdf.pack(regularized_senders(sp, lobe_alpha))
+                reg = regularized_senders(sp, lobe_alpha)
+                self.P = bsdf.pack(reg)
+                if reg is not sp:
+                    color[rows] *= regularization_gain(sp, reg, vpls.wi_local[rows])
         # glossy columns' BSDF rows in P (their surface VPLs in order), -1 elsewhere
         self.vpl_row = np.full(m, -1, np.int64)
         self.vpl_row[self.surf_rows] = np.arange(len(self.surf_rows))
@@ -784,12 +771,14 @@ def reflected_radiance(scene: Scene, geom: Geometry, lights: LightSampler, hits,
     senders' (:func:`regularized_senders`, ``lobe_alpha``), or a smooth plastic at y (α 0.01)
     turns one caustic photon or VPL near its mirror direction into a spike of ~10³ times the
     pixel's light that the discontinuity buffer spreads over a whole interleave block."""
-    y_sp = regularized_senders(bsdf.gather(scene.materials, hits.material[sel], hits.uv[sel]), lobe_alpha)
+    y_orig = bsdf.gather(scene.materials, hits.material[sel], hits.uv[sel])
+    y_sp = regularized_senders(y_orig, lobe_alpha)
     nd = np.nonzero(~kind_in(y_sp.kind, SPECULAR_KINDS) & (y_sp.kind != NULL))[0]
     if len(nd) == 0:
         return nd, np.zeros((0, 3))
     s = sel[nd]
-    y = EndPoints(np.arange(len(nd)), hits.position[s], hits.ns[s], hits.ng[s], to_local(-d[nd], hits.ns[s]),
+    wo_y = to_local(-d[nd], hits.ns[s])
+    y = EndPoints(np.arange(len(nd)), hits.position[s], hits.ns[s], hits.ng[s], wo_y,
                   y_sp.subset(nd), np.ones((len(nd), 3)), np.asarray(segments)[nd], np.ones(len(nd), bool),
                   hits.t[s])
     a_y, irr_y = gather_vpls(geom, y, vpls, clamp_d2, max_depth, lobe_alpha=lobe_alpha)
@@ -800,4 +789,6 @@ def reflected_radiance(scene: Scene, geom: Geometry, lights: LightSampler, hits,
     if compensate > 0:
         irr_y = irr_y + clamp_compensation(scene, geom, lights, y, a_y, vpls, clamp_d2, max_depth, rng, lobe_alpha,
                                            photons=photons, level=compensate)
+    if y_sp is not y_orig:  # reciprocity: the lobe toward x keeps the energy of the one from x
+        irr_y = irr_y * regularization_gain(y_orig.subset(nd), y.sp, wo_y)
     return nd, a_y * irr_y
