@@ -193,6 +193,17 @@ def test_a_first_frame_takes_the_roulette_walks_unless_the_view_moves():
     assert got[False] == pytest.approx(1.875, rel=0.015)
 
 
+def _interleaved_furnace_mean(r: Renderer, scene, p, seeds: range) -> float:
+    """Mean image value of one 12×12 frame of the 3×3 interleave per seed, averaged over seeds."""
+    means = []
+    for seed in seeds:
+        spec = FrameSpec(0, seed, tuple(scene.camera.to_world.ravel()), scene.camera.fov_x, 12, 12,
+                         params_to_dict(p))
+        means.append(np.mean([float((b.reflectance * b.irradiance + b.unfiltered).mean())
+                              for b in (r.render_tile(spec, Tile(k, 0, 0, 4, 4)) for k in range(9))]))
+    return float(np.mean(means))
+
+
 def test_clamp_compensation_restores_the_clamped_energy():
     # A deliberately large clamp (d_min² = 0.05 diag²) darkens the furnace by ~4% at
     # max_depth 3 (1 + 0.5 + 0.25 expected). While accumulating, the short gather rays give
@@ -203,13 +214,7 @@ def test_clamp_compensation_restores_the_clamped_energy():
     for consistent in (False, True):
         p = make_params(interleave=3, clamp=0.05, light_path_length=1, indirect_vpls=8, direct_vpls=16,
                         consistent=consistent, max_depth=3)
-        means = []
-        for seed in range(1, 41):
-            spec = FrameSpec(0, seed, tuple(scene.camera.to_world.ravel()), scene.camera.fov_x, 12, 12,
-                             params_to_dict(p))
-            means.append(np.mean([float((b.reflectance * b.irradiance + b.unfiltered).mean())
-                                  for b in (r.render_tile(spec, Tile(k, 0, 0, 4, 4)) for k in range(9))]))
-        got[consistent] = float(np.mean(means))
+        got[consistent] = _interleaved_furnace_mean(r, scene, p, range(1, 41))
     assert got[False] < 1.75 * 0.98  # the clamp's bias is real
     assert got[True] == pytest.approx(1.75, rel=0.01)
 
@@ -224,19 +229,9 @@ def test_recursive_clamp_compensation_restores_the_light_of_creases(monkeypatch)
     scene = furnace_box(0.5, 1.0, 12, 12)
     r = Renderer(scene)
     p = make_params(interleave=3, clamp=0.2, light_path_length=2, indirect_vpls=8, direct_vpls=16)
-
-    def image_mean() -> float:
-        means = []
-        for seed in range(1, 61):
-            spec = FrameSpec(0, seed, tuple(scene.camera.to_world.ravel()), scene.camera.fov_x, 12, 12,
-                             params_to_dict(p))
-            means.append(np.mean([float((b.reflectance * b.irradiance + b.unfiltered).mean())
-                                  for b in (r.render_tile(spec, Tile(k, 0, 0, 4, 4)) for k in range(9))]))
-        return float(np.mean(means))
-
-    recursive = image_mean()
+    recursive = _interleaved_furnace_mean(r, scene, p, range(1, 61))
     monkeypatch.setattr(shading, "COMPENSATION_MAX_LEVEL", 1)
-    one_level = image_mean()
+    one_level = _interleaved_furnace_mean(r, scene, p, range(1, 61))
     assert recursive == pytest.approx(2.0, rel=0.01)
     assert one_level < 2.0 * 0.98
 
