@@ -334,7 +334,8 @@ def sample(sp: SurfacePoints, wi: np.ndarray, u1: np.ndarray, u2: np.ndarray, mo
 _ALBEDO_POINTS: dict[int, np.ndarray] = {}
 
 
-def _albedo_points(samples: int) -> np.ndarray:
+def albedo_points(samples: int) -> np.ndarray:
+    """(samples, 3) the fixed scrambled Sobol' points of :func:`directional_albedo`."""
     pts = _ALBEDO_POINTS.get(samples)
     if pts is None:
         from scipy.stats import qmc
@@ -351,7 +352,7 @@ def directional_albedo(sp: SurfacePoints, wi: np.ndarray, samples: int = 256) ->
     n = len(sp)
     if n == 0:
         return np.zeros((0, 3))
-    u = _albedo_points(samples)
+    u = albedo_points(samples)
     big = sp.subset(np.repeat(np.arange(n), samples))
     _wo, w, _p, _delta = sample(big, np.repeat(_dirs(wi, n), samples, axis=0), np.tile(u[:, 0], n),
                                 np.tile(u[:, 1:], (n, 1)))

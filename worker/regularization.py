@@ -27,10 +27,15 @@ from igi.common.scene import ROUGHCONDUCTOR, ROUGHPLASTIC
 MU_BINS = 32  # incident-angle cosines tabulated per lobe
 LOBE_SAMPLES = 256  # quasi-Monte Carlo points per tabulated cosine
 _MU = (np.arange(MU_BINS) + 0.5) / MU_BINS
-_TABLES: OrderedDict = OrderedDict()
+_TABLES: OrderedDict[tuple[bytes, float], np.ndarray] = OrderedDict()
 _MAX_TABLES = 256
 _LOCK = Lock()
-_KEY_WEIGHTS = np.random.default_rng(0x10BE).uniform(1.0, 2.0, 11)  # lobe keys -> one float
+_KEY_WEIGHTS = np.random.default_rng(0x10BE).uniform(1.0, 2.0, 11)  # _lobe_keys' 10 columns + α -> one float
+ALBEDO_MIN_COS = 0.05  # bsdf.albedo's smallest cosine (common.kernels.bsdf.albedo)
+# Bounds of the gain: above 4 a widened lobe would spike again at grazing light (a bound of 2
+# measured the same noise and more bias in modern-hall); below 1 where widening a Beckmann lobe
+# adds a little energy at grazing incidence.
+GAIN_MIN, GAIN_MAX = 0.5, 4.0
 
 
 def regularized_senders(surface: bsdf.SurfacePoints, lobe_alpha: float) -> bsdf.SurfacePoints:
@@ -48,7 +53,7 @@ def regularized_senders(surface: bsdf.SurfacePoints, lobe_alpha: float) -> bsdf.
 def _lobe_albedo(point: bsdf.SurfacePoints, alpha: float) -> np.ndarray:
     """(MU_BINS, 3) albedo of the glossy lobe alone of one point (unit specular reflectance) at
     roughness ``alpha``, for incidence cosines _MU."""
-    u = bsdf._albedo_points(LOBE_SAMPLES)[:, 1:]
+    u = bsdf.albedo_points(LOBE_SAMPLES)[:, 1:]
     n = MU_BINS * LOBE_SAMPLES
     sp = replace(point.subset(np.zeros(n, np.int64)), alpha=np.full(n, alpha, point.alpha.dtype),
                  specular=np.ones((n, 3)))
@@ -64,16 +69,16 @@ def _lobe_keys(sp: bsdf.SurfacePoints) -> np.ndarray:
                             sp.eta, sp.cond_eta, sp.cond_k, sp.beckmann.astype(np.float64)])
 
 
-def _tables(sp: bsdf.SurfacePoints, key: np.ndarray, row: int, alpha: float) -> tuple[np.ndarray, np.ndarray]:
-    """(original, widened) lobe albedo tables of the lobe ``key`` (first seen at ``row``)."""
+def _table(sp: bsdf.SurfacePoints, key: np.ndarray, row: int, alpha: float) -> np.ndarray:
+    """The lobe albedo table of lobe ``key`` (first seen at ``row`` of ``sp``) at roughness
+    ``alpha``: one per lobe and roughness (the original's is reused while the bound shrinks)."""
     k = (key.tobytes(), float(alpha))
     with _LOCK:
         hit = _TABLES.get(k)
         if hit is not None:
             _TABLES.move_to_end(k)
             return hit
-    point = sp.subset(np.array([row]))
-    value = (_lobe_albedo(point, float(point.alpha[0])), _lobe_albedo(point, alpha))
+    value = _lobe_albedo(sp.subset(np.array([row])), alpha)  # outside the lock: threads may race, alike
     with _LOCK:
         _TABLES[k] = value
         while len(_TABLES) > _MAX_TABLES:
@@ -95,14 +100,15 @@ def regularization_gain(surface: bsdf.SurfacePoints, regularized: bsdf.SurfacePo
     ``surface``) the directional albedo of the originals at ``wi`` (local; a VPL's incident
     direction, or by reciprocity the direction a receiver reflects toward): original albedo /
     (original albedo - what widening the lobe loses). 1 where the lobe was not widened; within
-    [1, 4]."""
+    [GAIN_MIN, GAIN_MAX]."""
     gain = np.ones((len(surface), 3))
     rows = np.nonzero(regularized.alpha != surface.alpha)[0]
     if len(rows) == 0:
         return gain
     orig = surface if len(rows) == len(surface) else surface.subset(rows)
     alpha = regularized.alpha[rows]
-    mu = np.abs(np.asarray(wi, dtype=np.float64)[rows, 2])
+    # the cosine bsdf.albedo evaluates at, so the lobe tables and the total albedo agree
+    mu = np.clip(np.abs(np.asarray(wi, dtype=np.float64)[rows, 2]), ALBEDO_MIN_COS, 1.0)
     keys = _lobe_keys(orig)
     combos = np.column_stack([keys, alpha.astype(np.float64)])
     # one lobe per material, as a rule: group rows by a 1-D projection of their keys (a sort of
@@ -112,17 +118,17 @@ def regularization_gain(surface: bsdf.SurfacePoints, regularized: bsdf.SurfacePo
     s_reg = np.empty((len(rows), 3))
     for c, r0 in enumerate(first):
         sel = np.nonzero(inverse == c)[0] if len(first) > 1 else slice(None)
-        t_orig, t_reg = _tables(orig, keys[r0], int(r0), float(alpha[r0]))
-        s_orig[sel] = _at(t_orig, mu[sel])
-        s_reg[sel] = _at(t_reg, mu[sel])
+        s_orig[sel] = _at(_table(orig, keys[r0], int(r0), float(orig.alpha[r0])), mu[sel])
+        s_reg[sel] = _at(_table(orig, keys[r0], int(r0), float(alpha[r0])), mu[sel])
     spec = np.asarray(orig.specular, dtype=np.float64)
     lost = spec * np.maximum(s_orig - s_reg, 0.0)
-    # A conductor is all lobe; a plastic's smooth albedo estimate is its diffuse layer plus the
-    # coat's Fresnel reflectance, i.e. the original (near-smooth) lobe's albedo.
+    # A conductor is all lobe; a plastic's smooth albedo estimate is its diffuse layer plus its
+    # coat's single-scattering reflectance at the original roughness (the coat tables, which the
+    # widened lobe keeps): the original's total directional albedo.
     full = np.where((orig.kind == ROUGHCONDUCTOR)[:, None], spec * s_orig, bsdf.albedo(orig, mu_dirs(mu)))
     with np.errstate(divide="ignore", invalid="ignore"):
         g = full / (full - lost)
-    gain[rows] = np.clip(np.where(np.isfinite(g), g, 1.0), 1.0, 4.0)
+    gain[rows] = np.clip(np.where(np.isfinite(g) & (g > 0), g, 1.0), GAIN_MIN, GAIN_MAX)
     return gain
 
 

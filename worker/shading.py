@@ -34,8 +34,8 @@ from .vpl import VPLSet, concat_surface, subset_vpls
 PAIR_CHUNK = 1 << 17  # (end point, VPL) pairs per kernel call: bounds memory, keeps Embree batches large
 # Clamp compensation recurses (Kollig & Keller 2004): the point y that a short gather ray finds is
 # lit by a clamped gather too, which darkens creases and corners by the square of the clamped share.
-# In a crease most of y's own short rays meet a surface again, so past the second level a near hit
-# goes on with probability 1/2 (Russian roulette, weight 2): the expected work per level halves.
+# In a crease most of y's own short rays meet a surface again, so from level 2 on (y's own
+# compensation) a near hit goes on with probability 1/2 (Russian roulette, weight 2).
 COMPENSATION_ROULETTE_LEVEL = 2
 COMPENSATION_MAX_LEVEL = 3  # deeper levels hold ~0.1% of the light (furnace at a 0.2 clamp) for ~1/5 of the cost
 
