@@ -57,9 +57,7 @@ def _lobe_albedo(point: bsdf.SurfacePoints, alpha: float) -> np.ndarray:
     n = MU_BINS * LOBE_SAMPLES
     sp = replace(point.subset(np.zeros(n, np.int64)), alpha=np.full(n, alpha, point.alpha.dtype),
                  specular=np.ones((n, 3)))
-    mu = np.repeat(_MU, LOBE_SAMPLES)
-    wi = np.stack([np.sqrt(1 - mu * mu), np.zeros(n), mu], axis=1)
-    _wo, w = bsdf.sample_lobe(sp, wi, np.tile(u, (MU_BINS, 1)))
+    _wo, w = bsdf.sample_lobe(sp, mu_dirs(np.repeat(_MU, LOBE_SAMPLES)), np.tile(u, (MU_BINS, 1)))
     return w.reshape(MU_BINS, LOBE_SAMPLES, 3).mean(axis=1)
 
 

@@ -782,13 +782,16 @@ def reflected_radiance(scene: Scene, geom: Geometry, lights: LightSampler, hits,
                   y_sp.subset(nd), np.ones((len(nd), 3)), np.asarray(segments)[nd], np.ones(len(nd), bool),
                   hits.t[s])
     a_y, irr_y = gather_vpls(geom, y, vpls, clamp_d2, max_depth, lobe_alpha=lobe_alpha)
+    # y's continuation rays serve its BSDF-direct light and, when compensated, its compensation
+    # (as the eye path's end points share theirs): one trace, not two
+    rays = trace_bsdf_rays(geom, lights, y, max_depth, rng, short=np.sqrt(clamp_d2)) if compensate > 0 else None
     irr_y = irr_y + bsdf_direct(scene, geom, lights, y, a_y, vpls.direct_count, max_depth, rng, vpls.env_guide,
-                                emitter_pmf=vpls.emitter_pmf)
+                                rays, vpls.emitter_pmf)
     if photons is not None and len(photons):
         irr_y = irr_y + gather_photons(y, photons, a_y, max_depth)
     if compensate > 0:
         irr_y = irr_y + clamp_compensation(scene, geom, lights, y, a_y, vpls, clamp_d2, max_depth, rng, lobe_alpha,
-                                           photons=photons, level=compensate)
+                                           rays, photons, level=compensate)
     if y_sp is not y_orig:  # reciprocity: the lobe toward x keeps the energy of the one from x
         irr_y = irr_y * regularization_gain(y_orig.subset(nd), y.sp, wo_y)
     return nd, a_y * irr_y
