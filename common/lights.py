@@ -24,9 +24,13 @@ VPL_SPOT = 3  # spot light: I · falloff(angle to axis)
 VPL_DIRECTIONAL = 4  # light from infinity along -direction: irradiance E (also the environment)
 
 
+LUMINANCE_WEIGHTS = (0.212671, 0.715160, 0.072169)  # linear sRGB -> Y (Mitsuba's luminance)
+
+
 def luminance(rgb: np.ndarray) -> np.ndarray:
     rgb = np.asarray(rgb, np.float64)
-    return rgb[..., 0] * 0.212671 + rgb[..., 1] * 0.715160 + rgb[..., 2] * 0.072169
+    wr, wg, wb = LUMINANCE_WEIGHTS
+    return rgb[..., 0] * wr + rgb[..., 1] * wg + rgb[..., 2] * wb
 
 
 def frame_from(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

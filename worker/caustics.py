@@ -9,6 +9,7 @@ bounces and are stored at the first non-specular hit after at least one specular
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -73,9 +74,19 @@ def build_photon_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: i
     target cones (same expectation, many photons wasted): the check that aiming is unbiased.
     ``targets``: the mirror/glass bounding spheres (common.specular.specular_targets), if known.
     """
+    return build_photon_sets(scene, geom, lights, seed, [k], photons_per_light, radius, max_bounces, aim,
+                             targets)[0]
+
+
+def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: int, ks: Sequence[int],
+                      photons_per_light: int, radius: float, max_bounces: int,
+                      aim: bool = True, targets: tuple | None = None) -> list[PhotonSet]:
+    """:func:`build_photon_set` of every block k of ``ks``, each as it is alone (every photon
+    depends on its own stream row only), emitted and traced together: one Embree batch per
+    bounce for all the sets."""
     centres, radii = targets if targets is not None else specular_targets(scene, geom)
     if photons_per_light <= 0 or len(radii) == 0 or not lights.has_light:
-        return _empty(radius)
+        return [_empty(radius) for _ in ks]
     stream = SobolStream(stream_seed(seed, PHOTON_STREAM))
     dims = EMIT_DIMS + BOUNCE_DIMS * max_bounces
     n = photons_per_light
@@ -85,9 +96,12 @@ def build_photon_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: i
     shooting = [ei for ei, e in enumerate(scene.emitters)
                 if e.kind in (AREA, POINT, SPOT) and lights.powers[ei] > 0]  # distant: see docs
     if not shooting:
-        return _empty(radius)
-    u = stream.padded(k, len(shooting) * n, len(shooting) * n, dims)
-    em = np.repeat(np.asarray(shooting, np.int64), n)
+        return [_empty(radius) for _ in ks]
+    per_set = len(shooting) * n
+    u = np.concatenate([stream.padded(k, per_set, per_set, dims) for k in ks])
+    nsets = len(ks)
+    light = np.tile(np.repeat(np.arange(len(shooting)), n), nsets)  # row -> shooting light
+    em = np.asarray(shooting, np.int64)[light]
     shot = len(em)
     kind = np.array([e.kind for e in scene.emitters])[em]
     area = np.nonzero(kind == AREA)[0]
@@ -95,12 +109,12 @@ def build_photon_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: i
     nrm = np.zeros((shot, 3))
     if len(area):
         pos[area], nrm[area] = lights._area_points(em[area], u[area, 0:2])
+    rows_of = [np.nonzero(light == i)[0] for i in range(len(shooting))]
     for i, ei in enumerate(shooting):
         e = scene.emitters[ei]
         if e.kind != AREA:
-            sel = slice(i * n, (i + 1) * n)  # light i's photons: the i-th block of n
-            pos[sel] = e.position
-            nrm[sel] = e.direction / np.linalg.norm(e.direction)
+            pos[rows_of[i]] = e.position
+            nrm[rows_of[i]] = e.direction / np.linalg.norm(e.direction)
     if aim:
         t = np.minimum((u[:, 2] * len(radii)).astype(np.int64), len(radii) - 1)
         _, cos_max, axes = _cone_mixture_pdf(pos, np.zeros((shot, 3)), centres, radii)
@@ -125,25 +139,29 @@ def build_photon_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: i
         o[area] = geom.offset(pos[area], nrm[area], d[area])
     for i, ei in enumerate(shooting):
         e = scene.emitters[ei]
-        sel = slice(i * n, (i + 1) * n)
+        sel = rows_of[i]
         if e.kind == POINT:
             flux[sel] = e.intensity[None, :] / pdf[sel][:, None]
         elif e.kind == SPOT:
             fall = spot_falloff(np.einsum("ij,ij->i", d[sel], nrm[sel]), e.cutoff_angle, e.beam_width)
             flux[sel] = e.intensity[None, :] * (fall / pdf[sel])[:, None]
     flux /= n
-    # All lights' photons in one trace (one Embree batch per bounce, not one per light), then
-    # put back in light order: the same photons, in the same order, as tracing light by light.
-    light = em
+    # All sets' and lights' photons in one trace (one Embree batch per bounce), then put back
+    # per set in light order: the same photons, in the same order, as tracing light by light.
     traced = _trace_photons(scene, geom, o, d, flux, u, max_bounces)
-    if traced is None or not len(traced[0]):
-        out = _empty(radius)
-        out.shot = shot
-        return out
-    order = np.argsort(light[traced[5]], kind="stable")
-    pos, pw, di, nr, dp = (a[order] for a in traced[:5])
-    grid = HashGrid(pos, radius)
-    return PhotonSet(pos, pw, di, nr, dp, radius, grid, shot)
+    out = []
+    src = traced[5] if traced is not None else np.zeros(0, np.int64)
+    order = np.lexsort((light[src], src // per_set))
+    stops = np.cumsum(np.bincount(src // per_set, minlength=nsets))
+    for rows in np.split(order, stops[:-1]):
+        if len(rows) == 0:
+            empty = _empty(radius)
+            empty.shot = per_set
+            out.append(empty)
+            continue
+        pos_s, pw, di, nr, dp = (a[rows] for a in traced[:5])
+        out.append(PhotonSet(pos_s, pw, di, nr, dp, radius, HashGrid(pos_s, radius), per_set))
+    return out
 
 
 def _trace_photons(scene, geom, o, d, flux, u, max_bounces):

@@ -23,13 +23,14 @@ from igi.common.scene import DIFFUSE, GLOSSY_KINDS, PLASTIC, ROUGHPLASTIC_DIFFUS
 from igi.common.sobol_stream import rng as make_rng
 from igi.common.specular import specular_targets
 
-from .caustics import PhotonSet, build_photon_set, default_radius, gather_photons
+from .caustics import PhotonSet, build_photon_sets, default_radius, gather_photons
 from .indirect_caustics import lensed_reflection
 from .shading import (LightMIS, bsdf_direct, clamp_compensation, gather_vpls, lobe_light_count, trace_bsdf_rays,
                       trace_eye)
-from .vpl import VPLSet, build_vpl_set
+from .set_cache import FrameSets
+from .vpl import VPLSet, build_vpl_sets
 from .portals import Portals
-from .vpl_importance import (AUTO_ESS, CameraPool, View, build_importance_vpl_set, camera_pool, view_emitter_pmf,
+from .vpl_importance import (AUTO_ESS, CameraPool, View, build_importance_vpl_sets, camera_pool, view_emitter_pmf,
                              view_portals)
 
 DEFAULT_CLAMP = 1e-3  # minimum squared VPL distance, as a fraction of the squared scene diagonal
@@ -62,15 +63,16 @@ def frame_clamp_distance2(params: Params, diagonal: float, index: int, consisten
     return max(d2, params.clamp_first / (index + 1.0) * diagonal * diagonal)
 
 
-def _set_block(seed: int, k: int, params: Params, index: int) -> tuple[int, int]:
-    """(stream seed, block) of set k of the frame with ``seed`` at accumulation index ``index``.
+def _set_blocks(seed: int, ks: list[int], params: Params, index: int) -> tuple[int, list[int]]:
+    """(stream seed, blocks) of sets ``ks`` of the frame with ``seed`` at accumulation index
+    ``index``.
 
     Accumulated frames continue the first frame's sequence (frame i after a reset with seed
     params.seed has seed params.seed + i): frame i's K sets are blocks [i·K, (i+1)·K) of the
     first frame's streams, so the frames of an accumulation are jointly stratified
     (randomized QMC across frames) rather than independent realizations."""
     sets = params.interleave ** 2
-    return (seed, k) if index == 0 else (params.seed, index * sets + k)
+    return (seed, list(ks)) if index == 0 else (params.seed, [index * sets + k for k in ks])
 
 
 class _StageTimer:
@@ -104,7 +106,7 @@ class Renderer:
     def _stage(self, name: str):
         return _NO_STAGE if self.stage_times is None else _StageTimer(self.stage_times, name)
 
-    def __init__(self, scene: Scene, scene_version: int = 0, max_cached_sets: int = 128,
+    def __init__(self, scene: Scene, scene_version: int = 0, max_cached_sets: int = 512,
                  use_plan: bool = True):
         self.scene = scene
         self.scene_version = scene_version
@@ -114,10 +116,8 @@ class Renderer:
         self.plan = analyze(scene, self.geom, self.lights) if use_plan else None
         if self.plan is not None and not self.plan.textures:
             self.geom.need_uv = False  # no bitmap is read: skip uv interpolation on every hit
-        self._sets: OrderedDict[tuple, VPLSet] = OrderedDict()
-        self._max_sets = max_cached_sets
+        self._frame_sets = FrameSets(max_cached_sets)
         self._lock = threading.Lock()
-        self.stats = {"sets_built": 0, "set_hits": 0}
         self._specular_targets = specular_targets(scene, self.geom)  # mirror/glass bounding spheres
         # Per view: importance sampling on? (pilot), the camera pool, the portals, the emitter
         # choice; the most recent views only (a drag visits a new view every frame).
@@ -137,7 +137,7 @@ class Renderer:
         key = ("pilot", self.scene_version, view.key, params.indirect_vpls, params.light_path_length,
                params.vpl_oversample, params.max_depth, params.clamp, params.vpl_lobe_alpha)
         # Decided on plain walks: portal walks even out the candidates they serve.
-        st, fresh = self._per_view(key, lambda: self._build_importance(0, 0, params, view, False, pilot=True)[1])
+        st, fresh = self._per_view(key, lambda: self._build_importance(0, [0], params, view, False, pilot=True)[0][1])
         if fresh:
             self.importance_notes = (f"{'ON ' if st.ess < AUTO_ESS else 'off'} vpl_importance      pilot: "
                                      f"effective share {st.ess:.2f} of {st.candidates} candidate VPLs "
@@ -197,10 +197,10 @@ class Renderer:
                                   f"view: {moved:.0%} of the emitter samples moved from choice by power")
         return pmf
 
-    def _build_importance(self, seed, k, params, view, roulette, pilot=False):
+    def _build_importance(self, seed, ks, params, view, roulette, pilot=False):
         direct, indirect, length = self._set_sizes(params)
-        return build_importance_vpl_set(
-            self.scene, self.geom, self.lights, seed, k, direct, indirect, length, view,
+        return build_importance_vpl_sets(
+            self.scene, self.geom, self.lights, seed, ks, direct, indirect, length, view,
             params.vpl_oversample, clamp_distance2(params, self.geom.diagonal), params.max_depth,
             params.specular_depth, roulette=roulette and params.max_depth < 0,
             glossy_split_alpha=params.filter_glossy_alpha, lobe_alpha=params.vpl_lobe_alpha,
@@ -223,56 +223,46 @@ class Renderer:
                 view: View | None = None, index: int = 0) -> VPLSet:
         """P_k of the frame with ``seed`` at accumulation index ``index``."""
         importance = self.importance_on(params, view)
-        key = (self.scene_version, seed, k, index, params.interleave, params.direct_vpls, params.indirect_vpls,
-               params.light_path_length, params.max_depth, roulette,
-               (view.key, params.vpl_oversample, params.clamp, params.specular_depth, params.filter_glossy_alpha,
-                params.vpl_lobe_alpha, params.vpl_portals)
-               if importance else None)
-        with self._lock:
-            hit = self._sets.get(key)
-            if hit is not None:
-                self._sets.move_to_end(key)
-                self.stats["set_hits"] += 1
-                return hit
-        stream, block = _set_block(seed, k, params, index)
-        if importance:
-            s, _ = self._build_importance(stream, block, params, view, roulette)
-        else:
+        config = ("vpl", self.scene_version, params.interleave, params.direct_vpls, params.indirect_vpls,
+                  params.light_path_length, params.max_depth, roulette,
+                  (view.key, params.vpl_oversample, params.clamp, params.specular_depth, params.filter_glossy_alpha,
+                   params.vpl_lobe_alpha, params.vpl_portals)
+                  if importance else None)
+
+        def build(ks: list[int]) -> list[VPLSet]:
+            stream, blocks = _set_blocks(seed, ks, params, index)
             direct, indirect, length = self._set_sizes(params)
-            s = build_vpl_set(self.scene, self.geom, self.lights, stream, block, direct, indirect, length,
-                              roulette=roulette and params.max_depth < 0)
-        with self._lock:
-            self._sets[key] = s
-            self.stats["sets_built"] += 1
-            while len(self._sets) > self._max_sets:
-                self._sets.popitem(last=False)
-        return s
+            if importance:
+                return [s for s, _ in self._build_importance(stream, blocks, params, view, roulette)]
+            return build_vpl_sets(self.scene, self.geom, self.lights, stream, blocks, direct, indirect, length,
+                                  roulette=roulette and params.max_depth < 0)
+
+        return self._frame_sets.get((config, seed, index), k, params.interleave ** 2, build)
 
     def photon_set(self, seed: int, k: int, params: Params, index: int = 0) -> PhotonSet:
         radius = default_radius(self.geom.diagonal, params.photon_radius) * radius_scale(index, params)
         # Caustic paths have >= 4 segments (light, specular, diffuse, eye).
         if (self.plan is not None and not self.plan.caustics) or 0 <= params.max_depth < 4:
             return PhotonSet(*(np.zeros((0, 3)),) * 4, np.zeros(0, np.int32), radius, None)
-        key = ("photons", self.scene_version, seed, k, index, params.interleave, params.photons, radius,
-               params.specular_depth)
-        with self._lock:
-            hit = self._sets.get(key)
-            if hit is not None:
-                self._sets.move_to_end(key)
-                return hit
-        stream, block = _set_block(seed, k, params, index)
-        s = build_photon_set(self.scene, self.geom, self.lights, stream, block, params.photons, radius,
-                             params.specular_depth, targets=self._specular_targets)
-        with self._lock:
-            self._sets[key] = s
-            while len(self._sets) > self._max_sets:
-                self._sets.popitem(last=False)
-        return s
+        config = ("photons", self.scene_version, params.interleave, params.photons, params.photon_radius,
+                  params.consistent, params.ppm_alpha, params.specular_depth)
+
+        def build(ks: list[int]) -> list[PhotonSet]:
+            stream, blocks = _set_blocks(seed, ks, params, index)
+            return build_photon_sets(self.scene, self.geom, self.lights, stream, blocks, params.photons, radius,
+                                     params.specular_depth, targets=self._specular_targets)
+
+        return self._frame_sets.get((config, seed, index), k, params.interleave ** 2, build)
+
+    @property
+    def stats(self) -> dict:
+        """sets_built / set_hits of the VPL sets (benchmarks, tests)."""
+        return self._frame_sets.stats
 
     def cached_sets(self) -> set[tuple[int, int]]:
-        with self._lock:
-            return {(key[1], key[2]) for key in self._sets
-                    if key[0] == self.scene_version and key[0] != "photons"}
+        """The (frame seed, k) of the VPL sets held for the current scene version."""
+        return {(seed, k) for (config, seed, _index), k in self._frame_sets.keys()
+                if config[0] == "vpl" and config[1] == self.scene_version}
 
     # -- a task ------------------------------------------------------------------------------
     def render_tile(self, spec: FrameSpec, tile: Tile) -> TileBuffers:

@@ -28,6 +28,7 @@ from igi.common.scene import (DIFFUSE, NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGH
 
 from .caustics import PhotonSet, gather_photons
 from .kernels import vpl_gather as vg
+from .kernels import vpl_scoring as vs
 from .regularization import regularization_gain, regularized_senders
 from .vpl import VPLSet, concat_surface, subset_vpls
 
@@ -62,6 +63,17 @@ class EndPoints:
     def subset(self, rows) -> "EndPoints":
         return EndPoints(*(None if v is None else (v.subset(rows) if f.name == "sp" else v[rows])
                            for f in fields(self) for v in (getattr(self, f.name),)))
+
+    @staticmethod
+    def concat(parts: "list[EndPoints]") -> "EndPoints":
+        """The end points of ``parts`` in order (``pixel`` as each part had it)."""
+        direct = None
+        if any(p.direct_only is not None for p in parts):
+            direct = np.concatenate([np.zeros(len(p), bool) if p.direct_only is None else p.direct_only
+                                     for p in parts])
+        return EndPoints(*(concat_surface([p.sp for p in parts]) if f.name == "sp"
+                           else np.concatenate([getattr(p, f.name) for p in parts])
+                           for f in fields(EndPoints) if f.name != "direct_only"), direct)
 
     def vpl_depth_limit(self, max_depth: int) -> np.ndarray:
         """(E,) the deepest VPL each point may take: a VPL of light-path depth d lights a path
@@ -391,16 +403,39 @@ def _chunks(e: int, m: int):
         yield slice(s, min(e, s + chunk))
 
 
+def _range_chunks(lo: np.ndarray, hi: np.ndarray):
+    """Slices of consecutive rows of about PAIR_CHUNK pairs, row i pairing with columns
+    [lo[i], hi[i]): each run of rows with one range (one VPL set) is cut as :func:`_chunks` cuts
+    it alone, then neighbouring pieces are joined while they fit — so a set's pairs meet the
+    same chunks, and draw the same samples, alone or in a batch."""
+    cuts = np.flatnonzero((np.diff(lo) != 0) | (np.diff(hi) != 0)) + 1
+    bounds = [0, *cuts.tolist(), len(lo)]
+    start, pairs = 0, 0
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        m = int(hi[a] - lo[a])
+        for sl in _chunks(b - a, max(m, 1)):
+            n = (sl.stop - sl.start) * m
+            if pairs and pairs + n > PAIR_CHUNK:
+                yield slice(start, a + sl.start)
+                start, pairs = a + sl.start, 0
+            pairs += n
+    if start < len(lo):
+        yield slice(start, len(lo))
+
+
 def contribution_per_vpl(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
                          max_depth: int, lobe_alpha: float = 0.0, rng: np.random.Generator | None = None,
-                         visibility_samples: int = 0) -> np.ndarray:
+                         visibility_samples: int = 0, col_range: tuple[np.ndarray, np.ndarray] | None = None,
+                         column_u: np.ndarray | None = None) -> np.ndarray:
     """(M,) luminance each VPL sends toward the eye through the end points (radiance ×
     path throughput, summed over end points): the importance of a VPL to this view.
 
-    ``visibility_samples`` > 0 (with ``rng``): an unbiased estimate from that many of each
-    VPL's pairs, drawn in proportion to their unshadowed Lambertian terms (systematic
-    sampling): only the drawn pairs get a shadow ray and a BSDF evaluation, a fixed cost per
-    VPL instead of one per end point."""
+    ``visibility_samples`` > 0 (with ``rng`` or ``column_u``): an unbiased estimate from that
+    many of each VPL's pairs, drawn in proportion to their unshadowed Lambertian terms
+    (systematic sampling, one uniform per VPL: ``column_u``, or drawn from ``rng``): only the
+    drawn pairs get a shadow ray and a BSDF evaluation, a fixed cost per VPL instead of one
+    per end point. ``col_range`` (lo, hi) per end point: it scores only VPLs [lo, hi) (the
+    candidates of several sets in one call, each against its own camera points)."""
     e, m = len(end), len(vpls)
     out = np.zeros(m)
     if e == 0 or m == 0:
@@ -408,17 +443,22 @@ def contribution_per_vpl(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2:
     albedo = bsdf.albedo(end.sp, end.wi).astype(np.float64)
     cols = _VPLColumns(vpls, geom, clamp_d2, lobe_alpha=lobe_alpha)
     receivers = _Receivers(end, albedo)
-    sampled = visibility_samples > 0 and rng is not None
-    for sl in _chunks(e, m):
+    sampled = visibility_samples > 0 and (rng is not None or column_u is not None)
+    if sampled and column_u is None:
+        column_u = rng.random(m)
+    if col_range is None:
+        col_range = (np.zeros(e, np.int64), np.full(e, m, np.int64))
+    for sl in _range_chunks(*col_range):
         if not sampled:
-            pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, receivers)
+            pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, receivers,
+                                                           col_range=col_range)
             out += np.bincount(pj, weights=_pair_luminance(cols, albedo[sl], end.throughput[sl], pi, pj, w,
                                                            blocked, factor), minlength=m)
             continue
-        pi, pj, w, row, pl, o, d, t = _pair_rays(geom, end, sl, vpls, cols, max_depth)
-        plain = _pair_luminance(cols, albedo[sl], end.throughput[sl], pi, pj, w, np.zeros(len(pi), bool),
-                                np.zeros((0, 3)))
-        draw, share = _systematic_pairs(pj, plain, m, visibility_samples, rng)
+        pi, pj, w, row, pl, o, d, t = _pair_rays(geom, end, sl, vpls, cols, max_depth, col_range)
+        plain = np.empty(len(pi))
+        vs.plain_luminance(pi, pj, w, cols.color, albedo[sl] * end.throughput[sl], plain)
+        draw, share = _systematic_pairs(pj, plain, m, visibility_samples, column_u)
         if len(draw) == 0:
             continue
         u, inv = np.unique(draw, return_inverse=True)  # a heavy pair drawn twice is traced once
@@ -441,23 +481,13 @@ def _pair_luminance(cols: "_VPLColumns", albedo: np.ndarray, throughput: np.ndar
 
 
 def _systematic_pairs(pj: np.ndarray, weight: np.ndarray, m: int, samples: int,
-                      rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """``samples`` pairs per column j drawn ∝ ``weight`` among j's pairs (one uniform per column,
+                      column_u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``samples`` pairs per column j drawn ∝ ``weight`` among j's pairs (uniform column_u[j],
     evenly spaced draws): (pair indices, what each draw stands for: W_j / samples)."""
-    order = np.argsort(pj, kind="stable")
-    cs = np.cumsum(weight[order])
-    total = np.bincount(pj, weights=weight, minlength=m)
-    count = np.bincount(pj, minlength=m)
-    stop = np.cumsum(count)
-    start = stop - count
-    lit = np.nonzero(total > 0)[0]
-    if len(lit) == 0:
-        return np.zeros(0, np.int64), np.zeros(0)
-    base = np.where(start[lit] > 0, cs[np.maximum(start[lit] - 1, 0)], 0.0)
-    at = base[:, None] + (rng.random(len(lit))[:, None] + np.arange(samples)[None, :]) / samples * total[lit, None]
-    k = np.searchsorted(cs, at.ravel(), side="right")
-    k = np.clip(k, np.repeat(start[lit], samples), np.repeat(stop[lit] - 1, samples))
-    return order[k], np.repeat(total[lit] / samples, samples)
+    draw = np.empty(m * samples, np.int64)
+    share = np.empty(m * samples)
+    n = vs.systematic_pairs(pj, weight, m, samples, column_u, draw, share)
+    return draw[:n], share[:n]
 
 
 class _Receivers:
@@ -548,11 +578,12 @@ class _VPLColumns:
 
 
 def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,
-                      max_depth: int, receivers: _Receivers, roulette: tuple | None = None) -> tuple:
+                      max_depth: int, receivers: _Receivers, roulette: tuple | None = None,
+                      col_range: tuple | None = None) -> tuple:
     """The chunk's live (end point, VPL) pairs after Embree's occlusion test: (row, column,
     scalar weight, blocked, per-pair RGB factor or an empty (0, 3) array). ``roulette``:
     (fraction, seed) of the shadow rays' Russian roulette, None for none."""
-    pi, pj, w, row, pl, o, d, t = _pair_rays(geom, end, sl, vpls, cols, max_depth)
+    pi, pj, w, row, pl, o, d, t = _pair_rays(geom, end, sl, vpls, cols, max_depth, col_range)
     if roulette is not None and len(pi):
         k = vg.shadow_roulette(len(pi), pi, pj, w, pl, o, d, t, row, cols.lum, roulette[0], roulette[1],
                                sl.start)
@@ -563,10 +594,11 @@ def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, c
 
 
 def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,
-               max_depth: int) -> tuple:
+               max_depth: int, col_range: tuple | None = None) -> tuple:
     """The chunk's live (end point, VPL) pairs and their shadow rays, untraced: (row, column,
     scalar weight, receiver row kind, light pdf, origins, directions, tfar) — the rays in the
-    centred float32 frame for Embree."""
+    centred float32 frame for Embree. ``col_range`` (lo, hi) per end point: its VPLs (None:
+    all)."""
     f32 = np.float32
     pos = end.position[sl]
     x = np.ascontiguousarray(pos - geom.center, dtype=f32)
@@ -596,7 +628,11 @@ def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _V
         t_ratio = lerp_gather(tables, rt, np.clip(ci, 0, 1)) / np.maximum(
             lerp_gather(tables, rt, np.clip(ci, 0.05, 1)), 1e-12)
         inv_tavg[layer] = t_ratio / np.maximum(t_avg, 1e-12)
-    cap = n * m
+    if col_range is None:
+        lo, hi, cap = np.zeros(n, np.int64), np.full(n, m, np.int64), n * m
+    else:
+        lo, hi = col_range[0][sl], col_range[1][sl]
+        cap = int((hi - lo).sum())
     pi = np.empty(cap, np.int64)
     pj = np.empty(cap, np.int64)
     w = np.empty(cap, f32)
@@ -608,7 +644,7 @@ def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _V
                         cols.pos, cols.normal, cols.directional, cols.min_d2, cols.cos_y_factor,
                         cols.side, cols.spot_cutoff, cols.spot_beam, cols.depth, cols.mis,
                         cols.light_pdf, cols.area, cols.direct_count, f32(2 * geom.eps),
-                        tables, row_tab, inv_tavg, pi, pj, w, pl, o, d, t)
+                        tables, row_tab, inv_tavg, lo, hi, pi, pj, w, pl, o, d, t)
     return pi[:k], pj[:k], w[:k], row, pl[:k], o[:k], d[:k], t[:k]
 
 

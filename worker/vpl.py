@@ -7,6 +7,7 @@ drawn from block k of one scrambled Sobol stream, so a set is a pure function of
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -87,25 +88,52 @@ def build_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: int,
     ``emitter_pmf``: how the emitter samples choose their emitter (None: by power); the light
     walks always leave the emitters by power.
     """
+    return build_vpl_sets(scene, geom, lights, seed, [k], direct_vpls, indirect_vpls, max_length, roulette,
+                          portals, emitter_pmf)[0]
+
+
+def build_vpl_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: int, ks: Sequence[int],
+                   direct_vpls: int, indirect_vpls: int, max_length: int,
+                   roulette: bool = False, portals=None, emitter_pmf: np.ndarray | None = None) -> list[VPLSet]:
+    """The sets P_k of every block k of ``ks``, as :func:`build_vpl_set` builds each alone (bit
+    for bit: every random number is the set's own), with one emitter draw and one Embree batch
+    per bounce for all of them — a set's build was mostly per-call overhead."""
     if not lights.has_light:
-        return _empty_set()
-    parts = []
+        return [_empty_set() for _ in ks]
+    nsets = len(ks)
+    parts: list[list[VPLSet]] = [[] for _ in ks]
     if direct_vpls > 0:
-        u = SobolStream(seed).padded(k, direct_vpls, direct_vpls, DIRECT_DIMS)
-        parts.append(emitter_vpls(scene, lights.sample_points(u, emitter_pmf), direct_vpls, emitter_pmf))
+        stream = SobolStream(seed)
+        u = np.concatenate([stream.padded(k, direct_vpls, direct_vpls, DIRECT_DIMS) for k in ks])
+        both = emitter_vpls(scene, lights.sample_points(u, emitter_pmf), direct_vpls, emitter_pmf)
+        for i in range(nsets):
+            parts[i].append(subset_vpls(both, np.arange(i * direct_vpls, (i + 1) * direct_vpls)))
     walks = walk_count(indirect_vpls, max_length)
     if walks > 0 and max_length > 0:
         length = MAX_WALK if roulette else max_length
         dims = WALK_DIMS_START + WALK_DIMS_PER_BOUNCE * max_length
-        u = SobolStream(stream_seed(seed, WALK_STREAM)).padded(k, walks, walks, dims)
-        rr = make_rng(seed, k, "roulette") if roulette else None
+        stream = SobolStream(stream_seed(seed, WALK_STREAM))
+        u = [stream.padded(k, walks, walks, dims) for k in ks]
+        survival = None
         if roulette:
-            # Bounces past max_length are rare: plain pseudo-random numbers serve them.
-            extra = rr.random((walks, WALK_DIMS_PER_BOUNCE * (length - max_length)))
-            u = np.concatenate([u, extra], axis=1)
-        parts.append(_light_walks(scene, geom, lights, u, walks, length, max_length if roulette else None, rr,
-                                  portals))
-    return _concat(parts)
+            # Bounces past max_length are rare: plain pseudo-random numbers serve them, and one
+            # more per bounce decides the walk's Russian roulette.
+            extra = [make_rng(seed, k, "roulette").random((walks, WALK_DIMS_PER_BOUNCE * (length - max_length)
+                                                           + length)) for k in ks]
+            u = [np.concatenate([a, b[:, :-length]], axis=1) for a, b in zip(u, extra)]
+            survival = np.concatenate([b[:, -length:] for b in extra])
+        walked, owner = _light_walks(scene, geom, lights, np.concatenate(u), walks, length,
+                                     max_length if roulette else None, survival, portals)
+        for i, rows in enumerate(_split(owner // walks, nsets)):
+            parts[i].append(subset_vpls(walked, rows))
+    return [_concat(p) for p in parts]
+
+
+def _split(label: np.ndarray, n: int) -> list[np.ndarray]:
+    """Rows of each label 0..n-1, each in ascending order."""
+    order = np.argsort(label, kind="stable")
+    stops = np.cumsum(np.bincount(label, minlength=n))
+    return np.split(order, stops[:-1])
 
 
 def emitter_vpls(scene: Scene, s: PointSamples, count: int, emitter_pmf: np.ndarray | None = None,
@@ -124,7 +152,10 @@ def emitter_vpls(scene: Scene, s: PointSamples, count: int, emitter_pmf: np.ndar
 
 def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarray,
                  walks: int, max_length: int, roulette_after: int | None = None,
-                 rr: np.random.Generator | None = None, portals=None) -> VPLSet:
+                 survival: np.ndarray | None = None, portals=None) -> tuple[VPLSet, np.ndarray]:
+    """The vertices of the walks of rows u (flux / ``walks`` each) and the row that left each;
+    ``survival`` (rows, max_length): the uniforms of the walks' Russian roulette past
+    ``roulette_after`` bounces."""
     rays = lights.emit_rays(u[:, :WALK_DIMS_START])
     if portals is not None:
         portal_walks(rays, u[:, :WALK_DIMS_START], lights, portals)
@@ -135,7 +166,7 @@ def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarr
     if is_surface.any():
         o[is_surface] = geom.offset(o[is_surface], rays.normal[is_surface], d[is_surface])
     alive = np.nonzero(np.any(flux > 0, axis=1))[0]
-    pos_l, ns_l, ng_l, pw_l, dp_l, wi_l, sp_l = [], [], [], [], [], [], []
+    pos_l, ns_l, ng_l, pw_l, dp_l, wi_l, sp_l, row_l = [], [], [], [], [], [], [], []
     for bounce in range(max_length):
         if len(alive) == 0:
             break
@@ -161,6 +192,7 @@ def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarr
             dp_l.append(np.full(len(sel), bounce + 1, np.int32))
             wi_l.append(wi[sel])
             sp_l.append(sp.subset(sel))
+            row_l.append(alive[sel])
         if bounce + 1 >= max_length:
             break
         col = WALK_DIMS_START + WALK_DIMS_PER_BOUNCE * bounce
@@ -170,7 +202,7 @@ def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarr
         if roulette_after is not None and bounce + 1 >= roulette_after:
             # Russian roulette: survive with the bounce's throughput ratio, reweight survivors.
             q = np.clip(np.max(weight, axis=1), 0.0, 0.95)
-            survive = rr.random(len(q)) < q
+            survive = survival[alive, bounce] < q
             weight = np.where(survive[:, None], weight / np.maximum(q, 1e-12)[:, None], 0.0)
         flux[alive] = flux[alive] * weight
         ok = np.any(flux[alive] > 0, axis=1) & np.all(np.isfinite(flux[alive]), axis=1)
@@ -178,12 +210,12 @@ def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarr
         o[alive] = geom.offset(pos, ng, wo_world)
         alive = alive[ok]
     if not pos_l:
-        return _empty_set()
+        return _empty_set(), np.zeros(0, np.int64)
     sp_all = concat_surface(sp_l)
     m = sum(len(p) for p in pos_l)
     return VPLSet(np.full(m, VPL_SURFACE, np.int8), np.concatenate(pos_l), np.concatenate(ns_l),
                   np.concatenate(ng_l), np.concatenate(pw_l), np.concatenate(dp_l),
-                  np.concatenate(wi_l), sp_all, bool(np.all(sp_all.kind == 0)))
+                  np.concatenate(wi_l), sp_all, bool(np.all(sp_all.kind == 0))), np.concatenate(row_l)
 
 
 def subset_vpls(vpls: VPLSet, rows: np.ndarray, power_scale: np.ndarray | None = None) -> VPLSet:
@@ -204,10 +236,15 @@ def subset_vpls(vpls: VPLSet, rows: np.ndarray, power_scale: np.ndarray | None =
 
 
 def concat_surface(sps: list) -> "bsdf.SurfacePoints":
-    """Concatenate SurfacePoints batches field by field."""
+    """Concatenate SurfacePoints batches field by field (an optional field None in all: None)."""
     first = sps[0]
-    return type(first)(**{f.name: np.concatenate([getattr(s, f.name) for s in sps])
-                          for f in fields(first)})
+    return type(first)(**{f.name: None if all(getattr(s, f.name) is None for s in sps)
+                          else np.concatenate([getattr(s, f.name) for s in sps]) for f in fields(first)})
+
+
+def concat_vpls(parts: list[VPLSet]) -> VPLSet:
+    """The VPLs of ``parts`` in order, as one set (light_pdf 0 where a part has none)."""
+    return _concat(parts)
 
 
 def _concat(parts: list[VPLSet]) -> VPLSet:

@@ -17,6 +17,7 @@ seed, k, parameters, camera): every worker builds the same P_k with no communica
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,7 +31,7 @@ from igi.common.sobol_stream import rng as make_rng
 from .env_guide import ENV_SAMPLES, build_guide, guide_environment_samples, only_environment, single_environment
 from .portals import Portals, find_portals
 from .shading import EndPoints, contribution_per_vpl, trace_eye
-from .vpl import VPLSet, build_vpl_set, emitter_vpls, subset_vpls
+from .vpl import VPLSet, build_vpl_sets, concat_vpls, emitter_vpls, subset_vpls
 
 CAMERA_POINTS = 256  # eye paths per set that score the candidates
 # Shadow rays per candidate VPL for its score: its visibility from the camera points is
@@ -248,30 +249,69 @@ def build_importance_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler,
     ``portals`` (:func:`view_portals`): walks from the sky start where it enters the view;
     ``emitter_pmf`` (:func:`view_emitter_pmf`): the emitter samples' choice of emitter;
     ``pool`` (:func:`camera_pool`): the view's camera points (None: traced here)."""
+    return build_importance_vpl_sets(scene, geom, lights, seed, [k], direct_vpls, indirect_vpls, max_length, view,
+                                     oversample, clamp_d2, max_depth, specular_depth, roulette, camera_points,
+                                     glossy_split_alpha, lobe_alpha, portals, emitter_pmf, pool)[0]
+
+
+def build_importance_vpl_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: int, ks: Sequence[int],
+                              direct_vpls: int, indirect_vpls: int, max_length: int, view: View,
+                              oversample: int, clamp_d2: float, max_depth: int, specular_depth: int,
+                              roulette: bool = False, camera_points: int = CAMERA_POINTS,
+                              glossy_split_alpha: float = 0.0,
+                              lobe_alpha: float = 0.0, portals: Portals | None = None,
+                              emitter_pmf: np.ndarray | None = None, pool: CameraPool | None = None,
+                              ) -> list[tuple[VPLSet, ImportanceStats]]:
+    """:func:`build_importance_vpl_set` of every block k of ``ks``, each set as it would be
+    alone, built together: one candidate build (vpl.build_vpl_sets) and one scoring call in
+    which each set's candidates meet only its own camera points."""
     if direct_vpls > 0 and only_environment(scene, lights):
         direct_vpls = max(direct_vpls, ENV_SAMPLES)
-    if pool is None:  # the set's own camera points
-        pool = camera_pool(scene, geom, lights, view, max_depth, specular_depth, glossy_split_alpha,
-                           camera_points, seed, k)
-    end = pool.draw(seed, k, camera_points)
-    # The sky seen through openings: environment samples drawn where camera points see it, and
-    # light walks from the sky started where it enters (the escaped rays are the portals).
-    guide = build_guide(scene, geom, lights, end, make_rng(seed, k, "env guide rays"))
-    cand = build_vpl_set(scene, geom, lights, seed, k, direct_vpls, indirect_vpls * oversample,
-                         max_length, roulette=roulette, portals=portals, emitter_pmf=emitter_pmf)
-    surf = np.nonzero(cand.kind == VPL_SURFACE)[0]
-    if guide is not None:
-        guide_environment_samples(cand, lights, guide, direct_vpls, make_rng(seed, k, "env guide samples"))
-        cand.env_guide = guide
-    if len(surf) == 0:
-        return cand, ImportanceStats(0, 0, 0.0)
-    phi = contribution_per_vpl(geom, end, subset_vpls(cand, surf), clamp_d2, max_depth, lobe_alpha,
-                               make_rng(seed, k, "visibility samples"), VISIBILITY_SAMPLES)
-    target = len(surf) / oversample
-    p = acceptance(phi, target, MIX)
-    keep = systematic_keep(p, make_rng(seed, k, "vpl acceptance").random())
-    rows = np.concatenate([np.nonzero(cand.kind != VPL_SURFACE)[0], surf[keep]])
-    scale = np.ones(len(cand))
-    scale[surf[keep]] = 1.0 / p[keep]
-    out = subset_vpls(cand, np.sort(rows), power_scale=scale)
-    return out, ImportanceStats(len(surf), int(keep.sum()), effective_share(phi))
+    ends = []
+    for k in ks:
+        p = pool if pool is not None else camera_pool(scene, geom, lights, view, max_depth, specular_depth,
+                                                      glossy_split_alpha, camera_points, seed, k)
+        ends.append(p.draw(seed, k, camera_points))
+    cands = build_vpl_sets(scene, geom, lights, seed, ks, direct_vpls, indirect_vpls * oversample, max_length,
+                           roulette=roulette, portals=portals, emitter_pmf=emitter_pmf)
+    for k, end, cand in zip(ks, ends, cands):
+        # The sky seen through openings: environment samples drawn where camera points see it
+        # (and light walks from the sky started where it enters: the portals).
+        guide = build_guide(scene, geom, lights, end, make_rng(seed, k, "env guide rays"))
+        if guide is not None:
+            guide_environment_samples(cand, lights, guide, direct_vpls, make_rng(seed, k, "env guide samples"))
+            cand.env_guide = guide
+    surfs = [np.nonzero(c.kind == VPL_SURFACE)[0] for c in cands]
+    phis = _score(geom, ks, seed, ends, [subset_vpls(c, s) for c, s in zip(cands, surfs)], clamp_d2, max_depth,
+                  lobe_alpha)
+    out = []
+    for k, cand, surf, phi in zip(ks, cands, surfs, phis):
+        if len(surf) == 0:
+            out.append((cand, ImportanceStats(0, 0, 0.0)))
+            continue
+        target = len(surf) / oversample
+        p = acceptance(phi, target, MIX)
+        keep = systematic_keep(p, make_rng(seed, k, "vpl acceptance").random())
+        rows = np.concatenate([np.nonzero(cand.kind != VPL_SURFACE)[0], surf[keep]])
+        scale = np.ones(len(cand))
+        scale[surf[keep]] = 1.0 / p[keep]
+        out.append((subset_vpls(cand, np.sort(rows), power_scale=scale),
+                    ImportanceStats(len(surf), int(keep.sum()), effective_share(phi))))
+    return out
+
+
+def _score(geom: Geometry, ks: Sequence[int], seed: int, ends: list[EndPoints], cands: list[VPLSet],
+           clamp_d2: float, max_depth: int, lobe_alpha: float) -> list[np.ndarray]:
+    """Each set's candidate contributions Φ to its own camera points, all sets in one
+    contribution_per_vpl call (end points of set i score only the columns of set i)."""
+    sizes = np.array([len(c) for c in cands], np.int64)
+    stops = np.cumsum(sizes)
+    live = [i for i in range(len(cands)) if sizes[i] and len(ends[i])]
+    phi = np.zeros(int(stops[-1]) if len(stops) else 0)
+    if live:
+        lo = np.concatenate([np.full(len(ends[i]), stops[i] - sizes[i], np.int64) for i in live])
+        hi = np.concatenate([np.full(len(ends[i]), stops[i], np.int64) for i in live])
+        column_u = np.concatenate([make_rng(seed, k, "visibility samples").random(len(c)) for k, c in zip(ks, cands)])
+        phi = contribution_per_vpl(geom, EndPoints.concat([ends[i] for i in live]), concat_vpls(cands), clamp_d2,
+                                   max_depth, lobe_alpha, None, VISIBILITY_SAMPLES, (lo, hi), column_u)
+    return np.split(phi, stops[:-1])

@@ -265,3 +265,30 @@ def test_a_wide_first_frame_clamp_keeps_the_energy_and_narrows_to_the_clamp():
     # no compensation, loses a visible share
     assert frame(clamp=0.0, clamp_first=0.2, seed=0) != frame(clamp=0.0, clamp_first=0.0, seed=0)
     assert frame(clamp=0.2, consistent=False, seed=0) < 1.75 * 0.97
+
+
+def _same_sets(a, b) -> None:
+    assert len(a) == len(b)
+    for name in ("kind", "position", "normal", "ng", "power", "depth", "wi_local", "light_pdf"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    assert (a.surface is None) == (b.surface is None)
+    if a.surface is not None:
+        np.testing.assert_array_equal(a.surface.kind, b.surface.kind)
+        np.testing.assert_array_equal(a.surface.diffuse, b.surface.diffuse)
+    assert a.direct_count == b.direct_count and a.diffuse_only == b.diffuse_only
+
+
+@pytest.mark.parametrize("roulette", [False, True])
+def test_sets_built_together_equal_each_built_alone(roulette):
+    """A frame's sets built in one batch (one emitter draw, one Embree batch per bounce) are bit
+    for bit the sets each builds alone: a set stays a function of (scene, seed, k) whichever
+    other sets a worker happens to build with it."""
+    scene = furnace_box(0.6, 1.0)
+    r = Renderer(scene)
+    ks = [3, 0, 7, 8, 1]
+    together = vpl_mod.build_vpl_sets(scene, r.geom, r.lights, 5, ks, 2, 24, 3, roulette=roulette)
+    assert sum(len(s) for s in together) > 5 * 24 // 2  # walks did leave vertices
+    for k, s in zip(ks, together):
+        _same_sets(s, vpl_mod.build_vpl_set(scene, r.geom, r.lights, 5, k, 2, 24, 3, roulette=roulette))
+    # and they are different sets
+    assert not np.array_equal(together[0].position[:4], together[1].position[:4])

@@ -54,9 +54,10 @@ def spot_falloff(cos_theta: float, cutoff_deg: float, beam_deg: float) -> float:
 def pair_weights(x, ns, ng, off, side, row, vmax,
                  vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam,
                  vdepth, mis, light_pdf, area, direct_count, eps2,
-                 tables, row_tab, inv_tavg,
+                 tables, row_tab, inv_tavg, col_lo, col_hi,
                  out_i, out_j, out_w, out_pl, out_o, out_d, out_t):
-    """Fill the live pairs of rows x (n, 3) × VPL columns; returns how many were written.
+    """Fill the live pairs of rows x (n, 3) × VPL columns [col_lo[i], col_hi[i]); returns how
+    many were written (the out arrays hold at least Σ (col_hi - col_lo)).
 
     x, ns, ng: float32 (n, 3) end points in Embree's centred frame; off: float32 (n,) offset
     length along ng, signed to the eye's side (``side``); row: ROW_* per end point; vmax: the
@@ -65,10 +66,10 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
     min_d2/vside/light_pdf float32, spot_cutoff/spot_beam degrees (cutoff < 0: not a spot),
     vdepth int. ROW_LAYER rows read their coat-transmittance table ``tables[row_tab[i]]`` and
     1/t_avg ``inv_tavg[i]``. out_pl: the MIS light pdf of glossy-row pairs (0 elsewhere) — their BSDF pdf
-    is the caller's, so their MIS weight is applied by the caller.
+    is the caller's, so their MIS weight is applied by the caller. Per-row column ranges let
+    one call score the candidates of several VPL sets, each against its own camera points.
     """
     n = x.shape[0]
-    m = vpos.shape[0]
     n_tab = tables.shape[1]
     k = 0
     f1e30 = np.float32(1e-30)
@@ -82,7 +83,7 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
         o0 = xi0 + ng[i, 0] * off[i]
         o1 = xi1 + ng[i, 1] * off[i]
         o2 = xi2 + ng[i, 2] * off[i]
-        for j in range(m):
+        for j in range(col_lo[i], col_hi[i]):
             if vdepth[j] > vmax[i]:
                 continue
             if directional[j]:

@@ -1,0 +1,93 @@
+"""worker.set_cache.FrameSets: a miss builds the frame's predicted sets in one batch, each set
+is built once whatever the threads, and a failed build leaves nothing behind."""
+from __future__ import annotations
+
+import threading
+
+import pytest
+
+from igi.worker.set_cache import FrameSets
+
+CFG = ("vpl", 0, "config")
+
+
+def _recording():
+    calls = []
+
+    def build(frame):
+        def b(ks):
+            calls.append((frame, list(ks)))
+            return [(frame, k) for k in ks]
+        return b
+    return calls, build
+
+
+def test_a_frame_builds_together_the_sets_the_last_frames_asked_for():
+    cache, (calls, build) = FrameSets(64), _recording()
+    f1, f2 = (CFG, 7, 1), (CFG, 7, 2)
+    for k in (2, 5, 3):
+        assert cache.get(f1, k, 9, build(f1)) == (f1, k)
+    assert calls == [(f1, [2]), (f1, [5]), (f1, [3])]  # nothing to predict from yet
+    calls.clear()
+    assert cache.get(f2, 5, 9, build(f2)) == (f2, 5)
+    assert calls == [(f2, [5, 2, 3])]  # the one asked for first, then the predicted ones
+    for k in (2, 3):
+        assert cache.get(f2, k, 9, build(f2)) == (f2, k)
+    assert len(calls) == 1 and cache.stats == {"sets_built": 6, "set_hits": 2}
+
+
+def test_prediction_stays_within_the_frames_sets_and_its_configuration():
+    cache, (calls, build) = FrameSets(64), _recording()
+    other = (("vpl", 0, "other config"), 7, 1)
+    cache.get(other, 1, 9, build(other))
+    cache.get((CFG, 7, 1), 8, 9, build((CFG, 7, 1)))
+    calls.clear()
+    cache.get((CFG, 7, 2), 0, 4, build((CFG, 7, 2)))  # interleave 2 now: k 8 does not exist
+    assert calls == [((CFG, 7, 2), [0])]
+
+
+def test_a_thread_waits_for_the_set_another_thread_is_building():
+    cache = FrameSets(64)
+    f1, f2 = (CFG, 1, 1), (CFG, 1, 2)
+    for k in range(4):
+        cache.get(f1, k, 4, lambda ks: [object() for _ in ks])
+    started, release, built = threading.Event(), threading.Event(), []
+
+    def slow(ks):
+        built.append(list(ks))
+        started.set()
+        release.wait(10)
+        return [("set", k) for k in ks]
+
+    got = {}
+    a = threading.Thread(target=lambda: got.__setitem__("a", cache.get(f2, 0, 4, slow)))
+    a.start()
+    assert started.wait(10)
+    b = threading.Thread(target=lambda: got.__setitem__("b", cache.get(f2, 2, 4, slow)))
+    b.start()
+    b.join(0.2)
+    assert b.is_alive()  # waiting on a's batch, not building its own
+    release.set()
+    a.join(10)
+    b.join(10)
+    assert built == [[0, 1, 2, 3]] and got == {"a": ("set", 0), "b": ("set", 2)}
+
+
+def test_a_failed_build_leaves_no_set_and_no_waiter_behind():
+    cache = FrameSets(64)
+    f = (CFG, 3, 0)
+
+    def broken(ks):
+        raise RuntimeError("no light")
+
+    with pytest.raises(RuntimeError, match="no light"):
+        cache.get(f, 1, 4, broken)
+    assert cache.keys() == []
+    assert cache.get(f, 1, 4, lambda ks: ["ok"] * len(ks)) == "ok"
+
+
+def test_the_cache_keeps_the_most_recent_sets():
+    cache = FrameSets(3)
+    for i in range(5):
+        cache.get((CFG, i, 0), 0, 1, lambda ks: ["s"] * len(ks))
+    assert [key[0][1] for key in cache.keys()] == [2, 3, 4]
