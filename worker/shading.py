@@ -387,7 +387,7 @@ def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
     m = len(vpls)
     if e == 0 or m == 0:
         return albedo, irr
-    cols = _VPLColumns(vpls, geom, clamp_d2, force_general, lobe_alpha)
+    cols = vpl_columns(vpls, geom, clamp_d2, force_general, lobe_alpha)
     receivers = _Receivers(end, albedo)
     roulette = (float(shadow_roulette), int(seed)) if shadow_roulette > 0 else None
     for sl in _chunks(e, m):
@@ -441,7 +441,7 @@ def contribution_per_vpl(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2:
     if e == 0 or m == 0:
         return out
     albedo = bsdf.albedo(end.sp, end.wi).astype(np.float64)
-    cols = _VPLColumns(vpls, geom, clamp_d2, lobe_alpha=lobe_alpha)
+    cols = vpl_columns(vpls, geom, clamp_d2, lobe_alpha=lobe_alpha)
     receivers = _Receivers(end, albedo)
     sampled = visibility_samples > 0 and (rng is not None or column_u is not None)
     if sampled and column_u is None:
@@ -514,8 +514,20 @@ class _Receivers:
         return np.ascontiguousarray(self.albedo_in, dtype=np.float64)
 
 
+def vpl_columns(vpls: VPLSet, geom: Geometry, clamp_d2: float, force_general: bool = False,
+                lobe_alpha: float = 0.0) -> "_VPLColumns":
+    """The set's per-VPL gather constants, computed once per set and settings (vpls.derived):
+    the glossy senders' regularization gain and packed BSDFs cost ~0.5 ms a call, and a set
+    serves every tile of its k and each compensation level. Read-only once made."""
+    key = ("columns", id(geom), float(clamp_d2), bool(force_general), float(lobe_alpha))
+    cols = vpls.derived.get(key)
+    if cols is None:
+        cols = vpls.derived[key] = _VPLColumns(vpls, geom, clamp_d2, force_general, lobe_alpha)
+    return cols
+
+
 class _VPLColumns:
-    """Per-VPL constants of the gather as flat kernel arrays, computed once per set and call."""
+    """Per-VPL constants of the gather as flat kernel arrays (made by :func:`vpl_columns`)."""
 
     def __init__(self, vpls: VPLSet, geom: Geometry, clamp_d2: float, force_general: bool = False,
                  lobe_alpha: float = 0.0):

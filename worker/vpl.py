@@ -8,7 +8,7 @@ drawn from block k of one scrambled Sobol stream, so a set is a pure function of
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -52,6 +52,9 @@ class VPLSet:
     # (E,) the emitter choice of the emitter samples (worker.vpl_importance.view_emitter_pmf);
     # None: lights.pmf (by power). MIS against them must use the same.
     emitter_pmf: np.ndarray | None = None
+    # Constants the gather derives from the set (shading.vpl_columns), kept with it: a set
+    # serves every tile of its k and every compensation level (not copied by replace()).
+    derived: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.kind)

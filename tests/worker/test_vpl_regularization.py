@@ -142,3 +142,35 @@ def test_a_caustic_photon_in_a_smooth_plastics_mirror_direction_is_no_spike_wher
 
     assert read(0.0) > 100  # the raw lobe: the spike
     assert 0.5 < read(0.5) < 4  # regularized: about a Lambertian photon
+
+
+def test_the_gathers_glossy_senders_carry_the_gain_once_per_set():
+    """The gather's per-VPL colours (shading.vpl_columns) scale a widened glossy sender by its
+    gain at its incident direction and leave Lambertian senders as ρ/π · power; the columns are
+    made once per set and settings and not shared with a replace()d copy."""
+    from dataclasses import replace
+
+    from igi.common.geometry import Geometry
+    from igi.common.lights import VPL_SURFACE
+    from igi.worker.shading import vpl_columns
+    from igi.worker.vpl import VPLSet, concat_surface
+    from tests.support.scenes_synthetic import furnace_box
+
+    sp = concat_surface([_points(ROUGHCONDUCTOR, 0.05, 3), _points(DIFFUSE, 0.1, 2)])
+    wi = np.array([[0.6, 0.0, 0.8], [0.0, 0.95, 0.31], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.3, 0.0, 0.95]])
+    wi /= np.linalg.norm(wi, axis=1)[:, None]
+    m = len(wi)
+    power = np.arange(1, m + 1)[:, None] * np.ones((1, 3))
+    z = np.zeros((m, 3))
+    v = VPLSet(np.full(m, VPL_SURFACE, np.int8), z, np.tile([0, 0, 1.0], (m, 1)), z, power, np.ones(m, np.int32),
+               wi, sp, False)
+    geom = Geometry(furnace_box(0.5, 1.0))
+    cols = vpl_columns(v, geom, 1e-3, lobe_alpha=0.5)
+    gain = regularization_gain(sp.subset(np.arange(3)), regularized_senders(sp.subset(np.arange(3)), 0.5), wi[:3])
+    assert np.all(gain > 1.01)  # widening a 0.05 lobe to 0.5 loses light at these angles
+    np.testing.assert_allclose(cols.color[:3], power[:3] * gain, rtol=1e-12)
+    np.testing.assert_allclose(cols.color[3:], power[3:] * sp.diffuse[3:] / np.pi, rtol=1e-6)  # float32 ρ
+    assert vpl_columns(v, geom, 1e-3, lobe_alpha=0.5) is cols
+    assert vpl_columns(v, geom, 2e-3, lobe_alpha=0.5) is not cols
+    np.testing.assert_allclose(vpl_columns(v, geom, 1e-3, lobe_alpha=0.0).color[:3], power[:3])  # no widening
+    assert replace(v, power=power * 2).derived == {}
