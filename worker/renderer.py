@@ -315,7 +315,8 @@ class Renderer:
             # Accumulating: give back what the clamp took.
             with self._stage("compensation"):
                 irr = irr + clamp_compensation(self.scene, self.geom, self.lights, end, albedo, vpls,
-                                               clamp_d2, params.max_depth, rng, lobe_alpha, rays, photons)
+                                               clamp_d2, params.max_depth, rng, lobe_alpha, rays, photons,
+                                               shadow_roulette=params.shadow_roulette)
         with self._stage("BSDF direct"):
             irr = irr + bsdf_direct(self.scene, self.geom, self.lights, end, albedo, vpls.direct_count,
                                     params.max_depth, rng, vpls.env_guide, rays, vpls.emitter_pmf)

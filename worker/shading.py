@@ -759,12 +759,13 @@ def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: 
                        albedo: np.ndarray, vpls: VPLSet, clamp_d2: float, max_depth: int,
                        rng: np.random.Generator, lobe_alpha: float = 0.0,
                        rays: BSDFRays | None = None, photons: PhotonSet | None = None,
-                       level: int = 1) -> np.ndarray:
+                       level: int = 1, shadow_roulette: float = 0.0) -> np.ndarray:
     """Energy the VPL clamp removed, added back by short BSDF-sampled gather rays
     (Kollig & Keller 2004; pbrt-v2's igi integrator), per unit albedo. ``rays``: the end
     points' traced continuation rays (:func:`trace_bsdf_rays`), shared with BSDF-direct; None:
     sampled and traced here. ``level``: the recursion depth of this call (1: the eye path's end
-    points; the points y it finds are compensated at level 2, and so on).
+    points; the points y it finds are compensated at level 2, and so on). ``shadow_roulette``:
+    the gathers at y thin their small pairs' shadow rays as the eye path's gather does.
 
     The clamp replaces 1/d² by 1/max(d², c) for surface VPLs, i.e. it drops the fraction
     (1 - d²/c) of the light a point y closer than √c sends to x. A BSDF-sampled ray from x
@@ -791,7 +792,8 @@ def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: 
     sel = np.nonzero(near)[0]
     keep, l_y = reflected_radiance(scene, geom, lights, hits, sel, d[sel], end.segments[ok[sel]] + 1, vpls,
                                    clamp_d2, max_depth, rng, lobe_alpha, photons,
-                                   compensate=level + 1 if level < COMPENSATION_MAX_LEVEL else 0)
+                                   compensate=level + 1 if level < COMPENSATION_MAX_LEVEL else 0,
+                                   shadow_roulette=shadow_roulette)
     if len(keep) == 0:
         return out
     t = hits.t[sel][keep]
@@ -805,13 +807,15 @@ def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: 
 def reflected_radiance(scene: Scene, geom: Geometry, lights: LightSampler, hits, sel: np.ndarray,
                        d: np.ndarray, segments: np.ndarray, vpls: VPLSet, clamp_d2: float,
                        max_depth: int, rng: np.random.Generator, lobe_alpha: float = 0.0,
-                       photons: PhotonSet | None = None, compensate: int = 0) -> tuple[np.ndarray, np.ndarray]:
+                       photons: PhotonSet | None = None, compensate: int = 0,
+                       shadow_roulette: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Radiance that the surfaces hit by rays ``sel`` of ``hits`` (world directions ``d``,
     reached after ``segments`` segments) reflect back along the rays: the VPL set's light and the
     emitter samples there, with their own MIS-weighted BSDF ray, and the caustic ``photons``
     there (L S+ D: the light walks behind the VPLs pass through glass, so the VPLs stand for it
     too); their emission is not included. ``compensate`` > 0: y's clamped VPL light is completed
-    by :func:`clamp_compensation` at that recursion level.
+    by :func:`clamp_compensation` at that recursion level. ``shadow_roulette``: as
+    :func:`gather_vpls`' (unbiased; y's small pairs skip most of their shadow rays).
     Returns ``(k, L)``: the positions in ``sel`` of the non-specular, non-black hits and their
     (len(k), 3) radiance.
 
@@ -829,7 +833,8 @@ def reflected_radiance(scene: Scene, geom: Geometry, lights: LightSampler, hits,
     y = EndPoints(np.arange(len(nd)), hits.position[s], hits.ns[s], hits.ng[s], wo_y,
                   y_sp.subset(nd), np.ones((len(nd), 3)), np.asarray(segments)[nd], np.ones(len(nd), bool),
                   hits.t[s])
-    a_y, irr_y = gather_vpls(geom, y, vpls, clamp_d2, max_depth, lobe_alpha=lobe_alpha)
+    a_y, irr_y = gather_vpls(geom, y, vpls, clamp_d2, max_depth, lobe_alpha=lobe_alpha, shadow_roulette=shadow_roulette,
+                             seed=int(rng.integers(1 << 62)) if shadow_roulette > 0 else 0)
     # y's continuation rays serve its BSDF-direct light and, when compensated, its compensation
     # (as the eye path's end points share theirs): one trace, not two
     rays = trace_bsdf_rays(geom, lights, y, max_depth, rng, short=np.sqrt(clamp_d2)) if compensate > 0 else None
@@ -839,7 +844,7 @@ def reflected_radiance(scene: Scene, geom: Geometry, lights: LightSampler, hits,
         irr_y = irr_y + gather_photons(y, photons, a_y, max_depth)
     if compensate > 0:
         irr_y = irr_y + clamp_compensation(scene, geom, lights, y, a_y, vpls, clamp_d2, max_depth, rng, lobe_alpha,
-                                           rays, photons, level=compensate)
+                                           rays, photons, level=compensate, shadow_roulette=shadow_roulette)
     if y_sp is not y_orig:  # reciprocity: the lobe toward x keeps the energy of the one from x
         irr_y = irr_y * regularization_gain(y_orig.subset(nd), y.sp, wo_y)
     return nd, a_y * irr_y
