@@ -70,7 +70,8 @@ PARAMS: tuple[Param, ...] = (
           "emitters sampled per set in many-light scenes (0: all emitters share the direct VPLs by power)",
           "vpl", 0, 1024),
     # Caustics (paper §4.1)
-    Param("photons", int, 500, "caustic photons per light per set (paper: 500-1500)", "caustics", 0, 100000),
+    Param("photons", int, 500, "caustic photons per light per set (paper: 500-1500); lights of unequal power "
+          "share this many times their effective number in proportion to power", "caustics", 0, 100000),
     Param("photon_radius", float, -1.0,
           "caustic gather radius as a fraction of the scene diagonal (-1: scene default 0.005)",
           "caustics", -1.0, 1.0),

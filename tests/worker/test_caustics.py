@@ -118,7 +118,7 @@ def test_photon_sets_built_together_equal_each_built_alone():
     photons in the same (light, trace) order, with two lights shooting."""
     from dataclasses import replace
 
-    from igi.worker.caustics import build_photon_sets
+    from igi.worker.caustics import build_photon_sets, photon_counts
 
     scene = slab_scene()
     second = replace(scene.emitters[0], position=np.array([0.3, 1.6, -0.2]), intensity=np.array([2.0, 1.0, 0.5]))
@@ -127,9 +127,34 @@ def test_photon_sets_built_together_equal_each_built_alone():
     lights = LightSampler(scene, geom)
     ks = [2, 0, 5]
     together = build_photon_sets(scene, geom, lights, 4, ks, 300, 0.01, 8)
+    shot = int(photon_counts(lights.powers, 300).sum())
     for k, s in zip(ks, together):
         alone = build_photon_set(scene, geom, lights, 4, k, 300, 0.01, 8)
-        assert len(s) > 50 and s.shot == alone.shot == 600
+        assert len(s) > 50 and s.shot == alone.shot == shot
         for name in ("position", "power", "direction", "normal", "depth"):
             np.testing.assert_array_equal(getattr(s, name), getattr(alone, name), err_msg=name)
     assert together[0].power[:, 2].min() < together[0].power[:, 2].max()  # both lights' photons in it
+
+
+def test_photons_are_shared_by_power_and_each_light_keeps_its_flux():
+    """photon_counts: equal lights get photons_per_light each (the paper's count), unequal ones
+    share photons_per_light × their effective number by power, a dim one still gets its floor;
+    and the caustic flux stays the sum of the lights' (each light's photons count 1/its own
+    number): a second light of 9× the intensity at the same place carries 10× the flux."""
+    from dataclasses import replace
+
+    from igi.worker.caustics import MIN_PHOTON_SHARE, photon_counts
+
+    assert list(photon_counts(np.full(4, 3.0), 500)) == [500] * 4
+    c = photon_counts(np.array([200.0, 380.0, 0.1, 0.1]), 500)
+    assert c[1] > c[0] > c[2] == c[3] == MIN_PHOTON_SHARE * 500
+    assert 500 * 1.8 < c.sum() < 500 * 2.2  # two lights' worth, not four
+    base = slab_scene()
+    nine = replace(base.emitters[0], intensity=np.full(3, 9.0))
+    scene = Scene(base.meshes, base.materials, [base.emitters[0], nine], base.camera)
+    geom = Geometry(scene)
+    lights = LightSampler(scene, geom)
+    counts = photon_counts(lights.powers, 20000)
+    assert counts[1] > 5 * counts[0]
+    got = [build_photon_set(scene, geom, lights, s, 0, 20000, 0.01, 8).power[:, 0].sum() for s in range(4)]
+    assert np.mean(got) == pytest.approx(10 * expected_transmitted_flux(), rel=0.015)
