@@ -238,20 +238,10 @@ def systematic_keep(p: np.ndarray, u: float) -> np.ndarray:
 
 
 def build_importance_vpl_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: int, k: int,
-                             direct_vpls: int, indirect_vpls: int, max_length: int, view: View,
-                             oversample: int, clamp_d2: float, max_depth: int, specular_depth: int,
-                             roulette: bool = False, camera_points: int = CAMERA_POINTS,
-                             glossy_split_alpha: float = 0.0,
-                             lobe_alpha: float = 0.0, portals: Portals | None = None,
-                             emitter_pmf: np.ndarray | None = None, pool: CameraPool | None = None,
-                             ) -> tuple[VPLSet, ImportanceStats]:
-    """P_k with its indirect VPLs importance-sampled for ``view`` (see the module docstring);
-    ``portals`` (:func:`view_portals`): walks from the sky start where it enters the view;
-    ``emitter_pmf`` (:func:`view_emitter_pmf`): the emitter samples' choice of emitter;
-    ``pool`` (:func:`camera_pool`): the view's camera points (None: traced here)."""
-    return build_importance_vpl_sets(scene, geom, lights, seed, [k], direct_vpls, indirect_vpls, max_length, view,
-                                     oversample, clamp_d2, max_depth, specular_depth, roulette, camera_points,
-                                     glossy_split_alpha, lobe_alpha, portals, emitter_pmf, pool)[0]
+                             *args, **kwargs) -> tuple[VPLSet, ImportanceStats]:
+    """P_k with its indirect VPLs importance-sampled for the view: :func:`build_importance_vpl_sets`
+    (same further arguments) for the one block k."""
+    return build_importance_vpl_sets(scene, geom, lights, seed, [k], *args, **kwargs)[0]
 
 
 def build_importance_vpl_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: int, ks: Sequence[int],
@@ -262,9 +252,12 @@ def build_importance_vpl_sets(scene: Scene, geom: Geometry, lights: LightSampler
                               lobe_alpha: float = 0.0, portals: Portals | None = None,
                               emitter_pmf: np.ndarray | None = None, pool: CameraPool | None = None,
                               ) -> list[tuple[VPLSet, ImportanceStats]]:
-    """:func:`build_importance_vpl_set` of every block k of ``ks``, each set as it would be
-    alone, built together: one candidate build (vpl.build_vpl_sets) and one scoring call in
-    which each set's candidates meet only its own camera points."""
+    """P_k of every block k of ``ks`` with its indirect VPLs importance-sampled for ``view``
+    (see the module docstring), each set as it is alone, built together: one candidate build
+    (vpl.build_vpl_sets) and one scoring call in which each set's candidates meet only its own
+    camera points. ``portals`` (:func:`view_portals`): walks from the sky start where it enters
+    the view; ``emitter_pmf`` (:func:`view_emitter_pmf`): the emitter samples' choice of
+    emitter; ``pool`` (:func:`camera_pool`): the view's camera points (None: traced per set)."""
     if direct_vpls > 0 and only_environment(scene, lights):
         direct_vpls = max(direct_vpls, ENV_SAMPLES)
     ends = []
