@@ -482,9 +482,9 @@ def vpls_at(end, rows: np.ndarray, kinds=("surface", "area", "point", "spot")):
 
 def merge_vpl_sets(a, b):
     """Concatenation of two VPL sets (surface rows of both keep their BSDFs)."""
-    from igi.worker.vpl import _concat
+    from igi.worker.vpl import concat_vpls
 
-    return _concat([a, b])
+    return concat_vpls([a, b])
 
 
 # ------------------------------------------------------- photons on grid-cell borders

@@ -77,7 +77,7 @@ def photon_counts(powers: np.ndarray, photons_per_light: int) -> np.ndarray:
     p = np.asarray(powers, np.float64)
     eff = p.sum() ** 2 / max(float((p * p).sum()), 1e-300)
     share = photons_per_light * eff * p / p.sum()
-    floor = max(1.0, MIN_PHOTON_SHARE * photons_per_light)
+    floor = max(1.0, np.ceil(MIN_PHOTON_SHARE * photons_per_light))
     return np.maximum(np.rint(share), floor).astype(np.int64)
 
 

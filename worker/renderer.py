@@ -106,7 +106,7 @@ class Renderer:
     def _stage(self, name: str):
         return _NO_STAGE if self.stage_times is None else _StageTimer(self.stage_times, name)
 
-    def __init__(self, scene: Scene, scene_version: int = 0, max_cached_sets: int = 512,
+    def __init__(self, scene: Scene, scene_version: int = 0, max_cached_sets: int = 256,
                  use_plan: bool = True):
         self.scene = scene
         self.scene_version = scene_version

@@ -5,9 +5,10 @@ A set is a pure function of (configuration, frame seed, accumulation index, k). 
 same k on the same worker reuse it. While the camera is still, every accumulated frame needs
 new sets; built one per task, a set cost ~6-15 ms of per-call overhead on a few hundred rays.
 So a miss builds, in one batch, the set asked for together with the sets of the same frame that
-this worker asked for in its recent frames (the master sends a worker the same k's frame after
-frame): one worker rendering every k builds a frame's sets in one call, a worker of a cluster
-only its own. A thread that needs a set another thread is building waits for it.
+this worker asked for in its latest frame (the master prefers to send a k to the worker that
+holds its set, so a worker's k's change little from frame to frame): one worker rendering every
+k builds a frame's sets in one call, a worker of a cluster about its own. A thread that needs a
+set another thread is building waits for it.
 """
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ import threading
 from collections import OrderedDict
 from typing import Callable
 
-HISTORY_FRAMES = 8  # recent frames whose requested k's predict the next frame's
+HISTORY_FRAMES = 8  # recent frames (of all configurations) whose requested k's are remembered
 
 
 class FrameSets:
@@ -80,10 +81,11 @@ class FrameSets:
         ks.add(k)
 
     def _predicted(self, frame: tuple) -> set[int]:
-        """The k's this worker asked for in its other recent frames of the same configuration."""
-        out: set[int] = set()
-        for f, ks in self._history.items():
+        """The k's this worker asked for in its latest other frame of the same configuration (a
+        union over several frames would grow toward every k on a worker of a cluster, whose
+        scheduler moves a few k's between workers from frame to frame)."""
+        for f in reversed(self._history):
             if f != frame and f[0] == frame[0]:
-                out |= ks
-        return out
+                return self._history[f]
+        return set()
 

@@ -518,8 +518,10 @@ def vpl_columns(vpls: VPLSet, geom: Geometry, clamp_d2: float, force_general: bo
                 lobe_alpha: float = 0.0) -> "_VPLColumns":
     """The set's per-VPL gather constants, computed once per set and settings (vpls.derived):
     the glossy senders' regularization gain and packed BSDFs cost ~0.5 ms a call, and a set
-    serves every tile of its k and each compensation level. Read-only once made."""
-    key = ("columns", id(geom), float(clamp_d2), bool(force_general), float(lobe_alpha))
+    serves every tile of its k and each compensation level. Read-only once made, and made only
+    once the set is final (its builders change a set in place before any gather reads it)."""
+    key = ("columns", tuple(np.asarray(geom.center, np.float64).tolist()), float(clamp_d2), bool(force_general),
+           float(lobe_alpha))
     cols = vpls.derived.get(key)
     if cols is None:
         cols = vpls.derived[key] = _VPLColumns(vpls, geom, clamp_d2, force_general, lobe_alpha)

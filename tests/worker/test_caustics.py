@@ -149,12 +149,21 @@ def test_photons_are_shared_by_power_and_each_light_keeps_its_flux():
     c = photon_counts(np.array([200.0, 380.0, 0.1, 0.1]), 500)
     assert c[1] > c[0] > c[2] == c[3] == MIN_PHOTON_SHARE * 500
     assert 500 * 1.8 < c.sum() < 500 * 2.2  # two lights' worth, not four
+    # A dim light above the slab and a 9x one far to its side: per unit power the first sends
+    # far more light through the slab, so a wrong per-light weight would change the sum.
     base = slab_scene()
-    nine = replace(base.emitters[0], intensity=np.full(3, 9.0))
-    scene = Scene(base.meshes, base.materials, [base.emitters[0], nine], base.camera)
-    geom = Geometry(scene)
-    lights = LightSampler(scene, geom)
+    side = replace(base.emitters[0], intensity=np.full(3, 9.0), position=np.array([2.5, 1.5, 0.0]))
+
+    def flux(emitters, seeds=range(3)):
+        scene = Scene(base.meshes, base.materials, emitters, base.camera)
+        geom = Geometry(scene)
+        lights = LightSampler(scene, geom)
+        return np.mean([build_photon_set(scene, geom, lights, s, 0, 20000, 0.01, 8).power[:, 0].sum()
+                        for s in seeds]), lights
+
+    both, lights = flux([base.emitters[0], side])
     counts = photon_counts(lights.powers, 20000)
     assert counts[1] > 5 * counts[0]
-    got = [build_photon_set(scene, geom, lights, s, 0, 20000, 0.01, 8).power[:, 0].sum() for s in range(4)]
-    assert np.mean(got) == pytest.approx(10 * expected_transmitted_flux(), rel=0.015)
+    alone_a, alone_b = flux([base.emitters[0]])[0], flux([side])[0]
+    assert alone_a > 2 * alone_b  # the weights matter: the dim light carries most of the caustic
+    assert both == pytest.approx(alone_a + alone_b, rel=0.02)

@@ -36,6 +36,18 @@ def test_a_frame_builds_together_the_sets_the_last_frames_asked_for():
     assert len(calls) == 1 and cache.stats == {"sets_built": 6, "set_hits": 2}
 
 
+def test_prediction_follows_the_latest_frame_not_a_union_of_frames():
+    """A worker of a cluster whose k's drift between frames predicts from its latest frame only:
+    a union over frames would grow toward every k."""
+    cache, (calls, build) = FrameSets(64), _recording()
+    for index, ks in ((1, (0, 1)), (2, (2, 3)), (3, (4,))):
+        for k in ks:
+            cache.get((CFG, 7, index), k, 9, build((CFG, 7, index)))
+    calls.clear()
+    cache.get((CFG, 7, 4), 8, 9, build((CFG, 7, 4)))
+    assert calls == [((CFG, 7, 4), [8, 4])]
+
+
 def test_prediction_stays_within_the_frames_sets_and_its_configuration():
     cache, (calls, build) = FrameSets(64), _recording()
     other = (("vpl", 0, "other config"), 7, 1)

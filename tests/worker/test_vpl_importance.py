@@ -253,12 +253,16 @@ def test_importance_sets_built_together_equal_each_built_alone():
             np.testing.assert_array_equal(getattr(s, name), getattr(alone, name), err_msg=name)
 
 
-def test_scoring_with_column_ranges_equals_scoring_each_set_alone():
+@pytest.mark.parametrize("pair_chunk", [1 << 17, 3000, 17])
+def test_scoring_with_column_ranges_equals_scoring_each_set_alone(monkeypatch, pair_chunk):
     """contribution_per_vpl with per-end-point column ranges scores each set's columns only
-    against its own end points (the block-diagonal pairs), exactly as separate calls."""
+    against its own end points (the block-diagonal pairs), exactly as separate calls — also
+    when the pairs span several chunks (the sampled visibility draws per chunk)."""
+    from igi.worker import shading
     from igi.worker.shading import EndPoints, contribution_per_vpl
     from igi.worker.vpl import concat_vpls
 
+    monkeypatch.setattr(shading, "PAIR_CHUNK", pair_chunk)
     scene = two_rooms()
     r = Renderer(scene)
     c2 = clamp_distance2(make_params(), r.geom.diagonal)
