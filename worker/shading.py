@@ -67,13 +67,14 @@ class EndPoints:
     @staticmethod
     def concat(parts: "list[EndPoints]") -> "EndPoints":
         """The end points of ``parts`` in order (``pixel`` as each part had it)."""
-        direct = None
+        out = {f.name: np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(EndPoints)
+               if f.name not in ("sp", "direct_only")}
+        out["sp"] = concat_surface([p.sp for p in parts])
+        out["direct_only"] = None
         if any(p.direct_only is not None for p in parts):
-            direct = np.concatenate([np.zeros(len(p), bool) if p.direct_only is None else p.direct_only
-                                     for p in parts])
-        return EndPoints(*(concat_surface([p.sp for p in parts]) if f.name == "sp"
-                           else np.concatenate([getattr(p, f.name) for p in parts])
-                           for f in fields(EndPoints) if f.name != "direct_only"), direct)
+            out["direct_only"] = np.concatenate([np.zeros(len(p), bool) if p.direct_only is None else p.direct_only
+                                                 for p in parts])
+        return EndPoints(**out)
 
     def vpl_depth_limit(self, max_depth: int) -> np.ndarray:
         """(E,) the deepest VPL each point may take: a VPL of light-path depth d lights a path
