@@ -598,22 +598,19 @@ def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, c
     """The chunk's live (end point, VPL) pairs after Embree's occlusion test: (row, column,
     scalar weight, blocked, per-pair RGB factor or an empty (0, 3) array). ``roulette``:
     (fraction, seed) of the shadow rays' Russian roulette, None for none."""
-    pi, pj, w, row, pl, o, d, t = _pair_rays(geom, end, sl, vpls, cols, max_depth, col_range)
-    if roulette is not None and len(pi):
-        k = vg.shadow_roulette(len(pi), pi, pj, w, pl, o, d, t, row, cols.lum, roulette[0], roulette[1],
-                               sl.start)
-        pi, pj, w, pl, o, d, t = pi[:k], pj[:k], w[:k], pl[:k], o[:k], d[:k], t[:k]
+    pi, pj, w, row, pl, o, d, t = _pair_rays(geom, end, sl, vpls, cols, max_depth, col_range, roulette)
     blocked = geom.occluded_local(o, d, t) if len(pi) else np.zeros(0, bool)
     factor = _bsdf_factors(sl, cols, row, pi, pj, pl, d, blocked, receivers)
     return pi, pj, w, blocked, factor
 
 
 def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,
-               max_depth: int, col_range: tuple | None = None) -> tuple:
+               max_depth: int, col_range: tuple | None = None, roulette: tuple | None = None) -> tuple:
     """The chunk's live (end point, VPL) pairs and their shadow rays, untraced: (row, column,
     scalar weight, receiver row kind, light pdf, origins, directions, tfar) — the rays in the
     centred float32 frame for Embree. ``col_range`` (lo, hi) per end point: its VPLs (None:
-    all)."""
+    all). ``roulette`` (fraction, seed): the shadow rays' Russian roulette, applied per row as
+    the pairs are written (kernels.vpl_gather.shadow_roulette)."""
     f32 = np.float32
     pos = end.position[sl]
     x = np.ascontiguousarray(pos - geom.center, dtype=f32)
@@ -659,7 +656,9 @@ def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _V
                         cols.pos, cols.normal, cols.directional, cols.min_d2, cols.cos_y_factor,
                         cols.side, cols.spot_cutoff, cols.spot_beam, cols.depth, cols.mis,
                         cols.light_pdf, cols.area, cols.direct_count, f32(2 * geom.eps),
-                        tables, row_tab, inv_tavg, lo, hi, pi, pj, w, pl, o, d, t)
+                        tables, row_tab, inv_tavg, lo, hi, cols.lum,
+                        float(roulette[0]) if roulette else 0.0, int(roulette[1]) if roulette else 0, sl.start,
+                        pi, pj, w, pl, o, d, t)
     return pi[:k], pj[:k], w[:k], row, pl[:k], o[:k], d[:k], t[:k]
 
 

@@ -179,3 +179,25 @@ def test_shadow_roulette_keeps_the_big_pairs_and_glossy_rows():
         kept.append(small.sum())
     # each small pair survives with p = 0.1 / threshold
     assert np.mean(kept) / 4 == pytest.approx(0.1 / (0.5 * 10.4 / 5), abs=0.05)
+
+
+@pytest.mark.parametrize("name", ["cornell-box", "cornell-box-glossy"])
+def test_roulette_while_writing_the_pairs_equals_the_separate_pass(name):
+    """pair_weights applies the shadow roulette per row as it writes the pairs: the same
+    pairs, weights and rays as writing them all and then running shadow_roulette over them."""
+    from igi.worker import shading
+    from igi.worker.kernels import vpl_gather as vg
+
+    r = Renderer(load_shared(name))
+    end = eye_end_points(r, 32, 24)
+    vpls = _set(r, 3)
+    c2 = CLAMP * r.geom.diagonal ** 2
+    cols = shading.vpl_columns(vpls, r.geom, c2)
+    sl = slice(5, len(end))  # a chunk not starting at row 0: base offsets the pair uniforms
+    plain = shading._pair_rays(r.geom, end, sl, vpls, cols, -1)
+    pi, pj, w, row, pl, o, d, t = (a.copy() for a in plain)
+    k = vg.shadow_roulette(len(pi), pi, pj, w, pl, o, d, t, row, cols.lum, 0.5, 11, sl.start)
+    fused = shading._pair_rays(r.geom, end, sl, vpls, cols, -1, roulette=(0.5, 11))
+    assert 0 < k < len(plain[0])  # some pairs were dropped: not vacuous
+    for a, b in zip((pi[:k], pj[:k], w[:k], row, pl[:k], o[:k], d[:k], t[:k]), fused):
+        np.testing.assert_array_equal(a, b)

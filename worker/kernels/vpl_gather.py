@@ -54,7 +54,7 @@ def spot_falloff(cos_theta: float, cutoff_deg: float, beam_deg: float) -> float:
 def pair_weights(x, ns, ng, off, side, row, vmax,
                  vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam,
                  vdepth, mis, light_pdf, area, direct_count, eps2,
-                 tables, row_tab, inv_tavg, col_lo, col_hi,
+                 tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base,
                  out_i, out_j, out_w, out_pl, out_o, out_d, out_t):
     """Fill the live pairs of rows x (n, 3) × VPL columns [col_lo[i], col_hi[i]); returns how
     many were written (the out arrays hold at least Σ (col_hi - col_lo)).
@@ -66,7 +66,9 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
     min_d2/vside/light_pdf float32, spot_cutoff/spot_beam degrees (cutoff < 0: not a spot),
     vdepth int. ROW_LAYER rows read their coat-transmittance table ``tables[row_tab[i]]`` and
     1/t_avg ``inv_tavg[i]``. out_pl: the MIS light pdf of glossy-row pairs (0 elsewhere) — their BSDF pdf
-    is the caller's, so their MIS weight is applied by the caller. Per-row column ranges let
+    is the caller's, so their MIS weight is applied by the caller. ``fraction`` > 0: each row's
+    pairs go through :func:`shadow_roulette` (``lum``, ``seed``, ``base``) as soon as they are
+    written (0: every live pair is kept). Per-row column ranges let
     one call score the candidates of several VPL sets, each against its own camera points.
     """
     n = x.shape[0]
@@ -83,6 +85,7 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
         o0 = xi0 + ng[i, 0] * off[i]
         o1 = xi1 + ng[i, 1] * off[i]
         o2 = xi2 + ng[i, 2] * off[i]
+        k_row = k
         for j in range(col_lo[i], col_hi[i]):
             if vdepth[j] > vmax[i]:
                 continue
@@ -142,6 +145,9 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
                 t = (np.float32(1.0) / inv_d) * np.float32(1 - 1e-4) - eps2
                 out_t[k] = max(t, np.float32(0.0))
             k += 1
+        if fraction > 0.0 and k > k_row:
+            k = _roulette_row(k_row, k, k_row, out_i, out_j, out_w, out_pl, out_o, out_d, out_t, row, lum,
+                              fraction, seed, base)
     return k
 
 
@@ -160,10 +166,45 @@ def pair_uniform(seed, i, j):
     return np.float64(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _roulette_row(s, e, out, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base):
+    """Russian roulette on pairs [s, e) of one row (see :func:`shadow_roulette`), the kept
+    ones moved to start at ``out`` (<= s); returns the next free position."""
+    i = pi[s]
+    total = 0.0
+    count = 0
+    eligible_row = row[i] == ROW_LAMBERT or row[i] == ROW_LAYER
+    if eligible_row:
+        for a in range(s, e):
+            total += np.float64(w[a]) * lum[pj[a]]
+            count += 1
+    threshold = fraction * total / count if count > 0 else 0.0
+    for a in range(s, e):
+        j = pj[a]
+        if threshold > 0.0 and eligible_row:
+            c = np.float64(w[a]) * lum[j]
+            if c < threshold:
+                if pair_uniform(seed, base + i, j) * threshold >= c:
+                    continue
+                w[a] = np.float32(threshold / lum[j])  # c / p
+        if out != a:
+            pi[out] = pi[a]
+            pj[out] = j
+            w[out] = w[a]
+            pl[out] = pl[a]
+            for c3 in range(3):
+                o[out, c3] = o[a, c3]
+                d[out, c3] = d[a, c3]
+            t[out] = t[a]
+        out += 1
+    return out
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def shadow_roulette(k, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base):
     """Russian roulette on the first ``k`` pairs (row-major, as pair_weights writes them), in
-    place; returns how many remain.
+    place; returns how many remain. (:func:`pair_weights` applies the same per row as it
+    writes the pairs, while they are in cache.)
 
     Per end point of a Lambertian (or plastic-layer) row, a pair whose unshadowed contribution
     c = w · lum[j] is below ``fraction`` of the row's mean keeps its shadow ray with probability
@@ -175,35 +216,10 @@ def shadow_roulette(k, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base):
     out = 0
     s = 0
     while s < k:
-        i = pi[s]
         e = s
-        total = 0.0
-        count = 0
-        eligible_row = row[i] == ROW_LAMBERT or row[i] == ROW_LAYER
-        while e < k and pi[e] == i:
-            if eligible_row:
-                total += np.float64(w[e]) * lum[pj[e]]
-                count += 1
+        while e < k and pi[e] == pi[s]:
             e += 1
-        threshold = fraction * total / count if count > 0 else 0.0
-        for a in range(s, e):
-            j = pj[a]
-            if threshold > 0.0 and eligible_row:
-                c = np.float64(w[a]) * lum[j]
-                if c < threshold:
-                    if pair_uniform(seed, base + i, j) * threshold >= c:
-                        continue
-                    w[a] = np.float32(threshold / lum[j])  # c / p
-            if out != a:
-                pi[out] = pi[a]
-                pj[out] = j
-                w[out] = w[a]
-                pl[out] = pl[a]
-                for c3 in range(3):
-                    o[out, c3] = o[a, c3]
-                    d[out, c3] = d[a, c3]
-                t[out] = t[a]
-            out += 1
+        out = _roulette_row(s, e, out, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base)
         s = e
     return out
 
