@@ -129,7 +129,7 @@ def build_vpl_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: int
                                      max_length if roulette else None, survival, portals)
         for i, rows in enumerate(_split(owner // walks, nsets)):
             parts[i].append(subset_vpls(walked, rows))
-    return [_concat(p) for p in parts]
+    return [concat_vpls(p) for p in parts]
 
 
 def _split(label: np.ndarray, n: int) -> list[np.ndarray]:
@@ -247,10 +247,6 @@ def concat_surface(sps: list) -> "bsdf.SurfacePoints":
 
 def concat_vpls(parts: list[VPLSet]) -> VPLSet:
     """The VPLs of ``parts`` in order, as one set (light_pdf 0 where a part has none)."""
-    return _concat(parts)
-
-
-def _concat(parts: list[VPLSet]) -> VPLSet:
     parts = [p for p in parts if len(p)]
     if not parts:
         return _empty_set()
