@@ -450,35 +450,35 @@ def contribution_per_vpl(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2:
     if col_range is None:
         col_range = (np.zeros(e, np.int64), np.full(e, m, np.int64))
     for sl in _range_chunks(*col_range):
+        eye_weight = albedo[sl] * end.throughput[sl]
         if not sampled:
             pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, receivers,
                                                            col_range=col_range)
-            out += np.bincount(pj, weights=_pair_luminance(cols, albedo[sl], end.throughput[sl], pi, pj, w,
-                                                           blocked, factor), minlength=m)
+            out += np.bincount(pj, weights=_pair_luminance(cols, eye_weight, pi, pj, w, blocked, factor),
+                               minlength=m)
             continue
         pi, pj, w, row, pl, o, d, t = _pair_rays(geom, end, sl, vpls, cols, max_depth, col_range)
-        plain = np.empty(len(pi))
-        vs.plain_luminance(pi, pj, w, cols.color, albedo[sl] * end.throughput[sl], plain)
+        plain = _pair_luminance(cols, eye_weight, pi, pj, w)
         draw, share = _systematic_pairs(pj, plain, m, visibility_samples, column_u)
         if len(draw) == 0:
             continue
         u, inv = np.unique(draw, return_inverse=True)  # a heavy pair drawn twice is traced once
         blocked = geom.occluded_local(o[u], d[u], t[u])
         factor = _bsdf_factors(sl, cols, row, pi[u], pj[u], pl[u], d[u], blocked, receivers)
-        full = _pair_luminance(cols, albedo[sl], end.throughput[sl], pi[u], pj[u], w[u], blocked, factor)
+        full = _pair_luminance(cols, eye_weight, pi[u], pj[u], w[u], blocked, factor)
         ratio = np.divide(full, plain[u], out=np.zeros(len(u)), where=plain[u] > 0)
         out += np.bincount(pj[draw], weights=share * ratio[inv], minlength=m)
     return out
 
 
-def _pair_luminance(cols: "_VPLColumns", albedo: np.ndarray, throughput: np.ndarray, pi: np.ndarray,
-                    pj: np.ndarray, w: np.ndarray, blocked: np.ndarray, factor: np.ndarray) -> np.ndarray:
-    """Luminance toward the eye of each pair (0 where blocked or not finite)."""
-    rgb = cols.color[pj] * (albedo[pi] * throughput[pi])
-    if len(factor):
-        rgb = rgb * factor
-    lum = np.where(blocked, 0.0, luminance(rgb) * w)
-    return np.maximum(np.nan_to_num(lum, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
+def _pair_luminance(cols: "_VPLColumns", eye_weight: np.ndarray, pi: np.ndarray, pj: np.ndarray, w: np.ndarray,
+                    blocked: np.ndarray | None = None, factor: np.ndarray | None = None) -> np.ndarray:
+    """Luminance toward the eye of each pair (end point's albedo × throughput ``eye_weight``;
+    0 where blocked or not finite; None: unshadowed, no BSDF factors)."""
+    out = np.empty(len(pi))
+    vs.pair_luminance(pi, pj, w, np.zeros(0, bool) if blocked is None else blocked,
+                      np.zeros((0, 3)) if factor is None else factor, cols.color, eye_weight, out)
+    return out
 
 
 def _systematic_pairs(pj: np.ndarray, weight: np.ndarray, m: int, samples: int,

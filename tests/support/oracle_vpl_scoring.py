@@ -6,8 +6,11 @@ import numpy as np
 from igi.common.lights import luminance
 
 
-def plain_luminance(pi, pj, w, color, eye_weight) -> np.ndarray:
-    lum = luminance(color[pj] * eye_weight[pi]) * w
+def pair_luminance(pi, pj, w, blocked, factor, color, eye_weight) -> np.ndarray:
+    rgb = color[pj] * eye_weight[pi]
+    if len(factor):
+        rgb = rgb * factor
+    lum = np.where(blocked, 0.0, luminance(rgb) * w) if len(blocked) else luminance(rgb) * w
     return np.maximum(np.nan_to_num(lum, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
 
 

@@ -53,7 +53,7 @@ def test_systematic_pairs_estimate_each_columns_sum_without_bias():
     np.testing.assert_allclose(est / trials, want, rtol=0.03)
 
 
-def test_plain_luminance_matches_numpy_and_zeroes_non_finite_pairs():
+def test_pair_luminance_matches_numpy_and_zeroes_non_finite_pairs():
     g = np.random.default_rng(9)
     n, m, e = 2000, 50, 300
     pi, pj = g.integers(0, e, n), g.integers(0, m, n)
@@ -63,8 +63,17 @@ def test_plain_luminance_matches_numpy_and_zeroes_non_finite_pairs():
     color[3] = np.nan
     color[4, 1] = np.inf
     eye[5] = -1.0  # negative light: clipped to 0
+    none_blocked, no_factor = np.zeros(0, bool), np.zeros((0, 3))
     out = np.empty(n)
-    vs.plain_luminance(pi, pj, w, color, eye, out)
-    np.testing.assert_allclose(out, oracle.plain_luminance(pi, pj, w, color, eye), rtol=1e-12)
+    vs.pair_luminance(pi, pj, w, none_blocked, no_factor, color, eye, out)
+    np.testing.assert_allclose(out, oracle.pair_luminance(pi, pj, w, none_blocked, no_factor, color, eye), rtol=1e-12)
     assert np.all(np.isfinite(out)) and np.all(out >= 0) and out.max() > 0
-    vs.plain_luminance(pi[:0], pj[:0], w[:0], color, eye, out[:0])  # empty: no work, no error
+    # with shadow rays' answers and per-pair BSDF factors (a NaN factor: 0)
+    blocked = g.random(n) < 0.3
+    factor = g.random((n, 3)) * 2
+    factor[7] = np.nan
+    got = np.empty(n)
+    vs.pair_luminance(pi, pj, w, blocked, factor, color, eye, got)
+    np.testing.assert_allclose(got, oracle.pair_luminance(pi, pj, w, blocked, factor, color, eye), rtol=1e-12)
+    assert np.all(got[blocked] == 0) and got[~blocked].max() > 0 and got[7] == 0
+    vs.pair_luminance(pi[:0], pj[:0], w[:0], none_blocked, no_factor, color, eye, out[:0])  # empty: no error

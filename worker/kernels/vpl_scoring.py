@@ -1,7 +1,8 @@
 """Scoring candidate VPLs against camera points (worker.vpl_importance): the per-pair loops of
 shading.contribution_per_vpl, over every (camera point, candidate) pair of a set batch.
 
-:func:`plain_luminance` — each pair's unshadowed luminance toward the eye;
+:func:`pair_luminance` — each pair's luminance toward the eye (unshadowed, or with its shadow
+ray's answer and BSDF factors);
 :func:`systematic_pairs` — per candidate, ``samples`` pairs drawn in proportion to it (one
 uniform per candidate, evenly spaced), by a counting sort over the candidates: the pairs of a
 batch of sets number ~10⁶, where numpy's argsort and temporaries cost more than the scoring.
@@ -19,14 +20,26 @@ _WR, _WG, _WB = LUMINANCE_WEIGHTS
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def plain_luminance(pi, pj, w, color, eye_weight, out):
-    """out[k] = w_k · Y(colour_j ⊙ eye_weight_i) of pair k = (i, j); 0 where that is not a
-    positive finite number."""
+def pair_luminance(pi, pj, w, blocked, factor, color, eye_weight, out):
+    """out[k] = w_k · Y(colour_j ⊙ eye_weight_i ⊙ factor_k) of pair k = (i, j); 0 where
+    blocked[k] or where that is not a positive finite number. ``blocked`` empty: none is;
+    ``factor`` with no rows: 1."""
+    use_blocked = blocked.shape[0] > 0
+    use_factor = factor.shape[0] > 0
     for k in range(pi.shape[0]):
+        if use_blocked and blocked[k]:
+            out[k] = 0.0
+            continue
         i = pi[k]
         j = pj[k]
-        v = np.float64(w[k]) * (color[j, 0] * eye_weight[i, 0] * _WR + color[j, 1] * eye_weight[i, 1] * _WG
-                                + color[j, 2] * eye_weight[i, 2] * _WB)
+        r = color[j, 0] * eye_weight[i, 0]
+        g = color[j, 1] * eye_weight[i, 1]
+        b = color[j, 2] * eye_weight[i, 2]
+        if use_factor:
+            r *= factor[k, 0]
+            g *= factor[k, 1]
+            b *= factor[k, 2]
+        v = (r * _WR + g * _WG + b * _WB) * np.float64(w[k])
         out[k] = v if (math.isfinite(v) and v > 0.0) else 0.0
 
 
