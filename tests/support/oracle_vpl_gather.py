@@ -177,3 +177,31 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
             rec = rec * fxg
         out = out - rec.sum(axis=1) + (rec * fy).sum(axis=1)
     return np.nan_to_num(out.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+
+
+def shadow_roulette(k, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base) -> int:
+    """The shadow rays' Russian roulette as a separate pass over the first ``k`` pairs
+    (row-major), in place, in plain Python: what worker.kernels.vpl_gather.pair_weights does per
+    row while it writes them. Returns how many pairs remain."""
+    from igi.worker.kernels import vpl_gather as vg
+
+    out, s = 0, 0
+    while s < k:
+        e = s
+        while e < k and pi[e] == pi[s]:
+            e += 1
+        i = int(pi[s])
+        eligible = row[i] in (vg.ROW_LAMBERT, vg.ROW_LAYER)
+        c = w[s:e].astype(np.float64) * lum[pj[s:e]]
+        threshold = fraction * c.sum() / (e - s) if eligible else 0.0
+        for a in range(s, e):
+            j = int(pj[a])
+            if threshold > 0.0 and c[a - s] < threshold:
+                if vg.pair_uniform(seed, base + i, j) * threshold >= c[a - s]:
+                    continue
+                w[a] = np.float32(threshold / lum[j])
+            pi[out], pj[out], w[out], pl[out], t[out] = pi[a], j, w[a], pl[a], t[a]
+            o[out], d[out] = o[a], d[a]
+            out += 1
+        s = e
+    return out

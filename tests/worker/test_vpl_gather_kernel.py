@@ -9,7 +9,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from tests.support.oracle_vpl_gather import gather_vpls_numpy
+from tests.support.oracle_vpl_gather import gather_vpls_numpy, shadow_roulette
 from igi.bench.stress_scenes import eye_end_points, grazing_camera, load_shared, merge_vpl_sets, vpls_at, with_extra_lights
 from igi.worker.renderer import Renderer
 from igi.worker.shading import gather_vpls
@@ -167,7 +167,9 @@ def test_shadow_roulette_keeps_the_big_pairs_and_glossy_rows():
         k = len(w)
         pl, o, d, t = np.zeros(k, np.float32), np.zeros((k, 3), np.float32), np.zeros((k, 3), np.float32), \
             np.arange(k, dtype=np.float32)
-        n = vg.shadow_roulette(k, args[0], args[1], args[2], pl, o, d, t, row, lum, 0.5, seed, 0)
+        n = 0
+        for a, b in ((0, 5), (5, 8)):  # the two rows, as pair_weights hands them over
+            n = vg.shadow_roulette_row(a, b, n, args[0], args[1], args[2], pl, o, d, t, row, lum, 0.5, seed, 0)
         ki, kj, kw = args[0][:n], args[1][:n], args[2][:n]
         assert (0, 0) in zip(ki.tolist(), kj.tolist())
         assert np.sum(ki == 1) == 3  # the glossy row keeps every pair
@@ -184,7 +186,8 @@ def test_shadow_roulette_keeps_the_big_pairs_and_glossy_rows():
 @pytest.mark.parametrize("name", ["cornell-box", "cornell-box-glossy"])
 def test_roulette_while_writing_the_pairs_equals_the_separate_pass(name):
     """pair_weights applies the shadow roulette per row as it writes the pairs: the same
-    pairs, weights and rays as writing them all and then running shadow_roulette over them."""
+    pairs, weights and rays as writing them all and then running the roulette over them
+    (tests/support/oracle_vpl_gather.py: shadow_roulette, plain Python)."""
     from igi.worker import shading
     from igi.worker.kernels import vpl_gather as vg
 
@@ -196,7 +199,7 @@ def test_roulette_while_writing_the_pairs_equals_the_separate_pass(name):
     sl = slice(5, len(end))  # a chunk not starting at row 0: base offsets the pair uniforms
     plain = shading._pair_rays(r.geom, end, sl, vpls, cols, -1)
     pi, pj, w, row, pl, o, d, t = (a.copy() for a in plain)
-    k = vg.shadow_roulette(len(pi), pi, pj, w, pl, o, d, t, row, cols.lum, 0.5, 11, sl.start)
+    k = shadow_roulette(len(pi), pi, pj, w, pl, o, d, t, row, cols.lum, 0.5, 11, sl.start)
     fused = shading._pair_rays(r.geom, end, sl, vpls, cols, -1, roulette=(0.5, 11))
     assert 0 < k < len(plain[0])  # some pairs were dropped: not vacuous
     for a, b in zip((pi[:k], pj[:k], w[:k], row, pl[:k], o[:k], d[:k], t[:k]), fused):

@@ -6,8 +6,9 @@ Three steps per chunk of end points, none with an (end points × VPLs) temporary
    1/max(d², c) term, emitter cosine, spot falloff, path-length limit, Lambertian receiver
    cos/π and the MIS weight of emitter samples against the BSDF ray; pairs that can carry
    light are written, in row-major order, straight into Embree's float32 shadow-ray arrays.
-   :func:`shadow_roulette` then thins the pairs whose unshadowed contribution is small
-   against their end point's mean (Russian roulette on shadow rays: kept pairs count 1/p).
+   :func:`shadow_roulette_row` thins each row's pairs as they are written: those whose
+   unshadowed contribution is small against their end point's mean (Russian roulette on
+   shadow rays: kept pairs count 1/p).
 2. Embree's occlusion query on that batch (outside: it releases the GIL itself).
 3. :func:`accumulate` — the unoccluded pairs' weight × VPL colour (× per-pair BSDF factors
    for glossy receivers or senders, computed by the caller on the compact pair list) summed
@@ -67,8 +68,8 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
     vdepth int. ROW_LAYER rows read their coat-transmittance table ``tables[row_tab[i]]`` and
     1/t_avg ``inv_tavg[i]``. out_pl: the MIS light pdf of glossy-row pairs (0 elsewhere) — their BSDF pdf
     is the caller's, so their MIS weight is applied by the caller. ``fraction`` > 0: each row's
-    pairs go through :func:`shadow_roulette` (``lum``, ``seed``, ``base``) as soon as they are
-    written (0: every live pair is kept). Per-row column ranges let
+    pairs go through :func:`shadow_roulette_row` (``lum``, ``seed``, ``base``) as soon as they
+    are written (0: every live pair is kept). Per-row column ranges let
     one call score the candidates of several VPL sets, each against its own camera points.
     """
     n = x.shape[0]
@@ -146,7 +147,7 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
                 out_t[k] = max(t, np.float32(0.0))
             k += 1
         if fraction > 0.0 and k > k_row:
-            k = _roulette_row(k_row, k, k_row, out_i, out_j, out_w, out_pl, out_o, out_d, out_t, row, lum,
+            k = shadow_roulette_row(k_row, k, k_row, out_i, out_j, out_w, out_pl, out_o, out_d, out_t, row, lum,
                               fraction, seed, base)
     return k
 
@@ -167,9 +168,18 @@ def pair_uniform(seed, i, j):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _roulette_row(s, e, out, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base):
-    """Russian roulette on pairs [s, e) of one row (see :func:`shadow_roulette`), the kept
-    ones moved to start at ``out`` (<= s); returns the next free position."""
+def shadow_roulette_row(s, e, out, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base):
+    """Russian roulette on the shadow rays of pairs [s, e), one row's (end point's) pairs as
+    :func:`pair_weights` writes them; the kept ones are moved to start at ``out`` (<= s), in
+    place; returns the next free position.
+
+    For a Lambertian (or plastic-layer) row, a pair whose unshadowed contribution
+    c = w · lum[j] is below ``fraction`` of the row's mean keeps its shadow ray with probability
+    p = c / (fraction · mean) and then counts 1/p (unbiased; the added variance per end point is
+    at most fraction · mean · Σc). A glossy column's lum[j] is a guess (a Lambertian sender of
+    its albedo): its true light, applied later by its BSDF factor, only makes p less apt, never
+    the estimate biased. Glossy rows always trace: their own lobe can make any pair large.
+    Pair (i, j) draws pair_uniform(seed, base + i, j)."""
     i = pi[s]
     total = 0.0
     count = 0
@@ -197,30 +207,6 @@ def _roulette_row(s, e, out, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, b
                 d[out, c3] = d[a, c3]
             t[out] = t[a]
         out += 1
-    return out
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def shadow_roulette(k, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base):
-    """Russian roulette on the first ``k`` pairs (row-major, as pair_weights writes them), in
-    place; returns how many remain. (:func:`pair_weights` applies the same per row as it
-    writes the pairs, while they are in cache.)
-
-    Per end point of a Lambertian (or plastic-layer) row, a pair whose unshadowed contribution
-    c = w · lum[j] is below ``fraction`` of the row's mean keeps its shadow ray with probability
-    p = c / (fraction · mean) and then counts 1/p (unbiased; the added variance per end point is
-    at most fraction · mean · Σc). A glossy column's lum[j] is a guess (a Lambertian sender of
-    its albedo): its true light, applied later by its BSDF factor, only makes p less apt, never
-    the estimate biased. Glossy rows always trace: their own lobe can make any pair large.
-    Pair (i, j) draws pair_uniform(seed, base + i, j)."""
-    out = 0
-    s = 0
-    while s < k:
-        e = s
-        while e < k and pi[e] == pi[s]:
-            e += 1
-        out = _roulette_row(s, e, out, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base)
-        s = e
     return out
 
 
