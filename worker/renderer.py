@@ -231,9 +231,9 @@ class Renderer:
 
         def build(ks: list[int]) -> list[VPLSet]:
             stream, blocks = _set_blocks(seed, ks, params, index)
-            direct, indirect, length = self._set_sizes(params)
             if importance:
                 return [s for s, _ in self._build_importance(stream, blocks, params, view, roulette)]
+            direct, indirect, length = self._set_sizes(params)
             return build_vpl_sets(self.scene, self.geom, self.lights, stream, blocks, direct, indirect, length,
                                   roulette=roulette and params.max_depth < 0)
 
