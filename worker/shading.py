@@ -625,8 +625,9 @@ def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _V
     kind = end.sp.kind[sl]
     front = end.sp.twosided[sl] | (wz > 0)
     lam = (kind == DIFFUSE) & front
+    # Glossy kinds reflect only (no rough dielectric): seen from behind a one-sided one, f = 0.
     row = np.where(lam, vg.ROW_LAMBERT,
-                   np.where((kind != DIFFUSE) & (kind != NULL), vg.ROW_GLOSSY, vg.ROW_NONE)).astype(np.int8)
+                   np.where((kind != DIFFUSE) & (kind != NULL) & front, vg.ROW_GLOSSY, vg.ROW_NONE)).astype(np.int8)
     tables, row_tab, inv_tavg = np.ones((1, 2)), np.zeros(n, np.int64), np.ones(n)
     layer = np.nonzero((kind == ROUGHPLASTIC_DIFFUSE) & front)[0]
     row[kind == ROUGHPLASTIC_DIFFUSE] = vg.ROW_NONE  # one-sided from behind, like Lambert

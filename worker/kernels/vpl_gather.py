@@ -29,7 +29,7 @@ INV_PI = 1.0 / math.pi
 # Per-row flags (receiver kind).
 ROW_NONE = 0  # absorbs (NULL) or a back-facing one-sided Lambertian surface
 ROW_LAMBERT = 1  # Lambertian: weight carries cos/π, colour is per unit albedo
-ROW_GLOSSY = 2  # any other BSDF: weight is the emitter factor only, BSDF applied per pair
+ROW_GLOSSY = 2  # any other BSDF (all reflect only): emitter factor and cos_x > 0 here, BSDF applied per pair
 # A rough plastic's diffuse layer alone (ROUGHPLASTIC_DIFFUSE): Lambertian up to the coat's
 # transmittance t(cos θ_o) toward the light, so per unit albedo cos/π · t(cos)/t_avg (a scalar).
 ROW_LAYER = 3
@@ -126,8 +126,10 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
                     t_o = tables[g, idx] + (tables[g, idx + 1] - tables[g, idx]) * (xs - idx)
                     w = np.float32(w * t_o * inv_tavg[i])
                 pl = np.float32(0.0)
-            else:
+            elif cos_x > 0.0:  # every glossy kind reflects only: below the horizon f = 0
                 w = em
+            else:
+                continue
             if not (w > 0.0) or not math.isfinite(w):
                 continue
             out_i[k] = i
