@@ -204,3 +204,25 @@ def test_roulette_while_writing_the_pairs_equals_the_separate_pass(name):
     assert 0 < k < len(plain[0])  # some pairs were dropped: not vacuous
     for a, b in zip((pi[:k], pj[:k], w[:k], row, pl[:k], o[:k], d[:k], t[:k]), fused):
         np.testing.assert_array_equal(a, b)
+
+
+def test_glossy_rows_trace_no_shadow_ray_below_their_horizon():
+    """Every glossy kind reflects only, so a glossy end point's pairs with the VPL below its
+    horizon (or seen from behind a one-sided surface) carry f = 0: the gather writes no shadow
+    ray for them, and still equals the oracle, which evaluates the BSDF for every pair."""
+    from igi.worker import shading
+    from igi.worker.kernels import vpl_gather as vg
+
+    r = Renderer(load_shared("cornell-box-glossy"))
+    end = eye_end_points(r, 32, 24)
+    vpls = _set(r, 2)
+    c2 = CLAMP * r.geom.diagonal ** 2
+    cols = shading.vpl_columns(vpls, r.geom, c2)
+    sl = slice(0, len(end))
+    pi, pj, w, row, pl, o, d, t = shading._pair_rays(r.geom, end, sl, vpls, cols, -1)
+    glossy = row[pi] == vg.ROW_GLOSSY
+    assert glossy.sum() > 100  # the sphere and floor are glossy rows: not vacuous
+    side = np.where(end.wi[pi, 2] >= 0, 1.0, -1.0)
+    cos_x = np.einsum("ij,ij->i", d.astype(np.float64), end.ns[pi]) * side
+    assert np.all(cos_x[glossy] > 0)
+    _agree(r, end, vpls)
