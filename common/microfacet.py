@@ -14,11 +14,13 @@ vectorized ones serve the table precomputation (in float32, as Mitsuba's scalar 
 """
 from __future__ import annotations
 
+import sys
 import threading
 
 import numpy as np
 from scipy.special import erf, erfinv
 
+from igi.common import fresnel, table_cache
 from igi.common.fresnel import fresnel_dielectric, reflect_m, refract_m
 
 INV_SQRT_PI = 1.0 / np.sqrt(np.pi)
@@ -236,6 +238,33 @@ def eval_transmittance(mu, alpha, eta, beckmann):
 
 _TABLES: dict = {}
 _TABLES_LOCK = threading.Lock()
+_VERSION: str | None = None  # table_cache.source_version of the code computing the tables
+
+
+def _table_file(key: tuple) -> str:
+    """The disk-cache name of one coat's tables: this module's and the Fresnel code's version,
+    the resolution and the float32 key (exact: repr round-trips)."""
+    global _VERSION
+    if _VERSION is None:
+        _VERSION = table_cache.source_version(sys.modules[__name__], fresnel)
+    alpha, eta, beckmann = key
+    return f"coat-{_VERSION}-{ROUGH_TRANSMITTANCE_RES}-{alpha!r}-{eta!r}-{int(beckmann)}.npz"
+
+
+def _stored_tables(key: tuple) -> tuple | None:
+    """One coat's tables from the disk cache, or None (absent, unreadable or malformed)."""
+    z = table_cache.load(_table_file(key))
+    if z is None:
+        return None
+    try:
+        ext_t, int_r, ext_r = z["ext_t"], float(z["int_r"]), z["ext_r"]
+    except (KeyError, TypeError, ValueError):
+        return None
+    shape = (ROUGH_TRANSMITTANCE_RES,)
+    if ext_t.shape != shape or ext_r.shape != shape or not (
+            np.all(np.isfinite(ext_t)) and np.all(np.isfinite(ext_r)) and np.isfinite(int_r)):
+        return None
+    return ext_t, int_r, ext_r
 
 
 def rough_plastic_tables(alpha: float, eta: float, beckmann: bool) -> tuple[np.ndarray, float, np.ndarray]:
@@ -254,11 +283,14 @@ def rough_plastic_tables(alpha: float, eta: float, beckmann: bool) -> tuple[np.n
     tab = _TABLES.get(key)
     if tab is not None:
         return tab
-    mu = np.maximum(1e-6, np.linspace(0.0, 1.0, ROUGH_TRANSMITTANCE_RES))
-    ext_t = eval_transmittance(mu, alpha, float(eta), bool(beckmann))
-    int_r = float(np.mean(eval_reflectance(mu, alpha, 1.0 / float(eta), bool(beckmann)) * mu) * 2.0)
-    ext_r = eval_reflectance(mu, alpha, float(eta), bool(beckmann))
-    tab = (ext_t, int_r, ext_r)
+    tab = _stored_tables(key)
+    if tab is None:
+        mu = np.maximum(1e-6, np.linspace(0.0, 1.0, ROUGH_TRANSMITTANCE_RES))
+        ext_t = eval_transmittance(mu, alpha, float(eta), bool(beckmann))
+        int_r = float(np.mean(eval_reflectance(mu, alpha, 1.0 / float(eta), bool(beckmann)) * mu) * 2.0)
+        ext_r = eval_reflectance(mu, alpha, float(eta), bool(beckmann))
+        tab = (ext_t, int_r, ext_r)
+        table_cache.store(_table_file(key), ext_t=ext_t, int_r=np.float64(int_r), ext_r=ext_r)
     with _TABLES_LOCK:
         _TABLES[key] = tab
     return tab
