@@ -61,6 +61,7 @@ from .frame_assembly import DEFAULT_TASK_PIXELS
 from .frame_loop import MAX_TASK_FAILURES, FrameLoop
 from .frames import FrameCancelled, FrameFailed, FrameResult, params_dict
 from .links import Links
+from .kernels.warm import warm_up_master_in_background
 from .mailbox import Mailbox
 from .meters import LATENCY_WINDOW
 from .scene_state import FOLD_EDITS, SceneState
@@ -130,6 +131,7 @@ class Broker:
         if self._thread is not None:
             return self
         self._links.open()
+        warm_up_master_in_background()  # the kernels load while the workers start
         self._running = True
         self._mailbox.inline = False
         self._thread = threading.Thread(target=self._loop, name="igi-master-loop", daemon=True)

@@ -1,0 +1,66 @@
+"""Load the master's compiled kernels before its first frame (issue 16: start-up).
+
+The master decodes tiles (common.kernels.wire_decode), filters and composes frames
+(``discontinuity``) and accumulates them (``accumulate``) with numba kernels. The first call of
+each in a process loads it from numba's disk cache, and the first of all builds numba's
+context: ~0.5 s that used to land inside the first frame a user waits for, after the workers'
+first tiles had arrived. :func:`warm_up_master` runs that path once on a tiny synthetic frame;
+the broker starts it on a thread of its own as it starts, while the workers start (seconds).
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+_SIZE, _N = 10, 5  # a tiny frame: every sub-image of a 5x5 interleave, 2x2 pixels each
+
+
+def _tile_buffers(count: int, rng: np.random.Generator):
+    from igi.common.frame import TileBuffers
+
+    normal = rng.normal(size=(count, 3)).astype(np.float32)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    f = lambda: rng.random((count, 3), dtype=np.float32)  # noqa: E731
+    return TileBuffers(reflectance=f(), irradiance=f(), unfiltered=f(),
+                       depth=(1.0 + rng.random(count)).astype(np.float32), normal=normal)
+
+
+def warm_up_master() -> float:
+    """Decode, merge, filter, compose and accumulate one tiny frame (the wire path the broker
+    takes), at the first frame's filter weight and at a faded one; returns the seconds taken."""
+    t0 = time.perf_counter()
+    from igi.common.codec import encode
+    from igi.common.params import make_params, params_to_dict
+    from igi.master.accumulation import Accumulator
+    from igi.master.frame_assembly import FrameAssembler, task_tiles, tile_pixel_count
+
+    params = params_to_dict(make_params(interleave=_N))
+    rng = np.random.default_rng(0)
+    frame = FrameAssembler(_SIZE, _SIZE, _N)
+    for tile in task_tiles(_SIZE, _SIZE, _N):
+        frame.add_wire(tile, encode(_tile_buffers(tile_pixel_count(tile, _N, _SIZE, _SIZE), rng)))
+    acc = Accumulator()
+    for index in (0, 10 * int(params["filter_frames"])):  # filtered, then past the fade
+        acc.add(frame.image(params, index))
+    acc.mean()
+    return time.perf_counter() - t0
+
+
+def warm_up_master_in_background() -> threading.Thread:
+    """:func:`warm_up_master` on a daemon thread (a failure is logged, never raised: the first
+    frame then loads the kernels itself, as before)."""
+
+    def run() -> None:
+        try:
+            log.debug("master kernels ready in %.2f s", warm_up_master())
+        except Exception as e:  # noqa: BLE001 - only an optimization
+            log.info("master warm-up failed (%s: %s); the first frame loads the kernels", type(e).__name__, e)
+
+    t = threading.Thread(target=run, name="igi-master-warm", daemon=True)
+    t.start()
+    return t

@@ -1,0 +1,73 @@
+"""The master loads its compiled kernels before its first frame (master.kernels.warm): after
+warm_up_master every kernel of master.kernels and the wire decode has a compiled signature
+(checked in a fresh process, where nothing else has called them), and the broker starts the
+warm-up as it starts."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+
+CHECK = """
+import json
+from numba.core.registry import CPUDispatcher
+import igi.master.kernels.accumulate as a, igi.master.kernels.discontinuity as d
+import igi.common.kernels.wire_decode as w
+from igi.master.kernels.warm import warm_up_master
+
+def public(mod):
+    return {f"{mod.__name__}.{k}": v for k, v in vars(mod).items() if isinstance(v, CPUDispatcher)
+            and v.__module__ == mod.__name__ and v.targetoptions.get("inline") != "always"}
+
+used = {**public(a), **public(d), **public(w)}
+before = sorted(k for k, v in used.items() if v.signatures)
+warm_up_master()
+after = sorted(k for k, v in used.items() if v.signatures)
+print(json.dumps({"before": before, "after": after, "all": sorted(used)}))
+"""
+
+
+def test_warm_up_master_loads_the_kernels_of_a_frame_in_a_fresh_process():
+    out = subprocess.run([sys.executable, "-c", CHECK], check=True, capture_output=True, text=True)
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    assert res["before"] == []  # a fresh process: nothing loaded yet (the check is not vacuous)
+    # the frame path's kernels: decode, the discontinuity buffer + compose, the accumulation sums
+    for name in ("igi.common.kernels.wire_decode.decode_tile", "igi.master.kernels.discontinuity.finish_sub",
+                 "igi.master.kernels.accumulate.add_frame", "igi.master.kernels.accumulate.mean"):
+        assert name in res["after"], name
+
+
+def test_the_broker_starts_the_warm_up_as_it_starts(monkeypatch):
+    import igi.master.broker as broker_mod
+    from tests.support.scenes_synthetic import furnace_box
+
+    calls = []
+    monkeypatch.setattr(broker_mod, "warm_up_master_in_background", lambda: calls.append(1))
+    b = broker_mod.Broker(furnace_box(0.5, 1.0, 8, 8), bind="tcp://127.0.0.1:*").start()
+    try:
+        assert calls == [1]
+    finally:
+        b.stop()
+
+
+def test_a_failing_master_warm_up_is_logged_not_raised(monkeypatch, caplog):
+    import logging
+
+    from igi.master.kernels import warm
+
+    def boom():
+        raise RuntimeError("no kernels today")
+
+    monkeypatch.setattr(warm, "warm_up_master", boom)
+    with caplog.at_level(logging.INFO, logger="igi.master.kernels.warm"):
+        warm.warm_up_master_in_background().join(10)
+    assert "master warm-up failed" in caplog.text and "no kernels today" in caplog.text
+
+
+def test_warm_up_master_returns_its_duration():
+    from igi.master.kernels.warm import warm_up_master
+
+    t = warm_up_master()
+    assert np.isfinite(t) and t >= 0
