@@ -241,30 +241,39 @@ _TABLES_LOCK = threading.Lock()
 _VERSION: str | None = None  # table_cache.source_version of the code computing the tables
 
 
-def _table_file(key: tuple) -> str:
-    """The disk-cache name of one coat's tables: this module's and the Fresnel code's version,
-    the resolution and the float32 key (exact: repr round-trips)."""
+def _table_file(key: tuple) -> str | None:
+    """The disk-cache name of one coat's tables: the version of this module's and the Fresnel
+    code (table_cache.source_version), the resolution and the float32 key (exact: repr
+    round-trips); None when there is no cache or no source to version."""
     global _VERSION
+    if table_cache.cache_dir() is None:
+        return None
     if _VERSION is None:
-        _VERSION = table_cache.source_version(sys.modules[__name__], fresnel)
+        try:
+            _VERSION = table_cache.source_version(sys.modules[__name__], fresnel)
+        except OSError:  # installed without sources: nothing to version the tables by
+            return None
     alpha, eta, beckmann = key
     return f"coat-{_VERSION}-{ROUGH_TRANSMITTANCE_RES}-{alpha!r}-{eta!r}-{int(beckmann)}.npz"
 
 
 def _stored_tables(key: tuple) -> tuple | None:
-    """One coat's tables from the disk cache, or None (absent, unreadable or malformed)."""
-    z = table_cache.load(_table_file(key))
+    """One coat's tables from the disk cache, or None (absent, unreadable or malformed: the
+    arrays must be exactly what the computation gives, float64 of the table's shape, finite)."""
+    name = _table_file(key)
+    z = table_cache.load(name) if name else None
     if z is None:
         return None
     try:
-        ext_t, int_r, ext_r = z["ext_t"], float(z["int_r"]), z["ext_r"]
-    except (KeyError, TypeError, ValueError):
+        ext_t, int_r, ext_r = z["ext_t"], z["int_r"], z["ext_r"]
+        shape = (ROUGH_TRANSMITTANCE_RES,)
+        if not (ext_t.shape == shape and ext_r.shape == shape and int_r.shape == ()
+                and ext_t.dtype == ext_r.dtype == int_r.dtype == np.float64
+                and np.all(np.isfinite(ext_t)) and np.all(np.isfinite(ext_r)) and np.isfinite(int_r)):
+            return None
+        return ext_t, float(int_r), ext_r
+    except Exception:  # noqa: BLE001 - a malformed file means "recompute"
         return None
-    shape = (ROUGH_TRANSMITTANCE_RES,)
-    if ext_t.shape != shape or ext_r.shape != shape or not (
-            np.all(np.isfinite(ext_t)) and np.all(np.isfinite(ext_r)) and np.isfinite(int_r)):
-        return None
-    return ext_t, int_r, ext_r
 
 
 def rough_plastic_tables(alpha: float, eta: float, beckmann: bool) -> tuple[np.ndarray, float, np.ndarray]:
@@ -290,7 +299,9 @@ def rough_plastic_tables(alpha: float, eta: float, beckmann: bool) -> tuple[np.n
         int_r = float(np.mean(eval_reflectance(mu, alpha, 1.0 / float(eta), bool(beckmann)) * mu) * 2.0)
         ext_r = eval_reflectance(mu, alpha, float(eta), bool(beckmann))
         tab = (ext_t, int_r, ext_r)
-        table_cache.store(_table_file(key), ext_t=ext_t, int_r=np.float64(int_r), ext_r=ext_r)
+        name = _table_file(key)
+        if name:
+            table_cache.store(name, ext_t=ext_t, int_r=np.float64(int_r), ext_r=ext_r)
     with _TABLES_LOCK:
         _TABLES[key] = tab
     return tab

@@ -14,7 +14,6 @@ import hashlib
 import logging
 import os
 import tempfile
-import zipfile
 from pathlib import Path
 from types import ModuleType
 
@@ -35,11 +34,21 @@ def cache_dir() -> Path | None:
 
 
 def source_version(*modules: ModuleType) -> str:
-    """A short hash of the modules' source files: the version of what they compute."""
-    h = hashlib.sha1()
+    """A short hash of the modules' source files and of the numpy and scipy versions they run
+    on: the version of what they compute (two environments sharing a cache never read each
+    other's tables)."""
+    import scipy
+
+    h = hashlib.sha1(f"numpy {np.__version__} scipy {scipy.__version__}".encode())
     for m in modules:
         h.update(Path(m.__file__).read_bytes())
     return h.hexdigest()[:12]
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def load(name: str) -> dict[str, np.ndarray] | None:
@@ -52,8 +61,9 @@ def load(name: str) -> dict[str, np.ndarray] | None:
             return {k: z[k] for k in z.files}
     except FileNotFoundError:
         return None
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-        log.warning("table cache: ignoring unreadable %s (%s); recomputing it", d / name, e)
+    except Exception as e:  # noqa: BLE001 - only a cache: any damage means "recompute"
+        log.warning("table cache: ignoring unreadable %s (%s: %s); recomputing it", d / name,
+                    type(e).__name__, e)
         return None
 
 
@@ -68,6 +78,7 @@ def store(name: str, **arrays: np.ndarray) -> None:
         fd, tmp = tempfile.mkstemp(dir=d, prefix=".", suffix=".tmp")
         with os.fdopen(fd, "wb") as f:
             np.savez(f, **arrays)
+        os.chmod(tmp, 0o644 & ~_umask())  # mkstemp's 0600 would hide a shared cache from others
         os.replace(tmp, d / name)
         tmp = None
     except OSError as e:

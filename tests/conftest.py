@@ -14,6 +14,22 @@ import pytest  # noqa: E402
 SHARED = ROOT.parent / "shared"
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _private_table_cache(tmp_path_factory):
+    """Tests keep precomputed tables (common.table_cache) in a directory of their own, shared
+    by the session's processes (the variable is inherited), never the user's ~/.cache/igi: a
+    table there could stand in for the computation a test means to check."""
+    import os
+
+    old = os.environ.get("IGI_CACHE_DIR")
+    os.environ["IGI_CACHE_DIR"] = str(tmp_path_factory.mktemp("igi-cache"))
+    yield
+    if old is None:
+        os.environ.pop("IGI_CACHE_DIR", None)
+    else:
+        os.environ["IGI_CACHE_DIR"] = old
+
+
 def pytest_report_header(config):
     if not SHARED.is_dir():
         return (f"NOTE: the shared test set (scenes and Mitsuba references) is not at {SHARED}; "

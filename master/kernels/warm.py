@@ -51,9 +51,14 @@ def warm_up_master() -> float:
     return time.perf_counter() - t0
 
 
+_started: threading.Thread | None = None  # once per process: the kernels stay loaded
+_lock = threading.Lock()
+
+
 def warm_up_master_in_background() -> threading.Thread:
-    """:func:`warm_up_master` on a daemon thread (a failure is logged, never raised: the first
-    frame then loads the kernels itself, as before)."""
+    """:func:`warm_up_master` on a daemon thread, once per process (later brokers get the same
+    thread); a failure is logged, never raised: the first frame then loads the kernels itself."""
+    global _started
 
     def run() -> None:
         try:
@@ -61,6 +66,8 @@ def warm_up_master_in_background() -> threading.Thread:
         except Exception as e:  # noqa: BLE001 - only an optimization
             log.info("master warm-up failed (%s: %s); the first frame loads the kernels", type(e).__name__, e)
 
-    t = threading.Thread(target=run, name="igi-master-warm", daemon=True)
-    t.start()
-    return t
+    with _lock:
+        if _started is None:
+            _started = threading.Thread(target=run, name="igi-master-warm", daemon=True)
+            _started.start()
+        return _started

@@ -94,7 +94,7 @@ def test_an_unwritable_cache_dir_costs_only_the_computation(tmp_path, monkeypatc
         mf._TABLES.clear()
 
 
-def test_the_file_name_changes_with_the_code_version(cache, monkeypatch):
+def test_tables_of_another_code_version_are_kept_apart(cache, monkeypatch):
     mf.rough_plastic_tables(*COAT)
     (first,) = cache.glob("coat-*.npz")
     mf._TABLES.clear()
@@ -103,3 +103,36 @@ def test_the_file_name_changes_with_the_code_version(cache, monkeypatch):
     names = sorted(p.name for p in cache.glob("coat-*.npz"))
     assert len(names) == 2 and first.name in names
     assert any(n.startswith("coat-0123456789ab-") for n in names)
+
+
+def test_the_version_changes_with_the_source(tmp_path, monkeypatch):
+    import importlib.util
+
+    def module(text):
+        path = tmp_path / f"m{abs(hash(text))}.py"
+        path.write_text(text)
+        spec = importlib.util.spec_from_file_location(path.stem, path)
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        return mod
+
+    a, b = module("X = 1\n"), module("X = 2\n")
+    assert table_cache.source_version(a) == table_cache.source_version(module("X = 1\n"))
+    assert table_cache.source_version(a) != table_cache.source_version(b)
+
+
+@pytest.mark.parametrize("bad", ["npy under the npz name", "float32 arrays", "strings"])
+def test_other_malformed_files_are_recomputed_too(cache, bad):
+    computed = mf.rough_plastic_tables(*COAT)
+    (path,) = cache.glob("coat-*.npz")
+    if bad == "npy under the npz name":
+        with open(path, "wb") as f:
+            np.save(f, np.ones(3))
+    elif bad == "float32 arrays":
+        np.savez(path, ext_t=computed[0].astype(np.float32), int_r=np.float64(computed[1]),
+                 ext_r=computed[2].astype(np.float32))
+    else:
+        np.savez(path, ext_t=np.array(["x"] * mf.ROUGH_TRANSMITTANCE_RES), int_r=np.float64(0.5),
+                 ext_r=np.array(["x"] * mf.ROUGH_TRANSMITTANCE_RES))
+    mf._TABLES.clear()
+    _equal(mf.rough_plastic_tables(*COAT), computed)

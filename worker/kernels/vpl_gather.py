@@ -27,7 +27,7 @@ from igi.common.kernels import shading_frame
 INV_PI = 1.0 / math.pi
 
 # Per-row flags (receiver kind).
-ROW_NONE = 0  # absorbs (NULL) or a back-facing one-sided Lambertian surface
+ROW_NONE = 0  # absorbs (NULL), or a one-sided surface seen from behind (Lambertian or glossy)
 ROW_LAMBERT = 1  # Lambertian: weight carries cos/π, colour is per unit albedo
 ROW_GLOSSY = 2  # any other BSDF (all reflect only): emitter factor and cos_x > 0 here, BSDF applied per pair
 # A rough plastic's diffuse layer alone (ROUGHPLASTIC_DIFFUSE): Lambertian up to the coat's
