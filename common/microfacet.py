@@ -257,10 +257,10 @@ def _table_file(key: tuple) -> str | None:
     return f"coat-{_VERSION}-{ROUGH_TRANSMITTANCE_RES}-{alpha!r}-{eta!r}-{int(beckmann)}.npz"
 
 
-def _stored_tables(key: tuple) -> tuple | None:
-    """One coat's tables from the disk cache, or None (absent, unreadable or malformed: the
-    arrays must be exactly what the computation gives, float64 of the table's shape, finite)."""
-    name = _table_file(key)
+def _stored_tables(name: str | None) -> tuple | None:
+    """One coat's tables from the disk cache file ``name`` (:func:`_table_file`), or None (no
+    cache, absent, unreadable or malformed: the arrays must be exactly what the computation
+    gives, float64 of the table's shape, finite)."""
     z = table_cache.load(name) if name else None
     if z is None:
         return None
@@ -292,14 +292,14 @@ def rough_plastic_tables(alpha: float, eta: float, beckmann: bool) -> tuple[np.n
     tab = _TABLES.get(key)
     if tab is not None:
         return tab
-    tab = _stored_tables(key)
+    name = _table_file(key)
+    tab = _stored_tables(name)
     if tab is None:
         mu = np.maximum(1e-6, np.linspace(0.0, 1.0, ROUGH_TRANSMITTANCE_RES))
         ext_t = eval_transmittance(mu, alpha, float(eta), bool(beckmann))
         int_r = float(np.mean(eval_reflectance(mu, alpha, 1.0 / float(eta), bool(beckmann)) * mu) * 2.0)
         ext_r = eval_reflectance(mu, alpha, float(eta), bool(beckmann))
         tab = (ext_t, int_r, ext_r)
-        name = _table_file(key)
         if name:
             table_cache.store(name, ext_t=ext_t, int_r=np.float64(int_r), ext_r=ext_r)
     with _TABLES_LOCK:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
-import tempfile
+import secrets
 from pathlib import Path
 from types import ModuleType
 
@@ -45,12 +45,6 @@ def source_version(*modules: ModuleType) -> str:
     return h.hexdigest()[:12]
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
 def load(name: str) -> dict[str, np.ndarray] | None:
     """The arrays stored under ``name``, or None (no cache, no file, or an unreadable one)."""
     d = cache_dir()
@@ -75,10 +69,12 @@ def store(name: str, **arrays: np.ndarray) -> None:
     tmp = None
     try:
         d.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=d, prefix=".", suffix=".tmp")
-        with os.fdopen(fd, "wb") as f:
+        # A fresh name opened exclusively with mode 0644 under the umask, as a plain file would
+        # be (mkstemp's 0600 would hide a shared cache from others; changing the umask to read
+        # it would race with other threads creating files).
+        tmp = d / f".{name}.{os.getpid()}.{secrets.token_hex(4)}.tmp"
+        with os.fdopen(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644), "wb") as f:
             np.savez(f, **arrays)
-        os.chmod(tmp, 0o644 & ~_umask())  # mkstemp's 0600 would hide a shared cache from others
         os.replace(tmp, d / name)
         tmp = None
     except OSError as e:
