@@ -9,6 +9,7 @@ import contextlib
 import threading
 import time
 from collections import OrderedDict
+from dataclasses import replace
 
 import numpy as np
 from scipy.special import gammaln
@@ -49,6 +50,21 @@ def radius_scale(index: int, params: Params) -> float:
 def clamp_distance2(params: Params, diagonal: float) -> float:
     frac = params.clamp if params.clamp >= 0 else DEFAULT_CLAMP
     return frac * diagonal * diagonal
+
+
+def moving_frame(params: Params, index: int) -> bool:
+    """A frame of a moving camera: a streamed view's first frame after a move (index 0, sent
+    without the consistent estimators: master/stream.py), or any frame with accumulation off."""
+    return index == 0 and not (params.consistent_first_frame and params.accumulate)
+
+
+def frame_params(params: Params, index: int) -> Params:
+    """The parameters frame ``index`` renders with: a moving camera's frame takes
+    ``moving_indirect_vpls`` (shown once, its frame rate counts; a still camera's frames average,
+    so error at equal time counts and they take ``indirect_vpls``)."""
+    if params.moving_indirect_vpls < 0 or not moving_frame(params, index):
+        return params
+    return replace(params, indirect_vpls=params.moving_indirect_vpls)
 
 
 def frame_clamp_distance2(params: Params, diagonal: float, index: int, consistent: bool) -> float:
@@ -266,11 +282,11 @@ class Renderer:
 
     # -- a task ------------------------------------------------------------------------------
     def render_tile(self, spec: FrameSpec, tile: Tile) -> TileBuffers:
-        params = make_params(**spec.params)
+        index = accumulation_index(spec)
+        params = frame_params(make_params(**spec.params), index)
         n = params.interleave
         xs, ys = tile.pixels(n, spec.width, spec.height)
         p = len(xs)
-        index = accumulation_index(spec)
         view = View(tuple(np.asarray(spec.camera_to_world, np.float64).ravel()), spec.fov_x, spec.width,
                     spec.height)
         # The consistent estimators (walks of any length, the clamp's energy given back) from the

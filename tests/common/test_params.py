@@ -5,7 +5,8 @@ import argparse
 
 import pytest
 
-from igi.common.params import PARAMS, add_arguments, make_params, parameters_doc, params_from_args, viewer_schema
+from igi.common.params import (PARAM_BY_NAME, PARAMS, add_arguments, make_params, parameters_doc, params_from_args,
+                               values_in_use, viewer_schema)
 
 from tests.support.paths import ROOT
 
@@ -40,4 +41,11 @@ def test_viewer_schema_lists_the_viewer_parameters_with_ranges():
     schema = {s["name"]: s for s in viewer_schema()}
     for p in PARAMS:
         assert (p.name in schema) == p.viewer
-    assert schema["indirect_vpls"]["max"] == 1024 and schema["indirect_vpls"]["default"] == 18
+    assert schema["indirect_vpls"]["max"] == 1024
+    assert schema["indirect_vpls"]["default"] == PARAM_BY_NAME["indirect_vpls"].default
+    assert schema["moving_indirect_vpls"]["special"] == "as still" and schema["moving_indirect_vpls"]["min"] == -1
+
+
+def test_a_moving_cameras_vpl_count_at_minus_one_shows_the_still_count_in_use():
+    assert values_in_use({"moving_indirect_vpls": -1, "indirect_vpls": 12}) == {"moving_indirect_vpls": 12}
+    assert values_in_use({"moving_indirect_vpls": 7}) == {}
