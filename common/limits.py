@@ -120,12 +120,7 @@ def check_params(params, emitters: int = 1) -> None:
     get = (lambda k: params[k]) if isinstance(params, dict) else (lambda k: getattr(params, k))
     try:
         n2 = int(get("interleave")) ** 2
-        indirect = int(get("indirect_vpls"))
-        try:  # a moving camera's frames may take a count of their own
-            indirect = max(indirect, int(get("moving_indirect_vpls")))
-        except (KeyError, AttributeError):
-            pass
-        vpls = int(get("direct_vpls")) + indirect * int(get("light_path_length"))
+        vpls = int(get("direct_vpls")) + int(get("indirect_vpls")) * int(get("light_path_length"))
         photons = int(get("photons")) * max(1, int(emitters))
     except (KeyError, AttributeError, TypeError, ValueError):
         return  # not a full parameter set: make_params validates the values themselves

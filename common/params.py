@@ -35,12 +35,12 @@ PARAMS: tuple[Param, ...] = (
     Param("indirect_vpls", int, 30,
           "VPLs at the vertices of light walks per set (indirect light) on the frames of a still "
           "camera (30 against 18: 10% less error at equal time over six shared scenes, geometric "
-          "mean of 5 seeds; 17-31% on the rooms lit indirectly, 5-11% more on the two whose error is "
-          "mostly caustics or many lamps' direct light)", "vpl", 0, 1024),
+          "mean of 5 seeds; 13-31% less on the rooms lit indirectly, 5-11% more on the two whose "
+          "error is mostly caustics or many lamps' direct light)", "vpl", 0, 1024),
     Param("moving_indirect_vpls", int, 18,
-          "indirect VPLs per set on the frames of a moving camera (a streamed view's first frame after "
-          "each move, and every frame with accumulation off): such a frame is shown once, so frame rate "
-          "counts there, not error at equal time; -1: as --indirect-vpls", "vpl", -1, 1024),
+          "at most this many indirect VPLs per set on the frames of a moving camera (a streamed view's "
+          "frame after each move): such a frame is shown once, so frame rate counts there, not error at "
+          "equal time; -1: as --indirect-vpls", "vpl", -1, 1024),
     Param("light_path_length", int, 4, "maximum light-walk length for VPLs (paper: 4)", "vpl", 1, 64),
     Param("clamp", float, -1.0,
           "minimum squared VPL distance as a fraction of the squared scene diagonal (-1: scene default 1e-3)",
@@ -109,6 +109,10 @@ PARAMS: tuple[Param, ...] = (
           "the first frame after a reset already takes the consistent estimators (Russian-roulette "
           "walks, clamp compensation): ~20% more time for a first frame without their bias; a "
           "streamed view skips them on the frames of a moving camera", "accumulate", viewer=False),
+    Param("moving_camera", bool, False,
+          "this frame is a streamed view's first after a camera move (set by the stream, not by hand): "
+          "it is shown once, so it takes at most moving_indirect_vpls indirect VPLs a set",
+          "accumulate", viewer=False),
     Param("ppm_alpha", float, 2 / 3, "photon radius shrink per accumulated frame: r²ᵢ₊₁ = r²ᵢ(i+α)/(i+1)",
           "accumulate", 0.05, 1.0),
     Param("filter_frames", int, 32,

@@ -55,12 +55,13 @@ def sequence_spec(frame: int, index: int, camera_to_world, fov_x: float, width: 
                      jitter=jitter_for(index))
 
 
-_PER_FRAME_PARAMS = ("seed", "consistent_first_frame")
+_PER_FRAME_PARAMS = ("seed", "consistent_first_frame", "moving_camera")
 
 
 def accumulation_key(spec: FrameSpec) -> tuple:
     """What must stay equal for frames to be averaged: everything but seed, jitter, frame and
-    whether the frame took the consistent estimators (the stream's first frame does not)."""
+    whether the frame was a moving camera's (the stream's first frame: no consistent estimators,
+    fewer indirect VPLs — an estimate of the same image, so it joins the average)."""
     params = tuple(sorted((k, v) for k, v in spec.params.items() if k not in _PER_FRAME_PARAMS))
     return (spec.camera_to_world, spec.fov_x, spec.width, spec.height, spec.scene_version, params)
 

@@ -158,8 +158,8 @@ class Stream:
     def _open_next(self, gen: int) -> bool:
         v = self._view
         # A frame at index 0 is one of a moving camera: it answers fast (no roulette walks, no
-        # clamp compensation); the frames that accumulate after it take them.
-        params = v["params"] if self._index else dict(v["params"], consistent_first_frame=False)
+        # clamp compensation, moving_indirect_vpls); the frames that accumulate after it take them.
+        params = v["params"] if self._index else dict(v["params"], consistent_first_frame=False, moving_camera=True)
         spec = sequence_spec(self.frames.alloc_frame(), self._index, v["camera"], v["fov_x"],
                              v["width"], v["height"], params, self.scene.version)
         self._index += 1

@@ -52,19 +52,13 @@ def clamp_distance2(params: Params, diagonal: float) -> float:
     return frac * diagonal * diagonal
 
 
-def moving_frame(params: Params, index: int) -> bool:
-    """A frame of a moving camera: a streamed view's first frame after a move (index 0, sent
-    without the consistent estimators: master/stream.py), or any frame with accumulation off."""
-    return index == 0 and not (params.consistent_first_frame and params.accumulate)
-
-
-def frame_params(params: Params, index: int) -> Params:
-    """The parameters frame ``index`` renders with: a moving camera's frame takes
-    ``moving_indirect_vpls`` (shown once, its frame rate counts; a still camera's frames average,
-    so error at equal time counts and they take ``indirect_vpls``)."""
-    if params.moving_indirect_vpls < 0 or not moving_frame(params, index):
+def set_params(params: Params) -> Params:
+    """The parameters a frame's VPL sets are built with: a moving camera's frame (shown once:
+    its frame rate counts) takes at most ``moving_indirect_vpls`` indirect VPLs; a still
+    camera's frames average, error at equal time counts, and they take ``indirect_vpls``."""
+    if not params.moving_camera or params.moving_indirect_vpls < 0:
         return params
-    return replace(params, indirect_vpls=params.moving_indirect_vpls)
+    return replace(params, indirect_vpls=min(params.indirect_vpls, params.moving_indirect_vpls))
 
 
 def frame_clamp_distance2(params: Params, diagonal: float, index: int, consistent: bool) -> float:
@@ -237,8 +231,12 @@ class Renderer:
 
     def vpl_set(self, seed: int, k: int, params: Params, roulette: bool = False,
                 view: View | None = None, index: int = 0) -> VPLSet:
-        """P_k of the frame with ``seed`` at accumulation index ``index``."""
+        """P_k of the frame with ``seed`` at accumulation index ``index`` (a moving camera's
+        frame: of :func:`set_params`' size; importance sampling on or off as for the view's
+        still frames, from one pilot)."""
         importance = self.importance_on(params, view)
+        params = set_params(params)
+        importance = importance and params.indirect_vpls > 0
         config = ("vpl", self.scene_version, params.interleave, params.direct_vpls, params.indirect_vpls,
                   params.light_path_length, params.max_depth, roulette,
                   (view.key, params.vpl_oversample, params.clamp, params.specular_depth, params.filter_glossy_alpha,
@@ -283,7 +281,7 @@ class Renderer:
     # -- a task ------------------------------------------------------------------------------
     def render_tile(self, spec: FrameSpec, tile: Tile) -> TileBuffers:
         index = accumulation_index(spec)
-        params = frame_params(make_params(**spec.params), index)
+        params = make_params(**spec.params)
         n = params.interleave
         xs, ys = tile.pixels(n, spec.width, spec.height)
         p = len(xs)

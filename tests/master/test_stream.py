@@ -39,8 +39,10 @@ def test_frames_of_a_moving_camera_skip_the_consistent_estimators_and_accumulati
     first = list(frames.specs)
     assert [accumulation_index(s) for s in first] == [0, 1, 2]
     assert [s.params["consistent_first_frame"] for s in first] == [False, True, True]
+    assert [s.params["moving_camera"] for s in first] == [True, False, False]  # fewer VPLs, then all
     assert len({accumulation_key(s) for s in first}) == 1  # and they still average together
     stream.set_camera(scene.camera.to_world * 1.0 + 0.01)  # the camera moves: a new index 0
     moved = frames.specs[len(first):]
     assert accumulation_index(moved[0]) == 0 and moved[0].params["consistent_first_frame"] is False
     assert all(s.params["consistent_first_frame"] for s in moved[1:])
+    assert moved[0].params["moving_camera"] and not any(s.params["moving_camera"] for s in moved[1:])

@@ -37,38 +37,47 @@ def test_first_frame_samples_pixel_centres_accumulated_frames_each_pixels_rotate
 
 
 def _vpl_sets_built(r: Renderer) -> dict:
-    """{indirect VPL count in the set's config: [set sizes]} of the VPL sets the renderer holds."""
+    """{indirect VPL count a set was built for: [its VPLs]} of the VPL sets the renderer holds
+    (the count is the fifth entry of a set's cache config: worker/renderer.py vpl_set)."""
     out: dict = {}
-    for (config, _seed, _index), _k in r._frame_sets.keys():
+    for key in r._frame_sets.keys():
+        (config, _seed, _index), _k = key
         if config[0] == "vpl":
-            out.setdefault(config[4], []).append(len(r._frame_sets._sets[((config, _seed, _index), _k)]))
+            out.setdefault(config[4], []).append(len(r._frame_sets._sets[key]))
     return out
 
 
-def test_a_moving_cameras_frame_takes_the_moving_vpl_count_and_a_still_cameras_frames_the_full_one():
-    scene = load_scene(bundled.resolve("cornell-box"))
+def _render(scene, index: int, **params) -> Renderer:
     cam, fov_x, _, _ = resolve_camera(scene, None, None, None)
-    w = h = 16
+    r = Renderer(scene)
+    for i in range(index + 1):
+        r.render_tile(sequence_spec(i, i, cam, fov_x, 16, 16, params_to_dict(make_params(**params))),
+                      make_tiles(16, 16, 1, 16, 16)[0])
+    return r
+
+
+def test_a_moving_cameras_frame_takes_at_most_the_moving_vpl_count_and_a_still_cameras_frames_the_full_one():
+    scene = load_scene(bundled.resolve("cornell-box"))
     base = dict(interleave=1, photons=0, vpl_importance=0, direct_vpls=2, indirect_vpls=12,
                 moving_indirect_vpls=6, light_path_length=3)
-    tile = make_tiles(w, h, 1, w, h)[0]
-    # a streamed view's frame after a move: index 0 without the consistent estimators
-    r = Renderer(scene)
-    r.render_tile(sequence_spec(0, 0, cam, fov_x, w, h, params_to_dict(make_params(**base, consistent_first_frame=False))), tile)
-    sets = _vpl_sets_built(r)
+    # a streamed view's frame after a move (master/stream.py marks it)
+    sets = _vpl_sets_built(_render(scene, 0, **base, moving_camera=True, consistent_first_frame=False))
     assert list(sets) == [6] and 2 < sets[6][0] <= 2 + 6  # 2 walks of at most 3 vertices
-    # the same frame with accumulation off is shown once too
-    r = Renderer(scene)
-    r.render_tile(sequence_spec(0, 0, cam, fov_x, w, h, params_to_dict(make_params(**base, accumulate=False))), tile)
-    assert list(_vpl_sets_built(r)) == [6]
-    # a still camera: the first frame and the ones accumulated after it take the full count
-    r = Renderer(scene)
-    for index in (0, 1):
-        r.render_tile(sequence_spec(index, index, cam, fov_x, w, h, params_to_dict(make_params(**base))), tile)
-    assert list(_vpl_sets_built(r)) == [12]
+    # a still camera: the first frame and the ones accumulated after it, with accumulation off too
+    assert list(_vpl_sets_built(_render(scene, 1, **base))) == [12]
+    assert list(_vpl_sets_built(_render(scene, 0, **base, accumulate=False))) == [12]
+    # the moving count caps, never raises: none asked for, none built
+    sets = _vpl_sets_built(_render(scene, 0, **dict(base, indirect_vpls=0), moving_camera=True))
+    assert list(sets) == [0] and sets[0][0] <= 2
+    sets = _vpl_sets_built(_render(scene, 0, **dict(base, indirect_vpls=3, vpl_importance=1), moving_camera=True))
+    assert list(sets) == [3]
     # -1: moving frames as still ones
-    r = Renderer(scene)
-    r.render_tile(sequence_spec(0, 0, cam, fov_x, w, h, params_to_dict(make_params(
-        **dict(base, moving_indirect_vpls=-1), consistent_first_frame=False))), tile)
-    sets = _vpl_sets_built(r)
+    sets = _vpl_sets_built(_render(scene, 0, **dict(base, moving_indirect_vpls=-1), moving_camera=True))
     assert list(sets) == [12] and 2 < sets[12][0] <= 2 + 12
+
+
+def test_a_moving_cameras_frame_decides_importance_sampling_from_the_still_frames_pilot():
+    scene = load_scene(bundled.resolve("cornell-box"))
+    r = _render(scene, 0, interleave=1, photons=0, moving_camera=True)
+    pilots = [key for key in r._views if key[0] == "pilot"]
+    assert len(pilots) == 1 and pilots[0][3] == make_params().indirect_vpls
