@@ -280,11 +280,11 @@ class Renderer:
 
     # -- a task ------------------------------------------------------------------------------
     def render_tile(self, spec: FrameSpec, tile: Tile) -> TileBuffers:
-        index = accumulation_index(spec)
         params = make_params(**spec.params)
         n = params.interleave
         xs, ys = tile.pixels(n, spec.width, spec.height)
         p = len(xs)
+        index = accumulation_index(spec)
         view = View(tuple(np.asarray(spec.camera_to_world, np.float64).ravel()), spec.fov_x, spec.width,
                     spec.height)
         # The consistent estimators (walks of any length, the clamp's energy given back) from the
