@@ -292,3 +292,35 @@ def test_sets_built_together_equal_each_built_alone(roulette):
         _same_sets(s, vpl_mod.build_vpl_set(scene, r.geom, r.lights, 5, k, 2, 24, 3, roulette=roulette))
     # and they are different sets
     assert not np.array_equal(together[0].position[:4], together[1].position[:4])
+
+
+@pytest.mark.parametrize("force_general", [False, True], ids=["lambertian-path", "general-path"])
+def test_the_clamp_bounds_what_one_vpl_adds_to_a_point_however_close_it_comes(force_general):
+    """One Lambertian VPL straight above a wall point, facing it (both cosines 1): its light
+    falls as 1/d² down to the clamp radius and stays at that value closer in, so no single VPL
+    adds more than power·f/c to a pixel (the splotches of issue 17)."""
+    from igi.bench.stress_scenes import eye_end_points, vpls_at
+    from igi.common import bundled
+    from igi.common.loader import load_scene
+    from igi.common.scene import DIFFUSE
+    from igi.worker.shading import gather_vpls
+
+    r = Renderer(load_scene(bundled.resolve("cornell-box")))
+    end = eye_end_points(r, 8, 8)
+    row = int(np.nonzero(end.sp.kind == DIFFUSE)[0][len(end) // 3])
+    x = end.subset(np.array([row]))
+    c = 1e-3 * r.geom.diagonal ** 2
+    irr = []
+    d2s = c * np.array([1e-4, 0.01, 0.25, 1.0, 4.0, 16.0])
+    for d2 in d2s:
+        vpl = vpls_at(x, np.array([0]), ("surface",))
+        vpl.position = x.position + np.sqrt(d2) * x.ns  # above x, on its normal
+        vpl.normal = -x.ns  # facing x
+        vpl.ng = -x.ng
+        vpl.wi_local = np.array([[0.0, 0.0, 1.0]])
+        irr.append(gather_vpls(r.geom, x, vpl, c, -1, force_general=force_general)[1][0])
+    irr = np.array(irr)
+    assert np.all(irr > 0)
+    scaled = irr * np.maximum(d2s, c)[:, None]  # power × the VPL's BSDF × cosines: one value
+    np.testing.assert_allclose(scaled, np.broadcast_to(scaled[3], scaled.shape), rtol=2e-3)
+    assert np.all(irr[:3] <= irr[3] * (1 + 2e-3))  # closer than the clamp radius: no more light
