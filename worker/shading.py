@@ -457,14 +457,16 @@ def contribution_per_vpl(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2:
             out += np.bincount(pj, weights=_pair_luminance(cols, eye_weight, pi, pj, w, blocked, factor),
                                minlength=m)
             continue
-        pi, pj, w, row, pl, o, d, t = _pair_rays(geom, end, sl, vpls, cols, max_depth, col_range)
+        # Only the drawn pairs are traced: their rays are made once they are drawn.
+        pi, pj, w, row, pl, _o, _d, _t = _pair_rays(geom, end, sl, vpls, cols, max_depth, col_range, rays=False)
         plain = _pair_luminance(cols, eye_weight, pi, pj, w)
         draw, share = _systematic_pairs(pj, plain, m, visibility_samples, column_u)
         if len(draw) == 0:
             continue
         u, inv = np.unique(draw, return_inverse=True)  # a heavy pair drawn twice is traced once
-        blocked = geom.occluded_local(o[u], d[u], t[u])
-        factor = _bsdf_factors(sl, cols, row, pi[u], pj[u], pl[u], d[u], blocked, receivers)
+        o, d, t = _listed_pair_rays(geom, end, sl, cols, pi[u], pj[u])
+        blocked = geom.occluded_local(o, d, t)
+        factor = _bsdf_factors(sl, cols, row, pi[u], pj[u], pl[u], d, blocked, receivers)
         full = _pair_luminance(cols, eye_weight, pi[u], pj[u], w[u], blocked, factor)
         ratio = np.divide(full, plain[u], out=np.zeros(len(u)), where=plain[u] > 0)
         out += np.bincount(pj[draw], weights=share * ratio[inv], minlength=m)
@@ -604,24 +606,45 @@ def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, c
     return pi, pj, w, blocked, factor
 
 
-def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,
-               max_depth: int, col_range: tuple | None = None, roulette: tuple | None = None) -> tuple:
-    """The chunk's live (end point, VPL) pairs and their shadow rays, untraced: (row, column,
-    scalar weight, receiver row kind, light pdf, origins, directions, tfar) — the rays in the
-    centred float32 frame for Embree. ``col_range`` (lo, hi) per end point: its VPLs (None:
-    all). ``roulette`` (fraction, seed): the shadow rays' Russian roulette, applied per row as
-    the pairs are written (kernels.vpl_gather.shadow_roulette_row)."""
+def _shadow_origins(geom: Geometry, end: EndPoints, sl: slice) -> tuple:
+    """The chunk's end points as the gather kernels take them, float32 in Embree's centred
+    frame: (x, ns, ng, side of the eye ±1, offset length along ng toward that side)."""
     f32 = np.float32
     pos = end.position[sl]
     x = np.ascontiguousarray(pos - geom.center, dtype=f32)
     ns = np.ascontiguousarray(end.ns[sl], dtype=f32)
     ng = np.ascontiguousarray(end.ng[sl], dtype=f32)
-    n, m = len(x), len(vpls)
-    wz = end.wi[sl, 2]
-    side = np.where(wz >= 0, f32(1), f32(-1))
+    side = np.where(end.wi[sl, 2] >= 0, f32(1), f32(-1))
     # Live pairs lie on the side of the surface the eye sees (cos_x > 0, reflective BSDFs),
     # so one offset origin per end point serves all its shadow rays.
     off = (geom.offset_scale(pos).astype(f32) * side).astype(f32)
+    return x, ns, ng, side, off
+
+
+def _listed_pair_rays(geom: Geometry, end: EndPoints, sl: slice, cols: "_VPLColumns", pi: np.ndarray,
+                      pj: np.ndarray) -> tuple:
+    """The shadow rays (origins, directions, tfar) of the listed pairs of the chunk, as
+    :func:`_pair_rays` makes them."""
+    x, _ns, ng, _side, off = _shadow_origins(geom, end, sl)
+    k = len(pi)
+    o, d, t = np.empty((k, 3), np.float32), np.empty((k, 3), np.float32), np.empty(k, np.float32)
+    vg.pair_rays(x, ng, off, cols.pos, cols.normal, cols.directional, np.float32(2 * geom.eps), pi, pj, o, d, t)
+    return o, d, t
+
+
+def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,
+               max_depth: int, col_range: tuple | None = None, roulette: tuple | None = None,
+               rays: bool = True) -> tuple:
+    """The chunk's live (end point, VPL) pairs and their shadow rays, untraced: (row, column,
+    scalar weight, receiver row kind, light pdf, origins, directions, tfar) — the rays in the
+    centred float32 frame for Embree. ``col_range`` (lo, hi) per end point: its VPLs (None:
+    all). ``roulette`` (fraction, seed): the shadow rays' Russian roulette, applied per row as
+    the pairs are written (kernels.vpl_gather.shadow_roulette_row). ``rays`` False: the pairs
+    only (the ray arrays empty; :func:`_listed_pair_rays` makes the rays of a few of them)."""
+    f32 = np.float32
+    x, ns, ng, side, off = _shadow_origins(geom, end, sl)
+    n, m = len(x), len(vpls)
+    wz = end.wi[sl, 2]
     kind = end.sp.kind[sl]
     front = end.sp.twosided[sl] | (wz > 0)
     lam = (kind == DIFFUSE) & front
@@ -650,16 +673,17 @@ def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _V
     pj = np.empty(cap, np.int64)
     w = np.empty(cap, f32)
     pl = np.empty(cap, f32)
-    o = np.empty((cap, 3), f32)
-    d = np.empty((cap, 3), f32)
-    t = np.empty(cap, f32)
+    nr = cap if rays else 0
+    o = np.empty((nr, 3), f32)
+    d = np.empty((nr, 3), f32)
+    t = np.empty(nr, f32)
     k = vg.pair_weights(x, ns, ng, off, side, row, end.vpl_depth_limit(max_depth)[sl],
                         cols.pos, cols.normal, cols.directional, cols.min_d2, cols.cos_y_factor,
                         cols.side, cols.spot_cutoff, cols.spot_beam, cols.depth, cols.mis,
                         cols.light_pdf, cols.area, cols.direct_count, f32(2 * geom.eps),
                         tables, row_tab, inv_tavg, lo, hi, cols.lum,
                         float(roulette[0]) if roulette else 0.0, int(roulette[1]) if roulette else 0, sl.start,
-                        pi, pj, w, pl, o, d, t)
+                        bool(rays), pi, pj, w, pl, o, d, t)
     return pi[:k], pj[:k], w[:k], row, pl[:k], o[:k], d[:k], t[:k]
 
 

@@ -103,9 +103,23 @@ class CameraPool:
         """The end points of ``count`` paths drawn without replacement for set (seed, k)."""
         if count >= self.paths:
             return self.end
+        return self.end.subset(self.draw_rows(seed, k, count))
+
+    def draw_rows(self, seed: int, k: int, count: int) -> np.ndarray:
+        """The rows of ``end`` that :meth:`draw` takes for set (seed, k)."""
+        if count >= self.paths:
+            return np.arange(len(self.end))
         take = np.zeros(self.paths, bool)
         take[make_rng(seed, k, "camera pool").choice(self.paths, count, replace=False)] = True
-        return self.end.subset(np.nonzero(take[self.end.pixel])[0])
+        return np.nonzero(take[self.end.pixel])[0]
+
+    def draw_sets(self, seed: int, ks: Sequence[int], count: int) -> tuple[EndPoints, list[EndPoints]]:
+        """:meth:`draw` for every k of ``ks``, copied out of the pool in one go: (all of them in
+        order, each set's as a view of that)."""
+        rows = [self.draw_rows(seed, k, count) for k in ks]
+        drawn = self.end.subset(np.concatenate(rows))
+        stops = np.cumsum([len(r) for r in rows])
+        return drawn, [drawn.subset(slice(int(b - len(r)), int(b))) for r, b in zip(rows, stops)]
 
 
 def camera_pool(scene: Scene, geom: Geometry, lights: LightSampler, view: View, max_depth: int,
@@ -260,11 +274,11 @@ def build_importance_vpl_sets(scene: Scene, geom: Geometry, lights: LightSampler
     emitter; ``pool`` (:func:`camera_pool`): the view's camera points (None: traced per set)."""
     if direct_vpls > 0 and only_environment(scene, lights):
         direct_vpls = max(direct_vpls, ENV_SAMPLES)
-    ends = []
-    for k in ks:
-        p = pool if pool is not None else camera_pool(scene, geom, lights, view, max_depth, specular_depth,
-                                                      glossy_split_alpha, camera_points, seed, k)
-        ends.append(p.draw(seed, k, camera_points))
+    if pool is not None:
+        drawn, ends = pool.draw_sets(seed, ks, camera_points)
+    else:
+        drawn, ends = None, [camera_pool(scene, geom, lights, view, max_depth, specular_depth, glossy_split_alpha,
+                                         camera_points, seed, k).draw(seed, k, camera_points) for k in ks]
     cands = build_vpl_sets(scene, geom, lights, seed, ks, direct_vpls, indirect_vpls * oversample, max_length,
                            roulette=roulette, portals=portals, emitter_pmf=emitter_pmf)
     for k, end, cand in zip(ks, ends, cands):
@@ -276,7 +290,7 @@ def build_importance_vpl_sets(scene: Scene, geom: Geometry, lights: LightSampler
             cand.env_guide = guide
     surfs = [np.nonzero(c.kind == VPL_SURFACE)[0] for c in cands]
     phis = _score(geom, ks, seed, ends, [subset_vpls(c, s) for c, s in zip(cands, surfs)], clamp_d2, max_depth,
-                  lobe_alpha)
+                  lobe_alpha, drawn)
     out = []
     for k, cand, surf, phi in zip(ks, cands, surfs, phis):
         if len(surf) == 0:
@@ -294,9 +308,10 @@ def build_importance_vpl_sets(scene: Scene, geom: Geometry, lights: LightSampler
 
 
 def _score(geom: Geometry, ks: Sequence[int], seed: int, ends: list[EndPoints], cands: list[VPLSet],
-           clamp_d2: float, max_depth: int, lobe_alpha: float) -> list[np.ndarray]:
+           clamp_d2: float, max_depth: int, lobe_alpha: float, drawn: EndPoints | None = None) -> list[np.ndarray]:
     """Each set's candidate contributions Φ to its own camera points, all sets in one
-    contribution_per_vpl call (end points of set i score only the columns of set i)."""
+    contribution_per_vpl call (end points of set i score only the columns of set i).
+    ``drawn``: all of ``ends`` in one (CameraPool.draw_sets), used as is when every set scores."""
     sizes = np.array([len(c) for c in cands], np.int64)
     stops = np.cumsum(sizes)
     live = [i for i in range(len(cands)) if sizes[i] and len(ends[i])]
@@ -305,6 +320,7 @@ def _score(geom: Geometry, ks: Sequence[int], seed: int, ends: list[EndPoints], 
         lo = np.concatenate([np.full(len(ends[i]), stops[i] - sizes[i], np.int64) for i in live])
         hi = np.concatenate([np.full(len(ends[i]), stops[i], np.int64) for i in live])
         column_u = np.concatenate([make_rng(seed, k, "visibility samples").random(len(c)) for k, c in zip(ks, cands)])
-        phi = contribution_per_vpl(geom, EndPoints.concat([ends[i] for i in live]), concat_vpls(cands), clamp_d2,
+        end = drawn if drawn is not None and len(live) == len(cands) else EndPoints.concat([ends[i] for i in live])
+        phi = contribution_per_vpl(geom, end, concat_vpls(cands), clamp_d2,
                                    max_depth, lobe_alpha, None, VISIBILITY_SAMPLES, (lo, hi), column_u)
     return np.split(phi, stops[:-1])

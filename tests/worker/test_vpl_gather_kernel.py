@@ -206,6 +206,33 @@ def test_roulette_while_writing_the_pairs_equals_the_separate_pass(name):
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("name", ["cornell-box", "cornell-box-glossy"])
+def test_the_rays_of_listed_pairs_are_the_rays_the_gather_writes_for_them(name):
+    """The importance scoring traces only a few drawn pairs: it asks pair_weights for the pairs
+    alone (rays=False) and makes the drawn pairs' rays afterwards (kernels.vpl_gather.pair_rays).
+    Those pairs and rays are bit for bit what the gather writes with its rays, spot and
+    directional columns included."""
+    from igi.worker import shading
+
+    r = Renderer(with_extra_lights(load_shared(name)))
+    end = eye_end_points(r, 32, 24)
+    vpls = _set(r, 1)
+    assert np.any(vpls.kind != 0)  # emitter columns (spot, directional) beside surface VPLs
+    c2 = CLAMP * r.geom.diagonal ** 2
+    cols = shading.vpl_columns(vpls, r.geom, c2)
+    sl = slice(3, len(end))
+    full = shading._pair_rays(r.geom, end, sl, vpls, cols, -1)
+    bare = shading._pair_rays(r.geom, end, sl, vpls, cols, -1, rays=False)
+    for a, b in zip(full[:5], bare[:5]):
+        np.testing.assert_array_equal(a, b)
+    assert bare[5].shape == (0, 3) and len(bare[7]) == 0
+    pick = np.random.default_rng(1).choice(len(full[0]), 500, replace=False)
+    o, d, t = shading._listed_pair_rays(r.geom, end, sl, cols, full[0][pick], full[1][pick])
+    np.testing.assert_array_equal(o, full[5][pick])
+    np.testing.assert_array_equal(d, full[6][pick])
+    np.testing.assert_array_equal(t, full[7][pick])
+
+
 def test_glossy_rows_trace_no_shadow_ray_below_their_horizon():
     """Every glossy kind reflects only, so a glossy end point's pairs with the VPL below its
     horizon (or seen from behind a one-sided surface) carry f = 0: the gather writes no shadow

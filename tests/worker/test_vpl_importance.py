@@ -220,6 +220,27 @@ def test_camera_pool_draws_are_deterministic_subsets_that_vary_by_set():
     assert set(pool.first(100).pixel) <= set(range(100))
 
 
+def test_drawing_every_set_at_once_gives_each_set_its_own_draw():
+    """CameraPool.draw_sets (one copy out of the pool for a frame's sets) hands each set exactly
+    the end points draw() gives it alone, in order, and all of them concatenated."""
+    from igi.worker.vpl_importance import camera_pool
+
+    scene = two_rooms()
+    r = Renderer(scene)
+    pool = camera_pool(r.scene, r.geom, r.lights, _view(scene), -1, 8, paths=512)
+    ks = [3, 0, 7]
+    drawn, ends = pool.draw_sets(9, ks, 64)
+    assert len(drawn) == sum(len(e) for e in ends) > 0
+    row = 0
+    for k, e in zip(ks, ends):
+        alone = pool.draw(9, k, 64)
+        for name in ("pixel", "position", "ns", "ng", "wi", "throughput", "segments", "main", "distance"):
+            np.testing.assert_array_equal(getattr(e, name), getattr(alone, name))
+            np.testing.assert_array_equal(getattr(drawn, name)[row:row + len(e)], getattr(alone, name))
+        np.testing.assert_array_equal(e.sp.kind, alone.sp.kind)
+        row += len(e)
+
+
 def test_a_renderer_keeps_the_per_view_results_of_recent_views_only():
     from igi.worker import renderer as rmod
 

@@ -51,11 +51,56 @@ def spot_falloff(cos_theta: float, cutoff_deg: float, beam_deg: float) -> float:
     return min(max((cutoff - ang) / width, 0.0), 1.0)
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _to_vpl(x0, x1, x2, vpos, vnormal, directional, j):
+    """The unnormalized direction from x to VPL j (a directional one: against its normal),
+    its squared length and 1/length, in float32."""
+    if directional[j]:
+        d0, d1, d2 = -vnormal[j, 0], -vnormal[j, 1], -vnormal[j, 2]
+    else:
+        d0 = vpos[j, 0] - x0
+        d1 = vpos[j, 1] - x1
+        d2 = vpos[j, 2] - x2
+    dd = d0 * d0 + d1 * d1 + d2 * d2
+    inv_d = np.float32(1.0) / np.float32(math.sqrt(max(dd, np.float32(1e-30))))
+    return d0, d1, d2, dd, inv_d
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _write_ray(k, o0, o1, o2, d0, d1, d2, inv_d, directional_j, eps2, out_o, out_d, out_t):
+    """Shadow ray k from the offset origin toward the VPL: unit direction, tfar just short of
+    the VPL (a directional one: unbounded)."""
+    out_o[k, 0] = o0
+    out_o[k, 1] = o1
+    out_o[k, 2] = o2
+    out_d[k, 0] = d0 * inv_d
+    out_d[k, 1] = d1 * inv_d
+    out_d[k, 2] = d2 * inv_d
+    if directional_j:
+        out_t[k] = np.float32(3.0e38)
+    else:
+        t = (np.float32(1.0) / inv_d) * np.float32(1 - 1e-4) - eps2
+        out_t[k] = max(t, np.float32(0.0))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def pair_rays(x, ng, off, vpos, vnormal, directional, eps2, pi, pj, out_o, out_d, out_t):
+    """The shadow rays of the listed pairs (row pi[k] of x/ng/off, VPL pj[k]): what
+    :func:`pair_weights` writes for them, for callers that trace only a few of its pairs
+    (``rays`` False there)."""
+    for k in range(pi.shape[0]):
+        i = pi[k]
+        j = pj[k]
+        d0, d1, d2, _dd, inv_d = _to_vpl(x[i, 0], x[i, 1], x[i, 2], vpos, vnormal, directional, j)
+        _write_ray(k, x[i, 0] + ng[i, 0] * off[i], x[i, 1] + ng[i, 1] * off[i], x[i, 2] + ng[i, 2] * off[i],
+                   d0, d1, d2, inv_d, directional[j], eps2, out_o, out_d, out_t)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def pair_weights(x, ns, ng, off, side, row, vmax,
                  vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam,
                  vdepth, mis, light_pdf, area, direct_count, eps2,
-                 tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base,
+                 tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base, rays,
                  out_i, out_j, out_w, out_pl, out_o, out_d, out_t):
     """Fill the live pairs of rows x (n, 3) × VPL columns [col_lo[i], col_hi[i]); returns how
     many were written (the out arrays hold at least Σ (col_hi - col_lo)).
@@ -71,6 +116,8 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
     pairs go through :func:`shadow_roulette_row` (``lum``, ``seed``, ``base``) as soon as they
     are written (0: every live pair is kept). Per-row column ranges let
     one call score the candidates of several VPL sets, each against its own camera points.
+    ``rays`` False: no shadow ray is written (out_o, out_d, out_t may be empty) — for callers
+    that trace only a few of the pairs (:func:`pair_rays` makes theirs).
     """
     n = x.shape[0]
     n_tab = tables.shape[1]
@@ -90,14 +137,7 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
         for j in range(col_lo[i], col_hi[i]):
             if vdepth[j] > vmax[i]:
                 continue
-            if directional[j]:
-                d0, d1, d2_ = -vnormal[j, 0], -vnormal[j, 1], -vnormal[j, 2]
-            else:
-                d0 = vpos[j, 0] - xi0
-                d1 = vpos[j, 1] - xi1
-                d2_ = vpos[j, 2] - xi2
-            dd = d0 * d0 + d1 * d1 + d2_ * d2_
-            inv_d = np.float32(1.0) / np.float32(math.sqrt(max(dd, f1e30)))
+            d0, d1, d2_, dd, inv_d = _to_vpl(xi0, xi1, xi2, vpos, vnormal, directional, j)
             cos_x = (d0 * n0 + d1 * n1 + d2_ * n2) * inv_d * s
             cos_y = -(d0 * vnormal[j, 0] + d1 * vnormal[j, 1] + d2_ * vnormal[j, 2]) * inv_d
             em = np.float32(1.0) / max(dd, min_d2[j])
@@ -136,21 +176,12 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
             out_j[k] = j
             out_w[k] = w
             out_pl[k] = pl
-            out_o[k, 0] = o0
-            out_o[k, 1] = o1
-            out_o[k, 2] = o2
-            out_d[k, 0] = d0 * inv_d
-            out_d[k, 1] = d1 * inv_d
-            out_d[k, 2] = d2_ * inv_d
-            if directional[j]:
-                out_t[k] = np.float32(3.0e38)
-            else:
-                t = (np.float32(1.0) / inv_d) * np.float32(1 - 1e-4) - eps2
-                out_t[k] = max(t, np.float32(0.0))
+            if rays:
+                _write_ray(k, o0, o1, o2, d0, d1, d2_, inv_d, directional[j], eps2, out_o, out_d, out_t)
             k += 1
         if fraction > 0.0 and k > k_row:
             k = shadow_roulette_row(k_row, k, k_row, out_i, out_j, out_w, out_pl, out_o, out_d, out_t, row, lum,
-                              fraction, seed, base)
+                                    fraction, seed, base, rays)
     return k
 
 
@@ -170,7 +201,7 @@ def pair_uniform(seed, i, j):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def shadow_roulette_row(s, e, out, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base):
+def shadow_roulette_row(s, e, out, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base, rays=True):
     """Russian roulette on the shadow rays of pairs [s, e), one row's (end point's) pairs as
     :func:`pair_weights` writes them; the kept ones are moved to start at ``out`` (<= s), in
     place; returns the next free position.
@@ -204,10 +235,11 @@ def shadow_roulette_row(s, e, out, pi, pj, w, pl, o, d, t, row, lum, fraction, s
             pj[out] = j
             w[out] = w[a]
             pl[out] = pl[a]
-            for c3 in range(3):
-                o[out, c3] = o[a, c3]
-                d[out, c3] = d[a, c3]
-            t[out] = t[a]
+            if rays:
+                for c3 in range(3):
+                    o[out, c3] = o[a, c3]
+                    d[out, c3] = d[a, c3]
+                t[out] = t[a]
         out += 1
     return out
 
