@@ -189,7 +189,6 @@ def test_roulette_while_writing_the_pairs_equals_the_separate_pass(name):
     pairs, weights and rays as writing them all and then running the roulette over them
     (tests/support/oracle_vpl_gather.py: shadow_roulette, plain Python)."""
     from igi.worker import shading
-    from igi.worker.kernels import vpl_gather as vg
 
     r = Renderer(load_shared(name))
     end = eye_end_points(r, 32, 24)
