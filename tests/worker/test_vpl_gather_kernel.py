@@ -151,36 +151,37 @@ def test_shadow_roulette_is_unbiased_and_traces_fewer_rays(name):
     assert not np.array_equal(a, runs[8])
 
 
-def test_shadow_roulette_keeps_the_big_pairs_and_glossy_rows():
+def test_shadow_roulette_keeps_the_big_pairs_and_counts_a_kept_small_one_at_the_threshold():
     """Pairs at or above the fraction of their row's mean always trace, with their weight
-    unchanged; a kept small pair counts the threshold; glossy rows are never thinned."""
+    unchanged; a kept small pair counts the threshold, survives with probability c/threshold
+    and keeps its own ray; the output advances past the kept pairs only."""
     from igi.worker.kernels import vpl_gather as vg
 
-    w = np.array([10.0, 0.1, 0.1, 0.1, 0.1, 10.0, 0.1, 0.1], np.float32)
-    pi = np.array([0, 0, 0, 0, 0, 1, 1, 1], np.int64)
-    pj = np.array([0, 1, 2, 3, 4, 0, 1, 2], np.int64)
-    row = np.array([vg.ROW_LAMBERT, vg.ROW_GLOSSY], np.int8)
+    w = np.array([10.0, 0.1, 0.1, 0.1, 0.1], np.float32)
+    pj = np.arange(5, dtype=np.int64)
     lum = np.ones(5)
+    directional = np.zeros(5, bool)
+    stage_d = np.zeros((5, 4), np.float32)
+    stage_d[:, 0] = 1.0
+    stage_d[:, 3] = 1.0 / (1.0 + np.arange(5, dtype=np.float32))  # pair a's ray is a + 1 long
+    threshold = 0.5 * float(np.float32(10.0) + 4 * np.float64(np.float32(0.1))) / 5
     kept = []
     for seed in range(200):
-        args = [a.copy() for a in (pi, pj, w)]
-        k = len(w)
-        pl, o, d, t = np.zeros(k, np.float32), np.zeros((k, 3), np.float32), np.zeros((k, 3), np.float32), \
-            np.arange(k, dtype=np.float32)
-        n = 0
-        for a, b in ((0, 5), (5, 8)):  # the two rows, as pair_weights hands them over
-            n = vg.shadow_roulette_row(a, b, n, args[0], args[1], args[2], pl, o, d, t, row, lum, 0.5, seed, 0)
-        ki, kj, kw = args[0][:n], args[1][:n], args[2][:n]
-        assert (0, 0) in zip(ki.tolist(), kj.tolist())
-        assert np.sum(ki == 1) == 3  # the glossy row keeps every pair
-        small = (ki == 0) & (kj > 0)
-        threshold = 0.5 * np.float32(10.4) / 5
-        np.testing.assert_allclose(kw[small], threshold, rtol=1e-6)
-        assert kw[(ki == 0) & (kj == 0)][0] == np.float32(10.0)
-        np.testing.assert_array_equal(t[:n][ki == 1], [5, 6, 7])  # rays move with their pairs
-        kept.append(small.sum())
+        out_i, out_j = np.full(8, -1, np.int64), np.full(8, -1, np.int64)
+        out_w, out_pl = np.zeros(8, np.float32), np.zeros(8, np.float32)
+        out_o, out_d, out_t = np.zeros((8, 3), np.float32), np.zeros((8, 3), np.float32), np.zeros(8, np.float32)
+        total = float(np.sum(w.astype(np.float64) * lum))
+        n = vg.shadow_roulette_row(5, 7, total, pj, w.copy(), np.zeros(5, np.float32), stage_d, 0.0, 0.0, 0.0,
+                                   directional, np.float32(0.0), lum, 0.5, seed, 0, True, 2,
+                                   out_i, out_j, out_w, out_pl, out_o, out_d, out_t) - 2
+        ki, kj, kw, kt = out_i[2:2 + n], out_j[2:2 + n], out_w[2:2 + n], out_t[2:2 + n]
+        assert np.all(ki == 7) and kj[0] == 0 and kw[0] == np.float32(10.0)  # the big pair, unchanged
+        np.testing.assert_allclose(kw[1:], threshold, rtol=1e-6)
+        np.testing.assert_allclose(kt, (kj + 1) * np.float32(1 - 1e-4), rtol=1e-6)  # rays move with their pairs
+        assert np.all(np.diff(kj) > 0)
+        kept.append(n - 1)
     # each small pair survives with p = 0.1 / threshold
-    assert np.mean(kept) / 4 == pytest.approx(0.1 / (0.5 * 10.4 / 5), abs=0.05)
+    assert np.mean(kept) / 4 == pytest.approx(0.1 / threshold, abs=0.05)
 
 
 @pytest.mark.parametrize("name", ["cornell-box", "cornell-box-glossy"])

@@ -6,7 +6,7 @@ Three steps per chunk of end points, none with an (end points × VPLs) temporary
    1/max(d², c) term, emitter cosine, spot falloff, path-length limit, Lambertian receiver
    cos/π and the MIS weight of emitter samples against the BSDF ray; pairs that can carry
    light are written, in row-major order, straight into Embree's float32 shadow-ray arrays.
-   :func:`shadow_roulette_row` thins each row's pairs as they are written: those whose
+   :func:`shadow_roulette_row` thins each row's pairs before they are written: those whose
    unshadowed contribution is small against their end point's mean (Russian roulette on
    shadow rays: kept pairs count 1/p).
 2. Embree's occlusion query on that batch (outside: it releases the GIL itself).
@@ -113,8 +113,8 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
     vdepth int. ROW_LAYER rows read their coat-transmittance table ``tables[row_tab[i]]`` and
     1/t_avg ``inv_tavg[i]``. out_pl: the MIS light pdf of glossy-row pairs (0 elsewhere) — their BSDF pdf
     is the caller's, so their MIS weight is applied by the caller. ``fraction`` > 0: each row's
-    pairs go through :func:`shadow_roulette_row` (``lum``, ``seed``, ``base``) as soon as they
-    are written (0: every live pair is kept). Per-row column ranges let
+    pairs go through :func:`shadow_roulette_row` (``lum``, ``seed``, ``base``) once the row is
+    computed (0: every live pair is kept). Per-row column ranges let
     one call score the candidates of several VPL sets, each against its own camera points.
     ``rays`` False: no shadow ray is written (out_o, out_d, out_t may be empty) — for callers
     that trace only a few of the pairs (:func:`pair_rays` makes theirs).
@@ -123,6 +123,16 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
     n_tab = tables.shape[1]
     k = 0
     f1e30 = np.float32(1e-30)
+    # A row the roulette thins is staged here (cache-resident) and only its survivors are
+    # written out, without a branch on the random keep/drop decision (mispredicted half the
+    # time, it cost more than the pairs' geometry).
+    width = 0
+    for i in range(n):
+        width = max(width, col_hi[i] - col_lo[i])
+    stage_j = np.empty(width, np.int64)
+    stage_w = np.empty(width, np.float32)
+    stage_pl = np.empty(width, np.float32)
+    stage_d = np.empty((width, 4), np.float32)  # unnormalized direction, 1/length
     for i in range(n):
         r = row[i]
         if r == ROW_NONE:
@@ -133,7 +143,10 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
         o0 = xi0 + ng[i, 0] * off[i]
         o1 = xi1 + ng[i, 1] * off[i]
         o2 = xi2 + ng[i, 2] * off[i]
-        k_row = k
+        # Glossy rows always trace (their own lobe can make any pair large): never staged.
+        staged = fraction > 0.0 and (r == ROW_LAMBERT or r == ROW_LAYER)
+        q = 0
+        total = 0.0
         for j in range(col_lo[i], col_hi[i]):
             if vdepth[j] > vmax[i]:
                 continue
@@ -172,6 +185,17 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
                 continue
             if not (w > 0.0) or not math.isfinite(w):
                 continue
+            if staged:
+                stage_j[q] = j
+                stage_w[q] = w
+                stage_pl[q] = pl
+                stage_d[q, 0] = d0
+                stage_d[q, 1] = d1
+                stage_d[q, 2] = d2_
+                stage_d[q, 3] = inv_d
+                total += np.float64(w) * lum[j]
+                q += 1
+                continue
             out_i[k] = i
             out_j[k] = j
             out_w[k] = w
@@ -179,9 +203,10 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
             if rays:
                 _write_ray(k, o0, o1, o2, d0, d1, d2_, inv_d, directional[j], eps2, out_o, out_d, out_t)
             k += 1
-        if fraction > 0.0 and k > k_row:
-            k = shadow_roulette_row(k_row, k, k_row, out_i, out_j, out_w, out_pl, out_o, out_d, out_t, row, lum,
-                                    fraction, seed, base, rays)
+        if q > 0:
+            k = shadow_roulette_row(q, i, total, stage_j, stage_w, stage_pl, stage_d, o0, o1, o2, directional, eps2,
+                                    lum, fraction, seed, base, rays, k, out_i, out_j, out_w, out_pl, out_o, out_d,
+                                    out_t)
     return k
 
 
@@ -201,47 +226,39 @@ def pair_uniform(seed, i, j):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def shadow_roulette_row(s, e, out, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base, rays=True):
-    """Russian roulette on the shadow rays of pairs [s, e), one row's (end point's) pairs as
-    :func:`pair_weights` writes them; the kept ones are moved to start at ``out`` (<= s), in
-    place; returns the next free position.
+def shadow_roulette_row(q, i, total, stage_j, stage_w, stage_pl, stage_d, o0, o1, o2, directional, eps2,
+                        lum, fraction, seed, base, rays, k, out_i, out_j, out_w, out_pl, out_o, out_d, out_t):
+    """Russian roulette on the shadow rays of row (end point) i's ``q`` staged pairs (column,
+    weight, light pdf, direction to the VPL and its 1/length, as :func:`pair_weights` stages
+    them; ``total`` = Σ weight · lum[column]); the kept pairs are written from ``k`` on, with
+    their rays from (o0, o1, o2) when ``rays``; returns the next free position.
 
     For a Lambertian (or plastic-layer) row, a pair whose unshadowed contribution
     c = w · lum[j] is below ``fraction`` of the row's mean keeps its shadow ray with probability
     p = c / (fraction · mean) and then counts 1/p (unbiased; the added variance per end point is
     at most fraction · mean · Σc). A glossy column's lum[j] is a guess (a Lambertian sender of
     its albedo): its true light, applied later by its BSDF factor, only makes p less apt, never
-    the estimate biased. Glossy rows always trace: their own lobe can make any pair large.
-    Pair (i, j) draws pair_uniform(seed, base + i, j)."""
-    i = pi[s]
-    total = 0.0
-    count = 0
-    eligible_row = row[i] == ROW_LAMBERT or row[i] == ROW_LAYER
-    if eligible_row:
-        for a in range(s, e):
-            total += np.float64(w[a]) * lum[pj[a]]
-            count += 1
-    threshold = fraction * total / count if count > 0 else 0.0
-    for a in range(s, e):
-        j = pj[a]
-        if threshold > 0.0 and eligible_row:
-            c = np.float64(w[a]) * lum[j]
-            if c < threshold:
-                if pair_uniform(seed, base + i, j) * threshold >= c:
-                    continue
-                w[a] = np.float32(threshold / lum[j])  # c / p
-        if out != a:
-            pi[out] = pi[a]
-            pj[out] = j
-            w[out] = w[a]
-            pl[out] = pl[a]
-            if rays:
-                for c3 in range(3):
-                    o[out, c3] = o[a, c3]
-                    d[out, c3] = d[a, c3]
-                t[out] = t[a]
-        out += 1
-    return out
+    the estimate biased.
+    Pair (i, j) draws pair_uniform(seed, base + i, j). Every staged pair is written
+    and the position advances only past the kept ones: no branch on the random decision."""
+    threshold = fraction * total / q
+    for a in range(q):
+        j = stage_j[a]
+        w = stage_w[a]
+        c = np.float64(w) * lum[j]
+        small = c < threshold
+        keep = (not small) or pair_uniform(seed, base + i, j) * threshold < c
+        if small:
+            w = np.float32(threshold / lum[j])  # c / p
+        out_i[k] = i
+        out_j[k] = j
+        out_w[k] = w
+        out_pl[k] = stage_pl[a]
+        if rays:
+            _write_ray(k, o0, o1, o2, stage_d[a, 0], stage_d[a, 1], stage_d[a, 2], stage_d[a, 3], directional[j],
+                       eps2, out_o, out_d, out_t)
+        k += np.int64(keep)
+    return k
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
