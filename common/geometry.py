@@ -35,6 +35,13 @@ class Hits:
     emitter: np.ndarray  # (N,) int32 (-1 = none)
     mesh: np.ndarray  # (N,) int32
 
+    def rows(self, idx: np.ndarray) -> "Hits":
+        """The hits of rays ``idx`` (an index array)."""
+        return Hits(*(getattr(self, f).take(idx, axis=0) for f in _HIT_FIELDS))
+
+
+_HIT_FIELDS = ("valid", "t", "prim", "position", "ng", "ns", "uv", "material", "emitter", "mesh")
+
 
 def rows3(*arrays: np.ndarray) -> list[np.ndarray]:
     """The arrays as contiguous float64 (N, 3) rows, broadcast against each other (one vector

@@ -7,6 +7,7 @@ cutoff_angle), directional and constant (uniform environment) lights are handled
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -336,15 +337,21 @@ class LightSampler:
 
     def emitted_radiance(self, emitter: np.ndarray, cos_front: np.ndarray) -> np.ndarray:
         """Radiance seen on area emitters (front side only)."""
-        out = np.zeros((len(emitter), 3))
-        for i in np.unique(emitter[emitter >= 0]):
-            e = self.scene.emitters[i]
-            if e.kind != AREA:
-                continue
-            sel = emitter == i
-            out[sel] = e.radiance
-        out[cos_front <= 0] = 0
+        table = self._area_radiance
+        ids = np.asarray(emitter)
+        out = table.take(np.where((ids >= 0) & (ids < len(table) - 1), ids, len(table) - 1), axis=0)
+        out[np.asarray(cos_front) <= 0] = 0
         return out
+
+    @cached_property
+    def _area_radiance(self) -> np.ndarray:
+        """(emitters + 1, 3): each area emitter's radiance, 0 for the others and the last row
+        (no emitter)."""
+        table = np.zeros((len(self.scene.emitters) + 1, 3))
+        for i, e in enumerate(self.scene.emitters):
+            if e.kind == AREA:
+                table[i] = e.radiance
+        return table
 
     def environment(self) -> np.ndarray:
         """Radiance of rays that leave the scene (sum of constant emitters)."""
