@@ -70,7 +70,8 @@ def pixel_jitter(jitter: tuple, px: np.ndarray, py: np.ndarray) -> np.ndarray:
     pixels of a block sample a stratified set of positions within each frame (interleaved
     sampling of the pixel area, Keller & Heidrich 2001). The same on every worker."""
     off = pixel_tile()[np.asarray(py, np.int64) % 8, np.asarray(px, np.int64) % 8]
-    return np.mod(off + np.asarray(jitter, np.float64), 1.0)
+    x = off + np.asarray(jitter, np.float64)
+    return x - np.floor(x)  # np.mod(x, 1.0), ~10x faster
 
 
 def rays_for_camera(cam: Camera, px: np.ndarray, py: np.ndarray, jitter=(0.5, 0.5)):

@@ -227,7 +227,8 @@ class Geometry:
 
     def offset_scale(self, p: np.ndarray) -> np.ndarray:
         """Per-point offset length: the scene epsilon plus float32 ulps of the local coordinate."""
-        return self.eps + 4 * np.finfo(np.float32).eps * np.abs(p - self.center).max(axis=1)
+        a = np.abs(p - self.center)  # the columns' maxima: numpy's axis=1 reductions are slow
+        return self.eps + 4 * np.finfo(np.float32).eps * np.maximum(np.maximum(a[:, 0], a[:, 1]), a[:, 2])
 
     def offset(self, p: np.ndarray, ng: np.ndarray, towards: np.ndarray,
                scale: np.ndarray | None = None) -> np.ndarray:

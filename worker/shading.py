@@ -273,18 +273,28 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis
         hits = geom.intersect(o, dirs)
         v = hits.valid
         if _allowed(seg, max_depth):
-            w_mis = _mis_emission(lights, hits, v, dirs, mis_pdf, light_mis)
-            np.add.at(unf, pix[~v], thr[~v] * env * w_mis[~v, None])
-            w_mis = w_mis[v]
-        pix, thr, main, dirs = pix[v], thr[v], main[v], dirs[v]
-        dist = dist[v] + hits.t[v]
-        hpos, hns, hng = hits.position[v], hits.ns[v], hits.ng[v]
+            # Only rays that meet an emitter, or leave the scene under a lit sky, see light.
+            lit = v & (hits.emitter >= 0)
+            if np.any(env > 0):
+                lit |= ~v
+            lit = np.flatnonzero(lit)
+            if len(lit):
+                lh, lv, ld = hits.rows(lit), v[lit], dirs[lit]
+                w_mis = _mis_emission(lights, lh, lv, ld, mis_pdf[lit], light_mis)
+                le = np.zeros((len(lit), 3))
+                le[~lv] = env
+                if lv.any():
+                    le[lv] = lights.emitted_radiance(lh.emitter[lv], -np.einsum("ij,ij->i", ld[lv], lh.ns[lv]))
+                np.add.at(unf, pix[lit], thr[lit] * le * w_mis[:, None])
+        if not v.all():
+            vi = np.flatnonzero(v)
+            pix, thr, main, dirs, dist = (a.take(vi, axis=0) for a in (pix, thr, main, dirs, dist))
+            hits = hits.rows(vi)
+        dist = dist + hits.t
+        hpos, hns, hng = hits.position, hits.ns, hits.ng
         if len(pix) == 0:
             break
-        if _allowed(seg, max_depth):
-            cos_front = -np.einsum("ij,ij->i", dirs, hns)
-            np.add.at(unf, pix, thr * lights.emitted_radiance(hits.emitter[v], cos_front) * w_mis[:, None])
-        sp = bsdf.gather(scene.materials, hits.material[v], hits.uv[v])
+        sp = bsdf.gather(scene.materials, hits.material, hits.uv)
         wi = to_local(-dirs, hns)
         delta = kind_in(sp.kind, SPECULAR_KINDS)
         nd_mask = ~delta & (sp.kind != NULL)
