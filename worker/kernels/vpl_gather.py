@@ -282,7 +282,9 @@ def accumulate(n, pi, pj, w, blocked, color, factor, out):
                 out[i, c] = 0.0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+# No reference counting (_nrt=False, as common.kernels.bsdf): the BSDF helpers it inlines take
+# the 17 arrays of P, and counting their references on each of them cost ~160 ns a pair.
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def pair_factors(pi, pj, d, pl, blocked, row, base, P_end, wi, ns, albedo,
                  glossy_col, P_vpl, vpl_row, vwi, vnormal, out):
     """Per-pair RGB factors of the unoccluded pairs (``out`` (k, 3), 1 elsewhere): a glossy
