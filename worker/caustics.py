@@ -221,7 +221,7 @@ def _trace_photons(scene, geom, o, d, flux, u, max_bounces):
         d[idx] = wd
         o[idx] = geom.offset(pos[si], ng[si], wd)
         bounced[idx] = True
-        ok = np.any(flux[idx] > 0, axis=1) & np.all(np.isfinite(flux[idx]), axis=1)
+        ok = bsdf.carrying(flux[idx])
         alive = idx[ok]
     if not out_p:
         return None

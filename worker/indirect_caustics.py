@@ -58,7 +58,7 @@ def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: E
         sp = bsdf.gather(scene.materials, mat_i, uv)
         wo, w, _p, delta = bsdf.sample(sp, to_local(-d, ns), rng.random(len(rows)), rng.random((len(rows), 2)),
                                        mode="radiance")
-        live = np.nonzero(delta & np.any(w > 0, axis=1) & np.all(np.isfinite(w), axis=1))[0]
+        live = np.nonzero(delta & bsdf.carrying(w))[0]
         rows, thr, seg = rows[live], thr[live] * w[live], seg[live] + 1
         d = to_world(wo[live], ns[live])
         if max_depth >= 0:

@@ -320,7 +320,7 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis
                                               thr[lobe], seg, dist[lobe]))
             di, wo, weight = np.concatenate([di, lobe]), np.concatenate([wo, wo_l]), np.concatenate([weight, weight_l])
             pdf = np.concatenate([pdf, pdf_l])
-        keep = np.any(weight > 0, axis=1) & np.all(np.isfinite(weight), axis=1)
+        keep = bsdf.carrying(weight)
         new_main = np.concatenate([main[di[:n]], lobe_main])[keep]
         mis_pdf = pdf[keep]
         di = di[keep]
@@ -771,7 +771,7 @@ def trace_bsdf_rays(geom: Geometry, lights: LightSampler, end: EndPoints, max_de
 
     wo, weight, pdf_b, delta = bsdf.sample(end.sp if every else end.sp.subset(ok), rows(end.wi),
                                            rng.random(len(ok)), rng.random((len(ok), 2)), mode="radiance")
-    live = np.flatnonzero((weight > 0).any(axis=1) & np.isfinite(weight).all(axis=1))
+    live = np.flatnonzero(bsdf.carrying(weight))
     if len(live) < len(ok):
         ok, wo, weight, pdf_b, delta = (a.take(live, axis=0) for a in (ok, wo, weight, pdf_b, delta))
         every = False
@@ -873,7 +873,7 @@ def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: 
     share = np.clip(1.0 - t * t / clamp_d2, 0.0, 1.0)
     rows = ok[sel][keep]
     contrib = weight[sel][keep] * l_y * (share / survive)[:, None] / np.maximum(albedo[rows], 1e-6)
-    np.add.at(out, rows, np.nan_to_num(contrib, nan=0.0, posinf=0.0, neginf=0.0))
+    out[rows] += np.nan_to_num(contrib, nan=0.0, posinf=0.0, neginf=0.0)  # one ray per end point: rows unique
     return out
 
 

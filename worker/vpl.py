@@ -208,7 +208,7 @@ def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarr
             survive = survival[alive, bounce] < q
             weight = np.where(survive[:, None], weight / np.maximum(q, 1e-12)[:, None], 0.0)
         flux[alive] = flux[alive] * weight
-        ok = np.any(flux[alive] > 0, axis=1) & np.all(np.isfinite(flux[alive]), axis=1)
+        ok = bsdf.carrying(flux[alive])
         d[alive] = wo_world
         o[alive] = geom.offset(pos, ng, wo_world)
         alive = alive[ok]

@@ -591,3 +591,18 @@ def test_a_lobes_pdf_is_the_density_of_its_sampled_directions(kind):
     big = bsdf.lobe_only(_sp(mat, len(d)))
     total = bsdf.pdf(big, np.repeat(wi[:1], len(d), axis=0), d).mean() * 2 * np.pi
     assert 0.85 < total < 1.05  # (uniform MC of a peaked density: ~2% noise)
+
+
+def test_carrying_rows_are_those_positive_somewhere_and_finite_everywhere():
+    """bsdf.carrying (column by column) marks exactly the rows numpy's any(w > 0) & all(finite)
+    marks, on weights with zeros, negatives, NaN and ±Inf in every channel."""
+    from igi.common import bsdf as b
+
+    rng = np.random.default_rng(3)
+    vals = np.array([0.0, -0.0, 1.0, -1.0, 1e-300, np.nan, np.inf, -np.inf, 3.5])
+    w = vals[rng.integers(0, len(vals), (4000, 3))]
+    expected = np.any(w > 0, axis=1) & np.all(np.isfinite(w), axis=1)
+    got = b.carrying(w)
+    np.testing.assert_array_equal(got, expected)
+    assert got.any() and not got.all()
+    assert b.carrying(np.zeros((0, 3))).shape == (0,)
