@@ -1,5 +1,6 @@
 """The numpy wire decode that common.kernels.wire_decode replaced (codec version 1, as
-written before issue 16): a test oracle, bit for bit the reference of the compiled decode."""
+written before issue 16) and the numpy octahedral encode that common.kernels.wire_encode
+replaced: test oracles, bit for bit the references of the compiled codec."""
 from __future__ import annotations
 
 import numpy as np
@@ -9,6 +10,29 @@ from igi.common.frame import TileBuffers
 
 # float16 -> float32 by table: numpy's cast is slow for subnormal inputs, a gather is not.
 _F16_TO_F32 = np.arange(1 << 16, dtype=np.uint32).astype(np.uint16).view(np.float16).astype(np.float32)
+
+
+def _sign_nz(v: np.ndarray) -> np.ndarray:
+    """sign with sign(0) = +1, so the octahedral fold is defined on the axes."""
+    return np.where(v >= 0, np.float32(1.0), np.float32(-1.0))
+
+
+def oct_encode(n: np.ndarray) -> np.ndarray:
+    """(P, 3) normals -> (P, 2) int16 octahedral snorm16; the reserved code for zero or
+    non-finite normals (common.codec.oct_encode's numpy form)."""
+    n = np.asarray(n, dtype=np.float32).reshape(-1, 3)
+    a = np.abs(n)
+    l1 = a[:, 0] + a[:, 1] + a[:, 2]
+    bad = ~(np.isfinite(l1) & (l1 > 0))
+    p = n[:, :2] * (1.0 / np.where(bad, np.float32(1.0), l1))[:, None]
+    p[bad] = 0.0
+    lower = ~bad & (n[:, 2] < 0)
+    # Lower hemisphere: fold the triangles outward across the diamond's edges.
+    folded = (1.0 - np.abs(p[:, ::-1])) * _sign_nz(p)
+    p = np.where(lower[:, None], folded, p)
+    q = np.rint(np.clip(p, -1.0, 1.0) * np.float32(_SNORM)).astype(np.int16)
+    q[bad] = _ZERO_NORMAL
+    return q
 
 
 def oct_decode(q: np.ndarray) -> np.ndarray:
