@@ -239,7 +239,9 @@ def gather_photons(end, photons: PhotonSet, albedo: np.ndarray, max_depth: int) 
     # r) can find any, so the others skip the grid lookups.
     lo = photons.position.min(axis=0) - photons.radius
     hi = photons.position.max(axis=0) + photons.radius
-    inside = np.all((end.position >= lo) & (end.position <= hi), axis=1)
+    p = end.position  # column by column: numpy's axis=1 all() costs several times more
+    inside = (p[:, 0] >= lo[0]) & (p[:, 0] <= hi[0]) & (p[:, 1] >= lo[1]) & (p[:, 1] <= hi[1]) & (
+        p[:, 2] >= lo[2]) & (p[:, 2] <= hi[2])
     if end.direct_only is not None:
         inside &= ~end.direct_only  # a split lobe's light samples: emitters only
     near = np.nonzero(inside)[0]
