@@ -79,7 +79,7 @@ class SurfacePoints:
         rows = mask_or_index
         if isinstance(rows, np.ndarray) and rows.dtype == bool and len(rows) == len(self):
             rows = np.flatnonzero(rows)
-        if isinstance(rows, np.ndarray):  # take() copies rows ~4x faster than fancy indexing
+        if isinstance(rows, np.ndarray) and rows.dtype != bool:  # take() copies rows ~4x faster than indexing
             return SurfacePoints(*[None if v is None else v.take(rows, axis=0)
                                    for v in (getattr(self, name) for name in _SP_FIELDS)])
         return SurfacePoints(*[None if v is None else v[rows]

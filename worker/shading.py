@@ -273,11 +273,11 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis
         hits = geom.intersect(o, dirs)
         v = hits.valid
         if _allowed(seg, max_depth):
-            # Only rays that meet an emitter, or leave the scene under a lit sky, see light.
-            lit = v & (hits.emitter >= 0)
-            if np.any(env > 0):
-                lit |= ~v
-            lit = np.flatnonzero(lit)
+            # Only rays that meet an emitter, or leave the scene under a sky, see light (misses
+            # first, then hits: each pixel's sum in the order it always had).
+            lit = np.flatnonzero(v & (hits.emitter >= 0))
+            if np.any(env != 0):
+                lit = np.concatenate([np.flatnonzero(~v), lit])
             if len(lit):
                 lh, lv, ld = hits.rows(lit), v[lit], dirs[lit]
                 w_mis = _mis_emission(lights, lh, lv, ld, mis_pdf[lit], light_mis)

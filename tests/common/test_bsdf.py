@@ -606,3 +606,16 @@ def test_carrying_rows_are_those_positive_somewhere_and_finite_everywhere():
     np.testing.assert_array_equal(got, expected)
     assert got.any() and not got.all()
     assert b.carrying(np.zeros((0, 3))).shape == (0,)
+
+
+def test_a_subset_by_a_mask_of_the_wrong_length_is_refused():
+    """SurfacePoints.subset copies index rows by take(); a boolean mask must still match the
+    points (take() would read it as indices 0 and 1)."""
+    from igi.common import bsdf as b
+    from igi.common.scene import DIFFUSE, Material
+
+    sp = b.SurfacePoints.constant(Material("m", DIFFUSE), 4)
+    assert len(sp.subset(np.array([True, False, True, True]))) == 3
+    assert len(sp.subset(np.array([3, 0]))) == 2
+    with pytest.raises(IndexError):
+        sp.subset(np.array([True, False, True]))

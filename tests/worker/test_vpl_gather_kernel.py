@@ -184,6 +184,25 @@ def test_shadow_roulette_keeps_the_big_pairs_and_counts_a_kept_small_one_at_the_
     assert np.mean(kept) / 4 == pytest.approx(0.1 / threshold, abs=0.05)
 
 
+def test_shadow_roulette_keeps_a_row_of_no_or_negative_light_as_it_is():
+    """A row whose mean light is not positive (a black row, or a VPL colour of negative
+    luminance from a hostile scene) has no threshold: every pair keeps its ray and weight."""
+    from igi.worker.kernels import vpl_gather as vg
+
+    for lum in (np.array([-1.0, -1.0, -2.0]), np.array([1.0, -1.0, -3.0]), np.zeros(3)):
+        w = np.array([0.5, 0.2, 0.1], np.float32)
+        outs = (np.zeros(3, np.int64), np.zeros(3, np.int64), np.zeros(3, np.float32), np.zeros(3, np.float32),
+                np.zeros((3, 3), np.float32), np.zeros((3, 3), np.float32), np.zeros(3, np.float32))
+        total = float(np.sum(w.astype(np.float64) * lum))
+        stage_d = np.tile(np.array([1.0, 0.0, 0.0, 1.0], np.float32), (3, 1))
+        k = vg.shadow_roulette_row(3, 0, total, np.arange(3, dtype=np.int64), w.copy(), np.zeros(3, np.float32),
+                                   stage_d, 0.0, 0.0, 0.0, np.zeros(3, bool), np.float32(0.0), lum, 1.0, 5, 0, True,
+                                   0, *outs)
+        assert k == 3
+        np.testing.assert_array_equal(outs[1], [0, 1, 2])
+        np.testing.assert_array_equal(outs[2], w)
+
+
 @pytest.mark.parametrize("name", ["cornell-box", "cornell-box-glossy"])
 def test_roulette_while_writing_the_pairs_equals_the_separate_pass(name):
     """pair_weights applies the shadow roulette per row as it writes the pairs: the same

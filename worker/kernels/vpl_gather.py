@@ -127,8 +127,9 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
     # written out, without a branch on the random keep/drop decision (mispredicted half the
     # time, it cost more than the pairs' geometry).
     width = 0
-    for i in range(n):
-        width = max(width, col_hi[i] - col_lo[i])
+    if fraction > 0.0:
+        for i in range(n):
+            width = max(width, col_hi[i] - col_lo[i])
     stage_j = np.empty(width, np.int64)
     stage_w = np.empty(width, np.float32)
     stage_pl = np.empty(width, np.float32)
@@ -242,12 +243,13 @@ def shadow_roulette_row(q, i, total, stage_j, stage_w, stage_pl, stage_d, o0, o1
     Pair (i, j) draws pair_uniform(seed, base + i, j). Every staged pair is written
     and the position advances only past the kept ones: no branch on the random decision."""
     threshold = fraction * total / q
+    on = threshold > 0.0  # (a row of no light, or a negative luminance: every pair kept as is)
     for a in range(q):
         j = stage_j[a]
         w = stage_w[a]
         c = np.float64(w) * lum[j]
-        small = c < threshold
-        keep = (not small) or pair_uniform(seed, base + i, j) * threshold < c
+        small = on and c < threshold
+        keep = (not small) or not (pair_uniform(seed, base + i, j) * threshold >= c)
         if small:
             w = np.float32(threshold / lum[j])  # c / p
         out_i[k] = i
