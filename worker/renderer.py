@@ -28,6 +28,7 @@ from .caustics import PhotonSet, build_photon_sets, default_radius, gather_photo
 from .indirect_caustics import lensed_reflection
 from .shading import (LightMIS, bsdf_direct, clamp_compensation, gather_vpls, lobe_light_count, trace_bsdf_rays,
                       trace_eye)
+from .kernels import tile_buffers
 from .set_cache import FrameSets
 from .vpl import VPLSet, build_vpl_sets
 from .portals import Portals
@@ -351,12 +352,9 @@ class Renderer:
         kind = end.sp.kind
         filterable = (kind == DIFFUSE) | (kind == PLASTIC) | (kind == ROUGHPLASTIC_DIFFUSE) | (
             kind_in(kind, GLOSSY_KINDS) & (end.sp.alpha >= params.filter_glossy_alpha))
-        main = end.main & filterable
-        refl[end.pixel[main]] = albedo[main] * end.throughput[main]
-        irr_buf[end.pixel[main]] = irr[main]
-        sec = ~main
-        if sec.any():
-            np.add.at(unf, end.pixel[sec], end.throughput[sec] * albedo[sec] * irr[sec])
+        tile_buffers.compose(np.ascontiguousarray(end.pixel, np.int64), end.main & filterable,
+                             np.ascontiguousarray(albedo, np.float64), np.ascontiguousarray(end.throughput, np.float64),
+                             np.ascontiguousarray(irr, np.float64), refl, irr_buf, unf)
         return TileBuffers(
             reflectance=refl.astype(np.float32),
             irradiance=irr_buf.astype(np.float32),
