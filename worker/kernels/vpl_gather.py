@@ -53,17 +53,18 @@ def spot_falloff(cos_theta: float, cutoff_deg: float, beam_deg: float) -> float:
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _to_vpl(x0, x1, x2, vpos, vnormal, directional, j):
-    """The unnormalized direction from x to VPL j (a directional one: against its normal),
-    its squared length and 1/length, in float32."""
+    """The unnormalized direction from x to VPL j (a directional one: against its normal), in
+    float32."""
     if directional[j]:
-        d0, d1, d2 = -vnormal[j, 0], -vnormal[j, 1], -vnormal[j, 2]
-    else:
-        d0 = vpos[j, 0] - x0
-        d1 = vpos[j, 1] - x1
-        d2 = vpos[j, 2] - x2
+        return -vnormal[j, 0], -vnormal[j, 1], -vnormal[j, 2]
+    return vpos[j, 0] - x0, vpos[j, 1] - x1, vpos[j, 2] - x2
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _length(d0, d1, d2):
+    """Squared length and 1/length of a float32 vector (1/length finite: length ≥ 1e-15)."""
     dd = d0 * d0 + d1 * d1 + d2 * d2
-    inv_d = np.float32(1.0) / np.float32(math.sqrt(max(dd, np.float32(1e-30))))
-    return d0, d1, d2, dd, inv_d
+    return dd, np.float32(1.0) / np.float32(math.sqrt(max(dd, np.float32(1e-30))))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -91,7 +92,8 @@ def pair_rays(x, ng, off, vpos, vnormal, directional, eps2, pi, pj, out_o, out_d
     for k in range(pi.shape[0]):
         i = pi[k]
         j = pj[k]
-        d0, d1, d2, _dd, inv_d = _to_vpl(x[i, 0], x[i, 1], x[i, 2], vpos, vnormal, directional, j)
+        d0, d1, d2 = _to_vpl(x[i, 0], x[i, 1], x[i, 2], vpos, vnormal, directional, j)
+        _dd, inv_d = _length(d0, d1, d2)
         _write_ray(k, x[i, 0] + ng[i, 0] * off[i], x[i, 1] + ng[i, 1] * off[i], x[i, 2] + ng[i, 2] * off[i],
                    d0, d1, d2, inv_d, directional[j], eps2, out_o, out_d, out_t)
 
@@ -151,8 +153,12 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
         for j in range(col_lo[i], col_hi[i]):
             if vdepth[j] > vmax[i]:
                 continue
-            d0, d1, d2_, dd, inv_d = _to_vpl(xi0, xi1, xi2, vpos, vnormal, directional, j)
-            cos_x = (d0 * n0 + d1 * n1 + d2_ * n2) * inv_d * s
+            d0, d1, d2_ = _to_vpl(xi0, xi1, xi2, vpos, vnormal, directional, j)
+            dot_x = d0 * n0 + d1 * n1 + d2_ * n2
+            if not (dot_x * s > 0.0):  # behind the receiver (cos_x <= 0 or NaN): no light
+                continue
+            dd, inv_d = _length(d0, d1, d2_)
+            cos_x = dot_x * inv_d * s
             cos_y = -(d0 * vnormal[j, 0] + d1 * vnormal[j, 1] + d2_ * vnormal[j, 2]) * inv_d
             em = np.float32(1.0) / max(dd, min_d2[j])
             if cos_factor[j]:
