@@ -61,12 +61,8 @@ class EndPoints:
         return len(self.pixel)
 
     def subset(self, rows) -> "EndPoints":
-        if isinstance(rows, np.ndarray) and rows.dtype == bool and len(rows) == len(self):
-            rows = np.flatnonzero(rows)
-        if isinstance(rows, np.ndarray) and rows.dtype != bool:  # take() copies ~4x faster than indexing
-            return EndPoints(*(None if v is None else (v.subset(rows) if f.name == "sp" else v.take(rows, axis=0))
-                               for f in _END_FIELDS for v in (getattr(self, f.name),)))
-        return EndPoints(*(None if v is None else (v.subset(rows) if f.name == "sp" else v[rows])
+        rows = bsdf.row_selector(rows, len(self))
+        return EndPoints(*(None if v is None else (v.subset(rows) if f.name == "sp" else bsdf.take_rows(v, rows))
                            for f in _END_FIELDS for v in (getattr(self, f.name),)))
 
     @staticmethod
@@ -140,25 +136,18 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
         return EyeResult(empty, unf, depth, normal)
     hits = geom.intersect(origins, dirs)
     v = hits.valid
-    if v.all():  # a closed room: every ray hits, the hit arrays serve as they are
-        idx = np.arange(p)
-
-        def hit(a):
-            return a
-    else:
+    idx, d = np.arange(p), dirs
+    if not v.all():  # (a closed room: every ray hits, the hit arrays serve as they are)
         unf[~v] += env
         idx = np.nonzero(v)[0]
-
-        def hit(a):
-            return a.take(idx, axis=0)
-    t_hit = hit(hits.t)
+        hits, d = hits.rows(idx), dirs.take(idx, axis=0)
+    t_hit = hits.t
     depth[idx] = t_hit
-    pos, ns, ng = hit(hits.position), hit(hits.ns), hit(hits.ng)
+    pos, ns, ng = hits.position, hits.ns, hits.ng
     normal[idx] = ns
-    d = hit(dirs)
     cos_front = -np.einsum("ij,ij->i", d, ns)
-    unf[idx] += lights.emitted_radiance(hit(hits.emitter), cos_front)
-    sp = bsdf.gather(scene.materials, hit(hits.material), hit(hits.uv))
+    unf[idx] += lights.emitted_radiance(hits.emitter, cos_front)
+    sp = bsdf.gather(scene.materials, hits.material, hits.uv)
     wi = to_local(-d, ns)
     delta = kind_in(sp.kind, SPECULAR_KINDS)
     nd_mask = ~delta & (sp.kind != NULL)

@@ -125,9 +125,9 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
     n_tab = tables.shape[1]
     k = 0
     f1e30 = np.float32(1e-30)
-    # A row the roulette thins is staged here (cache-resident) and only its survivors are
-    # written out, without a branch on the random keep/drop decision (mispredicted half the
-    # time, it cost more than the pairs' geometry).
+    # A row the roulette thins is staged here (cache-resident), then written out without a
+    # branch on the random keep/drop decision (mispredicted half the time, it cost more than the
+    # pairs' geometry): every staged pair is written, the output advancing past the kept ones.
     width = 0
     if fraction > 0.0:
         for i in range(n):
