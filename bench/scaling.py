@@ -522,7 +522,10 @@ def report(results: dict, model: dict, args) -> str:
     a("|---|---|")
     a(f"| worker render, per task of {cal['width']}x{cal['height']} ({cal['tasks']} tasks/frame, set cached) | "
       f"{cal['render_ms_per_task']:.1f} ms |")
-    a(f"| VPL/photon set build, per (worker, frame, k) | {cal['set_build_ms']:.1f} ms |")
+    a(f"| VPL/photon set build, per (worker, frame, k), accumulating: {cal.get('set_build_note', '')} | "
+      f"{cal['set_build_ms']:.1f} ms |")
+    if "set_build_alone_ms" in cal:
+        a(f"| the same, one set built alone (a frame's first task of its k) | {cal['set_build_alone_ms']:.1f} ms |")
     a(f"| encode, per task | {cal['encode_ms_per_task']:.2f} ms |")
     a(f"| wire bytes per pixel | {cal['bytes_per_px']:.2f} B |")
     for key, mm in model["master"].items():

@@ -59,7 +59,7 @@ class Costs:
     """
 
     render_s_per_px: float  # worker render time per pixel, the task's set already built
-    set_build_s: float  # building one VPL/photon set (frame seed, k) on a worker
+    set_build_s: float  # building one VPL/photon set (frame seed, k) on an accumulating worker (amortized)
     encode_s_per_px: float  # codec.encode + message packing on the worker
     bytes_per_px: float  # wire bytes of a RESULT per pixel (compressed buffers)
     result_overhead_bytes: float = 200.0  # RESULT header (msgpack envelope, timings, sets)
@@ -629,16 +629,47 @@ def calibrate(scene, params=None, width: int = 640, height: int = 480, sample: i
     master_none = measure_master(w, h, n, [(t, d) for t, _, d, _ in wire], pdict, tp, msgs=none, reps=3)
     master["msg_s_all_sets"] = master["msg_s"]
     master["msg_s"] = master["msg_s_no_sets"] = master_none["msg_s"]
-    costs = Costs(render_s_per_px=render_px, set_build_s=sum(builds) / max(1, len(builds)),
+    alone_s = sum(builds) / max(1, len(builds))
+    amortized_s = _accumulating_set_cost(renderer, params, cam, fov, w, h)
+    costs = Costs(render_s_per_px=render_px, set_build_s=amortized_s,
                   encode_s_per_px=enc_s / enc_px, bytes_per_px=bytes_px, result_overhead_bytes=overhead,
                   master_msg_s=master["msg_s"], master_recv_s_per_px=master["recv_s_per_px"],
                   finish_s_per_px=master["finish_s_per_px"], accumulate_s_per_px=master["accumulate_s_per_px"],
                   tile_weights=weights, tile_grid=(rows, cols))
     detail = {"width": w, "height": h, "tasks": len(tiles), "tasks_rendered": len(rendered),
               "render_ms_per_task": render_px * (w * h / len(tiles)) * 1e3,
-              "set_build_ms": costs.set_build_s * 1e3, "encode_ms_per_task": costs.encode_s_per_px * w * h / len(tiles) * 1e3,
+              "set_build_ms": costs.set_build_s * 1e3, "set_build_alone_ms": alone_s * 1e3,
+              "set_build_note": SET_COST_NOTE, "encode_ms_per_task": costs.encode_s_per_px * w * h / len(tiles) * 1e3,
               "bytes_per_px": bytes_px, "master": master}
     return {"costs": costs, "detail": detail}
+
+
+ACCUMULATED_FRAMES = 30  # frames 1..30 of an accumulation: the cache's batches of 2, 4, 8 and 16 frames
+SET_COST_NOTE = (f"a VPL + photon set of one k per frame over frames 1-{ACCUMULATED_FRAMES} of an accumulation, as a "
+                 "worker holding one k builds them (worker/set_cache.py: with later frames' sets in its batches)")
+
+
+def _accumulating_set_cost(renderer, params, cam, fov: float, w: int, h: int) -> float:
+    """CPU seconds per (frame, k) of the VPL and photon sets of one k over the first
+    ACCUMULATED_FRAMES frames after an accumulation reset, asked for as render_tile does: what
+    a worker of a large cluster, holding one k, pays per frame (set builds while accumulating;
+    a moving camera keeps its sets)."""
+    import numpy as np
+
+    from igi.common.params import make_params, params_to_dict
+    from igi.master.accumulation import sequence_spec
+    from igi.worker.vpl_importance import View
+
+    pdict = params_to_dict(params)
+    view = View(tuple(np.asarray(cam, np.float64).ravel()), fov, w, h)
+    k = params.interleave ** 2 - 1  # a k of its own: none of its accumulated sets is cached yet
+    c0 = time.process_time()
+    for i in range(1, ACCUMULATED_FRAMES + 1):
+        spec = sequence_spec(i, i, cam, fov, w, h, pdict)
+        p = make_params(**spec.params)
+        renderer.vpl_set(spec.seed, k, p, roulette=p.consistent, view=view, index=i)
+        renderer.photon_set(spec.seed, k, p, index=i)
+    return (time.process_time() - c0) / ACCUMULATED_FRAMES
 
 
 def synthetic_wire(buffers: dict, width: int, height: int, n: int, task_pixels: int) -> list:

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 BUFFER_NAMES = ("reflectance", "irradiance", "unfiltered", "depth", "normal")
+SEED_MODULUS = 2**31  # frame seeds stay inside common.params' declared range
 
 
 @dataclass(frozen=True)
@@ -25,12 +26,18 @@ class FrameSpec:
     jitter: tuple = (0.5, 0.5)  # sub-pixel position of the eye ray (0.5, 0.5 = centre)
 
 
+def frame_seed(base_seed: int, index: int) -> int:
+    """The seed of accumulation frame ``index`` after a reset with seed ``base_seed`` (each
+    accumulated frame a new realization of the VPL/photon sets; master.accumulation)."""
+    return (int(base_seed) + int(index)) % SEED_MODULUS
+
+
 def accumulation_index(spec: FrameSpec) -> int:
-    """Frames accumulated before this one (0 while the view changes): frame i after an
-    accumulation reset renders with seed = params["seed"] + i (master.accumulation)."""
+    """Frames accumulated before this one (0 while the view changes): the inverse of
+    :func:`frame_seed`."""
     if not spec.params.get("accumulate", True):
         return 0
-    return (spec.seed - int(spec.params.get("seed", 0))) % (2**31)
+    return (spec.seed - int(spec.params.get("seed", 0))) % SEED_MODULUS
 
 
 @dataclass(frozen=True)

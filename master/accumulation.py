@@ -16,11 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from igi.common.frame import FrameSpec
+from igi.common.frame import FrameSpec, frame_seed
 from igi.master.kernels.accumulate import add_frame
 from igi.master.kernels.accumulate import mean as mean_kernel
-
-SEED_MODULUS = 2**31  # seeds stay inside common.params' declared range
 
 
 def _radical_inverse(i: int, base: int) -> float:
@@ -49,7 +47,7 @@ def sequence_spec(frame: int, index: int, camera_to_world, fov_x: float, width: 
     cam = tuple(float(x) for x in np.asarray(camera_to_world, np.float64).reshape(16))
     if not params.get("accumulate", True):
         index = 0
-    seed = (int(params.get("seed", 0)) + index) % SEED_MODULUS
+    seed = frame_seed(params.get("seed", 0), index)
     return FrameSpec(frame=frame, seed=seed, camera_to_world=cam, fov_x=float(fov_x), width=width,
                      height=height, params=dict(params), scene_version=scene_version,
                      jitter=jitter_for(index))

@@ -95,14 +95,16 @@ def build_photon_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: i
 
 
 def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: int, ks: Sequence[int],
-                      photons_per_light: int, radius: float, max_bounces: int,
+                      photons_per_light: int, radius: float | Sequence[float], max_bounces: int,
                       aim: bool = True, targets: tuple | None = None) -> list[PhotonSet]:
     """:func:`build_photon_set` of every block k of ``ks``, each as it is alone (every photon
     depends on its own stream row only), emitted and traced together: one Embree batch per
-    bounce for all the sets."""
+    bounce for all the sets. ``radius``: one for all sets, or one per set (the query radius
+    shrinks along an accumulation: sets of several frames in one batch)."""
+    radii_of = np.broadcast_to(np.asarray(radius, np.float64), (len(ks),))
     centres, radii = targets if targets is not None else specular_targets(scene, geom)
     if photons_per_light <= 0 or len(radii) == 0 or not lights.has_light:
-        return [_empty(radius) for _ in ks]
+        return [_empty(float(r)) for r in radii_of]
     stream = SobolStream(stream_seed(seed, PHOTON_STREAM))
     dims = EMIT_DIMS + BOUNCE_DIMS * max_bounces
     # Each light's photons from its own rows of the stream; everything after is per photon,
@@ -111,7 +113,7 @@ def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: 
     shooting = [ei for ei, e in enumerate(scene.emitters)
                 if e.kind in (AREA, POINT, SPOT) and lights.powers[ei] > 0]  # distant: see docs
     if not shooting:
-        return [_empty(radius) for _ in ks]
+        return [_empty(float(r)) for r in radii_of]
     counts = photon_counts(lights.powers[shooting], photons_per_light)
     per_set = int(counts.sum())
     u = np.concatenate([stream.padded(k, per_set, per_set, dims) for k in ks])
@@ -169,14 +171,15 @@ def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: 
     src = traced[5] if traced is not None else np.zeros(0, np.int64)
     order = np.lexsort((light[src], src // per_set))
     stops = np.cumsum(np.bincount(src // per_set, minlength=nsets))
-    for rows in np.split(order, stops[:-1]):
+    for rows, r in zip(np.split(order, stops[:-1]), radii_of):
+        r = float(r)
         if len(rows) == 0:
-            empty = _empty(radius)
+            empty = _empty(r)
             empty.shot = per_set
             out.append(empty)
             continue
         pos_s, pw, di, nr, dp = (a[rows] for a in traced[:5])
-        out.append(PhotonSet(pos_s, pw, di, nr, dp, radius, HashGrid(pos_s, radius), per_set))
+        out.append(PhotonSet(pos_s, pw, di, nr, dp, r, HashGrid(pos_s, r), per_set))
     return out
 
 

@@ -15,7 +15,7 @@ import numpy as np
 from scipy.special import gammaln
 
 from igi.common.camera import camera_rays, pixel_jitter
-from igi.common.frame import FrameSpec, Tile, TileBuffers, accumulation_index
+from igi.common.frame import FrameSpec, Tile, TileBuffers, accumulation_index, frame_seed
 from igi.common.geometry import Geometry
 from igi.common.lights import LightSampler
 from igi.common.params import Params, make_params
@@ -74,16 +74,32 @@ def frame_clamp_distance2(params: Params, diagonal: float, index: int, consisten
     return max(d2, params.clamp_first / (index + 1.0) * diagonal * diagonal)
 
 
-def _set_blocks(seed: int, ks: list[int], params: Params, index: int) -> tuple[int, list[int]]:
-    """(stream seed, blocks) of sets ``ks`` of the frame with ``seed`` at accumulation index
-    ``index``.
+def _set_blocks(keys: list[tuple], params: Params) -> tuple[int, list[int]]:
+    """(stream seed, blocks) of the sets ``keys`` ((configuration, frame seed, accumulation
+    index), k).
 
     Accumulated frames continue the first frame's sequence (frame i after a reset with seed
     params.seed has seed params.seed + i): frame i's K sets are blocks [i·K, (i+1)·K) of the
     first frame's streams, so the frames of an accumulation are jointly stratified
-    (randomized QMC across frames) rather than independent realizations."""
+    (randomized QMC across frames) rather than independent realizations — and any of them can
+    be built ahead, in one batch with the current frame's."""
+    (_, seed, index), _ = keys[0]
+    if index == 0:  # later frames are offered only while accumulating: one frame, one seed
+        return seed, [k for _, k in keys]
     sets = params.interleave ** 2
-    return (seed, list(ks)) if index == 0 else (params.seed, [index * sets + k for k in ks])
+    return params.seed, [frame[2] * sets + k for frame, k in keys]
+
+
+LOOKAHEAD_FRAMES = 16  # at most this many later accumulation frames' sets in one batch
+
+
+def later_frames(seed: int, index: int, params: Params) -> list[tuple[int, int]]:
+    """(seed, index) of the accumulation frames after frame ``index`` whose sets a batch may
+    build ahead (set_cache.FrameSets.get): as many as the accumulation has already shown, at
+    most LOOKAHEAD_FRAMES; none for a frame outside the master's sequencing."""
+    if index <= 0 or seed != frame_seed(params.seed, index):
+        return []
+    return [(frame_seed(params.seed, i), i) for i in range(index + 1, index + 1 + min(index, LOOKAHEAD_FRAMES))]
 
 
 class _StageTimer:
@@ -244,30 +260,34 @@ class Renderer:
                    params.vpl_lobe_alpha, params.vpl_portals)
                   if importance else None)
 
-        def build(ks: list[int]) -> list[VPLSet]:
-            stream, blocks = _set_blocks(seed, ks, params, index)
+        def build(keys: list[tuple]) -> list[VPLSet]:
+            stream, blocks = _set_blocks(keys, params)
             if importance:
                 return [s for s, _ in self._build_importance(stream, blocks, params, view, roulette)]
             direct, indirect, length = self._set_sizes(params)
             return build_vpl_sets(self.scene, self.geom, self.lights, stream, blocks, direct, indirect, length,
                                   roulette=roulette and params.max_depth < 0)
 
-        return self._frame_sets.get((config, seed, index), k, params.interleave ** 2, build)
+        return self._frame_sets.get((config, seed, index), k, params.interleave ** 2, build,
+                                    [(config, s, i) for s, i in later_frames(seed, index, params)])
 
     def photon_set(self, seed: int, k: int, params: Params, index: int = 0) -> PhotonSet:
-        radius = default_radius(self.geom.diagonal, params.photon_radius) * radius_scale(index, params)
+        radius = default_radius(self.geom.diagonal, params.photon_radius)
         # Caustic paths have >= 4 segments (light, specular, diffuse, eye).
         if (self.plan is not None and not self.plan.caustics) or 0 <= params.max_depth < 4:
-            return PhotonSet(*(np.zeros((0, 3)),) * 4, np.zeros(0, np.int32), radius, None)
+            return PhotonSet(*(np.zeros((0, 3)),) * 4, np.zeros(0, np.int32), radius * radius_scale(index, params),
+                             None)
         config = ("photons", self.scene_version, params.interleave, params.photons, params.photon_radius,
                   params.consistent, params.ppm_alpha, params.specular_depth)
 
-        def build(ks: list[int]) -> list[PhotonSet]:
-            stream, blocks = _set_blocks(seed, ks, params, index)
-            return build_photon_sets(self.scene, self.geom, self.lights, stream, blocks, params.photons, radius,
+        def build(keys: list[tuple]) -> list[PhotonSet]:
+            stream, blocks = _set_blocks(keys, params)
+            radii = [radius * radius_scale(frame[2], params) for frame, _ in keys]
+            return build_photon_sets(self.scene, self.geom, self.lights, stream, blocks, params.photons, radii,
                                      params.specular_depth, targets=self._specular_targets)
 
-        return self._frame_sets.get((config, seed, index), k, params.interleave ** 2, build)
+        return self._frame_sets.get((config, seed, index), k, params.interleave ** 2, build,
+                                    [(config, s, i) for s, i in later_frames(seed, index, params)])
 
     @property
     def stats(self) -> dict:

@@ -1,4 +1,5 @@
-"""Renderer.render_tile: where an accumulated frame's eye rays pass through their pixels."""
+"""Renderer.render_tile: where an accumulated frame's eye rays pass through their pixels, which
+VPL count a frame's sets take, and sets built ahead for later accumulation frames."""
 from __future__ import annotations
 
 import numpy as np
@@ -9,8 +10,11 @@ from igi.common.interleave import make_tiles
 from igi.common.loader import load_scene
 from igi.common.scene import DIFFUSE
 from igi.common.params import make_params, params_to_dict
+from igi.common.frame import frame_seed
 from igi.master.accumulation import sequence_spec
-from igi.worker.renderer import Renderer
+from igi.worker import set_cache
+from igi.worker.renderer import LOOKAHEAD_FRAMES, Renderer, later_frames
+from igi.worker.vpl_importance import View
 
 
 def test_first_frame_samples_pixel_centres_accumulated_frames_each_pixels_rotated_jitter():
@@ -81,3 +85,54 @@ def test_a_moving_cameras_frame_decides_importance_sampling_from_the_still_frame
     r = _render(scene, 0, interleave=1, photons=0, moving_camera=True)
     pilots = [key for key in r._views if key[0] == "pilot"]
     assert len(pilots) == 1 and pilots[0][3] == make_params().indirect_vpls
+
+
+def test_later_frames_are_offered_as_many_as_the_accumulation_has_shown_and_only_in_sequence():
+    p = make_params(seed=11)
+    assert later_frames(frame_seed(11, 0), 0, p) == []  # a first frame: the camera may move next
+    assert later_frames(frame_seed(11, 1), 1, p) == [(frame_seed(11, 2), 2)]
+    assert later_frames(frame_seed(11, 3), 3, p) == [(frame_seed(11, i), i) for i in (4, 5, 6)]
+    far = later_frames(frame_seed(11, 100), 100, p)
+    assert len(far) == LOOKAHEAD_FRAMES and far[0] == (frame_seed(11, 101), 101)
+    assert later_frames(frame_seed(11, 3) + 1, 3, p) == []  # not the master's sequencing
+    wrap = make_params(seed=2**31 - 2)  # seeds wrap inside their declared range
+    assert later_frames(frame_seed(2**31 - 2, 1), 1, wrap) == [(0, 2)]
+
+
+def _same(a, b) -> None:
+    for name, x in vars(a).items():
+        y = getattr(b, name)
+        if isinstance(x, np.ndarray):
+            assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=x.dtype.kind == "f"), name
+        elif name not in ("derived", "grid", "env_guide", "surface"):
+            assert x == y, name
+
+
+def test_sets_built_ahead_for_later_frames_equal_the_sets_built_alone(monkeypatch):
+    """A worker holding one k builds it for later accumulation frames in one batch: each of
+    those VPL and photon sets (importance-sampled VPLs, photons with the shrinking radius of
+    their own frame) is bit for bit the set built when its frame comes."""
+    scene = load_scene(bundled.resolve("cornell-box"))
+    cam, fov_x, w, h = resolve_camera(scene, None, 32, 24)
+    view = View(tuple(np.asarray(cam, np.float64).ravel()), fov_x, w, h)
+    params = make_params(interleave=3, photons=300, vpl_importance=1, seed=5)
+    frames = [(frame_seed(5, i), i) for i in range(1, 8)]
+
+    def sets(r):
+        return [(r.vpl_set(s, 4, params, roulette=True, view=view, index=i), r.photon_set(s, 4, params, index=i))
+                for s, i in frames]
+
+    ahead = Renderer(scene)
+    built_ahead = sets(ahead)
+    assert ahead.stats["set_hits"] == 4  # frames 2, 4, 5, 6 were built with frames 1 and 3
+    monkeypatch.setattr(set_cache, "BATCH_TARGET", 1)  # one set a batch: no later frames
+    alone = Renderer(scene)
+    built_alone = sets(alone)
+    assert alone.stats["set_hits"] == 0
+    for (va, pa), (vb, pb) in zip(built_ahead, built_alone):
+        assert len(va) > 4 and len(pa) > 0
+        _same(va, vb)
+        _same(va.surface, vb.surface)
+        _same(pa, pb)
+    radii = [p.radius for _, p in built_ahead]
+    assert all(a > b for a, b in zip(radii, radii[1:]))  # each frame's own radius

@@ -1,12 +1,13 @@
-"""worker.set_cache.FrameSets: a miss builds the frame's predicted sets in one batch, each set
-is built once whatever the threads, and a failed build leaves nothing behind."""
+"""worker.set_cache.FrameSets: a miss builds the frame's predicted sets in one batch (with the
+same k's of later frames while the batch is small), each set is built once whatever the threads,
+and a failed build leaves nothing behind."""
 from __future__ import annotations
 
 import threading
 
 import pytest
 
-from igi.worker.set_cache import FrameSets
+from igi.worker.set_cache import BATCH_TARGET, FrameSets
 
 CFG = ("vpl", 0, "config")
 
@@ -15,9 +16,10 @@ def _recording():
     calls = []
 
     def build(frame):
-        def b(ks):
-            calls.append((frame, list(ks)))
-            return [(frame, k) for k in ks]
+        def b(keys):
+            assert keys[0][0] == frame  # the set asked for comes first
+            calls.append((frame, [k for f, k in keys if f == frame]))
+            return list(keys)
         return b
     return calls, build
 
@@ -65,11 +67,11 @@ def test_a_thread_waits_for_the_set_another_thread_is_building():
         cache.get(f1, k, 4, lambda ks: [object() for _ in ks])
     started, release, built = threading.Event(), threading.Event(), []
 
-    def slow(ks):
-        built.append(list(ks))
+    def slow(keys):
+        built.append([k for _, k in keys])
         started.set()
         release.wait(10)
-        return [("set", k) for k in ks]
+        return [("set", k) for _, k in keys]
 
     got = {}
     a = threading.Thread(target=lambda: got.__setitem__("a", cache.get(f2, 0, 4, slow)))
@@ -103,3 +105,63 @@ def test_the_cache_keeps_the_most_recent_sets():
     for i in range(5):
         cache.get((CFG, i, 0), 0, 1, lambda ks: ["s"] * len(ks))
     assert [key[0][1] for key in cache.keys()] == [2, 3, 4]
+
+
+def _frames(first: int, count: int) -> list[tuple]:
+    return [(CFG, 7 + i, i) for i in range(first, first + count)]
+
+
+def test_a_worker_holding_one_k_builds_it_for_later_frames_in_the_same_batch():
+    """A worker of a large cluster holds one k: its batch takes the k of the later frames it is
+    offered, up to BATCH_TARGET sets, and those frames then find their sets cached."""
+    cache, keys_built = FrameSets(256), []
+
+    def build(keys):
+        keys_built.append(list(keys))
+        return list(keys)
+
+    f1, f2 = _frames(1, 2)
+    cache.get(f1, 4, 9, build)
+    keys_built.clear()
+    later = _frames(3, 40)
+    assert cache.get(f2, 4, 9, build, later) == (f2, 4)
+    assert keys_built == [[(f, 4) for f in [f2] + later[:BATCH_TARGET - 1]]]
+    for f in later[:BATCH_TARGET - 1]:
+        assert cache.get(f, 4, 9, build, _frames(f[2] + 1, 40)) == (f, 4)
+    assert len(keys_built) == 1  # every later frame found its set
+    assert cache.stats == {"sets_built": 1 + BATCH_TARGET, "set_hits": BATCH_TARGET - 1}
+
+
+def test_a_worker_holding_many_ks_builds_only_its_frame():
+    cache, keys_built = FrameSets(256), []
+
+    def build(keys):
+        keys_built.append(list(keys))
+        return list(keys)
+
+    f1, f2 = _frames(1, 2)
+    for k in range(BATCH_TARGET):
+        cache.get(f1, k, 25, build)
+    keys_built.clear()
+    cache.get(f2, 0, 25, build, _frames(3, 8))
+    assert keys_built == [[(f2, k) for k in range(BATCH_TARGET)]]
+
+
+def test_later_frames_fill_the_batch_by_whole_frames_and_skip_sets_held_or_in_building():
+    cache, keys_built = FrameSets(256), []
+
+    def build(keys):
+        keys_built.append(list(keys))
+        return list(keys)
+
+    f1, f2, f3, f4 = _frames(1, 4)
+    cache.get(f3, 1, 9, build)  # already held: not built again
+    for k in (0, 1, 2):  # the latest frame: k's 0, 1, 2 predicted
+        cache.get(f1, k, 9, build)
+    keys_built.clear()
+    cache.get(f2, 2, 9, build, [f3, f4, *_frames(5, 10)])
+    per_frame = 3
+    frames = -(-BATCH_TARGET // per_frame)  # this frame and whole later frames up to the target
+    expect = [(f2, 2), (f2, 0), (f2, 1)] + [(f, k) for f in _frames(3, frames - 1) for k in (2, 0, 1)
+                                              if (f, k) != (f3, 1)]
+    assert keys_built == [expect]
