@@ -184,7 +184,8 @@ class Geometry:
         dist = None if tmax is None else np.ascontiguousarray(
             np.minimum(np.broadcast_to(np.asarray(tmax, np.float64), (n,)), 3.0e38), dtype=np.float32)
         if self.record is not None:
-            self.record.append(("intersect", o, d, dist))
+            # Embree writes each hit's distance into ``dist``: keep the ray's own tmax
+            self.record.append(("intersect", o, d, None if dist is None else dist.copy()))
         r = self._embree.run(o, d, output=1) if dist is None else self._embree.run(o, d, dists=dist, output=1)
         prim = r["primID"].astype(np.int64)
         valid = (r["geomID"] != -1) & (prim >= 0)
