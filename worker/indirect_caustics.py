@@ -29,11 +29,12 @@ from .vpl import VPLSet
 def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints,
                       albedo: np.ndarray, vpls: VPLSet, rays: BSDFRays, clamp_d2: float, max_depth: int,
                       specular_depth: int, rng: np.random.Generator, lobe_alpha: float = 0.0,
-                      photons: PhotonSet | None = None) -> np.ndarray:
+                      photons: PhotonSet | None = None, shadow_roulette: float = 0.0) -> np.ndarray:
     """(E, 3) light reaching the end points through mirror/glass chains, per unit albedo (it
     joins the filtered irradiance like BSDF-direct lighting). ``photons``: the caustic photons,
     so a caustic seen through the chain is included (L S+ D S+ D E: the bright focus under a
-    glass ball imaged by the ball onto the ceiling)."""
+    glass ball imaged by the ball onto the ceiling). ``shadow_roulette``: the gathers at the
+    chains' ends take the eye path's shadow-ray roulette (unbiased; as the compensation's)."""
     e = len(end)
     out = np.zeros((e, 3))
     hits = rays.hits
@@ -86,7 +87,7 @@ def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: E
         z = np.zeros(len(rows), np.int32)
         y = Hits(np.ones(len(rows), bool), t, z.astype(np.int64), p, n_g, n_s, uv, m, z - 1, z)
         k, l_y = reflected_radiance(scene, geom, lights, y, np.arange(len(rows)), d, seg, vpls, clamp_d2,
-                                    max_depth, rng, lobe_alpha, photons)
+                                    max_depth, rng, lobe_alpha, photons, shadow_roulette=shadow_roulette)
         if len(k):
             r = rows[k]
             # each row's chain ends once (here or as a miss above): its rows are unique

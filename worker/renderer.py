@@ -359,7 +359,7 @@ class Renderer:
             with self._stage("indirect caustics"):
                 irr = irr + lensed_reflection(self.scene, self.geom, self.lights, end, albedo, vpls, rays,
                                               clamp_d2, params.max_depth, params.specular_depth, rng, lobe_alpha,
-                                              photons)
+                                              photons, shadow_roulette=params.shadow_roulette)
         if len(photons):
             with self._stage("photon gather"):
                 irr = irr + gather_photons(end, photons, albedo, params.max_depth)

@@ -66,3 +66,29 @@ def test_a_caustic_seen_through_the_glass_ball_lights_the_ceiling(monkeypatch):
 def test_without_photons_at_the_chain_ends_the_ceiling_reads_dark(monkeypatch):
     # the same measure without the caustic photons where the chains end: the path class is real
     assert _ceiling_ratio(monkeypatch, False) < 0.9
+
+
+def test_the_gathers_at_the_chain_ends_take_the_shadow_roulette(monkeypatch):
+    """With the shadow-ray roulette on, the chains' end points trace fewer shadow rays for the
+    same light on average (the roulette counts a kept small pair 1/p)."""
+    calls = []
+    real = renderer.lensed_reflection
+
+    def spy(*a, **k):
+        geom = a[1]
+        before = geom.counters["occluded_rays"]
+        out = real(*a, **k)
+        calls.append((k.get("shadow_roulette", 0.0), geom.counters["occluded_rays"] - before, out.sum(axis=0)))
+        return out
+
+    monkeypatch.setattr(renderer, "lensed_reflection", spy)
+    scene = load_shared("cornell-box-sphere")
+    totals = {}
+    for fraction in (0.0, 1.0):
+        calls.clear()
+        render_local(scene, {"shadow_roulette": fraction}, 8, width=96, height=72)
+        assert calls and all(c[0] == fraction for c in calls)
+        totals[fraction] = (sum(c[1] for c in calls), sum(c[2] for c in calls))
+    (rays_off, light_off), (rays_on, light_on) = totals[0.0], totals[1.0]
+    assert rays_on < 0.8 * rays_off
+    np.testing.assert_allclose(light_on, light_off, rtol=0.05)
