@@ -80,6 +80,12 @@ IGI_TIMING = ("igi time: frames only, one process / one core (master.inprocess.r
               "photon set building, wire codec round trip, master merge + discontinuity filter + "
               "accumulation); scene load (load_s) and geometry/BVH build (setup_s) are not counted; "
               "image at budget B = running mean after the last frame finished within B (at least 1 frame)")
+IGI_TIMING_WORKERS = ("igi time: frames only, a real master and {n} local worker process(es) on loopback ZeroMQ "
+                      "(master.broker.Broker.render_sequence: the workers trace and build the sets, the master merges, "
+                      "filters and accumulates); wall clock from the first frame's submission, the relMSE of each "
+                      "running mean (computed as frames arrive) counted in igi's time; start-up (workers started, "
+                      "kernels loaded, HELLO) not counted and reported as startup_s; scene load (load_s) not counted; "
+                      "image at budget B = running mean after the last frame finished within B (at least 1 frame)")
 MITSUBA_TIMING = ("Mitsuba time: mi.render + copy to numpy (kernels already compiled and cached by a warm-up); "
                   "scene load (load_s) not counted; spp fitted to the budget from t = a + b*spp")
 
@@ -285,25 +291,20 @@ warm_up = bq.warm_up
 
 
 def igi_budget_run(setup: bq.SceneSetup, params, budgets: list[float], converged_frames: int,
-                   clock: str = "wall") -> dict:
+                   clock: str = "wall", workers: int = 0) -> dict:
     """Accumulate frames until the largest budget is spent and ``converged_frames`` are done;
-    score the running mean after every frame."""
-    from igi.master.inprocess import render_local
+    score the running mean after every frame. ``workers`` > 0: rendered by a real master and
+    that many local worker processes (wall clock only), else in this process."""
     from igi.worker.renderer import Renderer
 
     warm_up(setup, params)
     t0 = time.perf_counter()
-    renderer = Renderer(setup.scene)
+    renderer = Renderer(setup.scene) if not workers else None
     setup_s = time.perf_counter() - t0
     tmax = max(budgets)
     curve: list[dict] = []
-    picks: dict[float, dict] = {}  # budget -> scored frame (FLIP is slow: only these and the last)
-    state = {"scoring": 0.0, "scoring_cpu": 0.0, "prev": None}
-
-    def full(entry, img):
-        if "flip" not in entry:
-            entry.update(setup.evaluator(img))
-        return entry
+    picks: dict[float, tuple] = {}  # budget -> (entry, image): scored in full (FLIP: slow) after the run
+    state = {"scoring": 0.0, "scoring_cpu": 0.0, "prev": None, "last": None}
 
     def on_frame(i, img):
         ta, ca = time.perf_counter(), time.process_time()
@@ -315,32 +316,66 @@ def igi_budget_run(setup: bq.SceneSetup, params, budgets: list[float], converged
         for b in budgets:
             if b not in picks and tc > b:
                 prev = state["prev"]
-                picks[b] = ({**full(prev[0], prev[1]), "over_budget": False} if prev is not None
-                            else {**full(entry, img), "over_budget": True})
+                picks[b] = ((prev[0], prev[1], False) if prev is not None
+                            else (entry, np.array(img, copy=True), True))
         state["prev"] = (entry, np.array(img, copy=True))
         done = tc >= tmax and i + 1 >= converged_frames
-        if done:
-            full(entry, img)
-        state["scoring"] += time.perf_counter() - ta
-        state["scoring_cpu"] += time.process_time() - ca
+        if not workers:  # in one process the scoring stops the render: not igi's time
+            state["scoring"] += time.perf_counter() - ta
+            state["scoring_cpu"] += time.process_time() - ca
         if done:
             raise _Stop
 
-    state["t0"], state["c0"] = time.perf_counter(), time.process_time()
+    startup_s = None
     try:
-        render_local(setup.scene, params, frames=1_000_000, on_frame=on_frame, width=setup.width,
-                     height=setup.height, renderer=renderer)
+        if workers:
+            startup_s = _render_on_workers(setup, params, workers, on_frame, state)
+        else:
+            from igi.master.inprocess import render_local
+
+            state["t0"], state["c0"] = time.perf_counter(), time.process_time()
+            render_local(setup.scene, params, frames=1_000_000, on_frame=on_frame, width=setup.width,
+                         height=setup.height, renderer=renderer)
     except _Stop:
         pass
     out_b = []
     for b in budgets:
-        pick = picks.get(b) or {**curve[-1], "over_budget": False}  # t == tmax exactly
+        if b in picks:
+            entry, img, over = picks[b]
+            pick = {**entry, **setup.evaluator(img), "over_budget": over}
+        else:  # t == tmax exactly
+            pick = {**curve[-1], **setup.evaluator(state["prev"][1]), "over_budget": False}
         out_b.append({"budget_s": b, **pick})
-    last = curve[-1]
-    return {"setup_s": setup_s, "budgets": out_b, "converged": last,
+    last = {**curve[-1], **setup.evaluator(state["prev"][1])}
+    return {"setup_s": setup_s, "startup_s": startup_s, "workers": workers, "budgets": out_b, "converged": last,
             "frame_s_mean": last["time_s"] / last["frames"], "frame_cpu_s_mean": last["cpu_s"] / last["frames"],
             "curve": [[c["frames"], c["time_s"], c["cpu_s"], c["relmse"]] for c in curve],
             "curve_columns": ["frames", "time_s", "cpu_s", "relmse"]}
+
+
+def _render_on_workers(setup: bq.SceneSetup, params, workers: int, on_frame, state: dict) -> float:
+    """Frames rendered by a master (Broker on loopback) and ``workers`` local worker processes,
+    as ``igi render --workers N`` does; the clock starts once every worker has said HELLO.
+    Returns the start-up seconds (processes started, kernels loaded, workers joined)."""
+    from igi.master.broker import Broker
+    from igi.master.local_workers import LocalWorkers, wait_workers
+
+    t0 = time.perf_counter()
+    with Broker(setup.scene, bind="tcp://127.0.0.1:*") as broker:
+        procs = LocalWorkers(broker.endpoint, workers, threads=1)
+        try:
+            wait_workers(broker, procs, workers)
+            startup_s = time.perf_counter() - t0
+            state["t0"], state["c0"] = time.perf_counter(), time.process_time()
+            try:
+                broker.render_sequence(params, frames=1_000_000, width=setup.width, height=setup.height,
+                                       on_frame=on_frame)
+            except _Stop:
+                pass
+        finally:
+            broker.stop()
+            procs.stop()
+    return startup_s
 
 
 def igi_frame_bias(setup: bq.SceneSetup, params, frames: int) -> dict | None:
@@ -539,7 +574,7 @@ def compare_scene(setup: bq.SceneSetup, params, budgets: list[float], args, mts:
         conv = args.converged_frames if rep == 0 else 0
         print(f"igi bench compare: {setup.name} {setup.width}x{setup.height}: igi seed {seed} to {max(budgets)} s"
               + (f" / {conv} frames" if conv else "") + " …", file=sys.stderr, flush=True)
-        runs.append(igi_budget_run(setup, replace(params, seed=seed), budgets, conv, clock))
+        runs.append(igi_budget_run(setup, replace(params, seed=seed), budgets, conv, clock, args.workers))
     igi = dict(runs[0])
     igi["budgets"] = [mean_rows([run["budgets"][i] for run in runs]) for i in range(len(budgets))]
     igi["repeats"] = repeats
@@ -674,6 +709,8 @@ def markdown(results: dict) -> str:
                   f"(relMSE) ≈ {f(s['noise_floor_relmse_est'])}"
                   + (" (a noisy reference: the goal is judged on relMSE 4×4)" if s.get("noisy_reference") else "")
                   + f". igi scene load {s['load_s']:.2f} s + BVH {ig['setup_s']:.2f} s"
+                  + (f" + start-up of {ig['workers']} worker process(es) {ig['startup_s']:.2f} s"
+                     if ig.get("workers") else "")
                   + (f"; Mitsuba scene load {s['mitsuba']['load_s']:.2f} s" if "mitsuba" in s else "")
                   + " (not counted).", ""]
         mt = {r["budget_s"]: r for r in s.get("mitsuba", {}).get("budgets", [])}
@@ -783,6 +820,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mitsuba-variant", default="auto", help="auto (llvm_ad_rgb, else scalar_rgb) or a variant")
     p.add_argument("--mitsuba-threads", type=int, default=1,
                    help="Mitsuba render threads (default 1: igi's render_local uses one core)")
+    p.add_argument("--workers", type=int, default=0,
+                   help="igi on a real master and this many local worker processes (wall clock; give "
+                        "Mitsuba as many --mitsuba-threads); default 0: in this process, one core")
     p.add_argument("--no-mitsuba", action="store_true", help="igi only")
     p.add_argument("-o", "--out", default="artifacts/bench-compare", help="output folder (default artifacts/bench-compare)")
     bq.add_common_arguments(p)
@@ -803,6 +843,10 @@ def run_compare(args: argparse.Namespace) -> dict:
     budgets = parse_budgets(args.budgets)
     if args.mitsuba_threads < 1:
         raise bq.BenchError("--mitsuba-threads must be >= 1")
+    if args.workers < 0:
+        raise bq.BenchError("--workers must be >= 0")
+    if args.workers and args.clock != "wall":
+        raise bq.BenchError("--workers renders in other processes: budgets need --clock wall")
     params = bq.base_params(args)
     refdir = Path(args.references) if args.references else None
     from igi.common.params import params_to_dict
@@ -819,13 +863,15 @@ def run_compare(args: argparse.Namespace) -> dict:
     results = {
         "benchmark": "igi bench compare", "machine": machine_info(), "commit": git_commit(),
         "command": bq.command_line(), "load_avg_start": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
-        "timing": {"igi": IGI_TIMING, "mitsuba": MITSUBA_TIMING, "clock": bq.CLOCK_NOTE},
+        "timing": {"igi": IGI_TIMING_WORKERS.format(n=args.workers) if args.workers else IGI_TIMING,
+                   "mitsuba": MITSUBA_TIMING, "clock": bq.CLOCK_NOTE},
         "settings": {"clock": args.clock, "budgets": budgets, "params": params_to_dict(params), "direct_only": bool(args.direct_only),
                      "converged_frames": args.converged_frames, "bias_frames": args.bias_frames,
                      "repeats": args.repeats,
                      "flicker_frames": args.flicker_frames,
                      "orbit_step_deg": args.orbit_step, "path_ref_spp": args.path_ref_spp,
-                     "igi_processes": 1, "mitsuba": {k: v for k, v in mts.items()},
+                     "igi_processes": 1 + args.workers, "igi_workers": args.workers,
+                     "mitsuba": {k: v for k, v in mts.items()},
                      "goal": f"budget <= {GOAL_MAX_BUDGET:g} s: igi relMSE and FLIP <= {GOAL_RATIO:g} x Mitsuba PT's",
                      "flip": setups[0].evaluator.use_flip},
         "scenes": {},

@@ -316,14 +316,13 @@ class Broker:
         accumulation), rendered by the workers with ``pipeline`` frames in flight."""
         pdict = params_dict(params)
         frames = max(1, int(frames))
-        specs = [self.frame_spec(i, pdict, camera, width, height) for i in range(frames)]
         acc = Accumulator()
         futures: collections.deque = collections.deque()
         nxt = 0
         image = None
         for i in range(frames):
-            while nxt < frames and len(futures) < self.pipeline:
-                futures.append(self.submit_frame(specs[nxt]))
+            while nxt < frames and len(futures) < self.pipeline:  # specs made as sent: frames may be huge
+                futures.append(self.submit_frame(self.frame_spec(nxt, pdict, camera, width, height)))
                 nxt += 1
             res = futures.popleft().result(timeout)
             acc.add(res.image(), accumulation_key(res.spec))

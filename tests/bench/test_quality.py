@@ -191,3 +191,27 @@ def test_compare_bench_against_mitsuba(tmp_path):
     assert fl["static_new_seeds"]["igi"]["mean_abs_change"] > 0
     assert "mitsuba" in fl["orbit_fixed_seed"]
     assert (tmp_path / "bench-compare.md").exists()
+
+
+@needs_shared
+def test_compare_bench_on_worker_processes_scores_the_same_image_and_reports_start_up(tmp_path):
+    """--workers N: igi's budget runs go through a real master and N worker processes; the
+    running means are the in-process render's (same specs and tiles), start-up is apart."""
+    from igi.bench import compare as bc
+    from igi.master.inprocess import render_local
+
+    args = parse(bc, ["cornell-box", "--width", 32, "--height", 32, "--budgets", "0.05", "--converged-frames", 3,
+                      "--bias-frames", 0, "--flicker-frames", 0, "--no-mitsuba", "--workers", 1, "-o", tmp_path])
+    assert bc.run(args) == 0
+    data = json.loads((tmp_path / "bench-compare.json").read_text())
+    ig = data["scenes"]["cornell-box"]["igi"]
+    assert data["settings"]["igi_workers"] == 1 and ig["workers"] == 1 and ig["startup_s"] > 0
+    assert "worker process" in data["timing"]["igi"]
+    conv = ig["converged"]
+    assert conv["frames"] >= 3 and [c[0] for c in ig["curve"]] == list(range(1, conv["frames"] + 1))
+    setup = bc.bq.SceneSetup("cornell-box", False, 32, 32, None, None, False)
+    params = bc.bq.base_params(args)
+    local = render_local(setup.scene, params, frames=conv["frames"], width=32, height=32)
+    assert conv["relmse"] == pytest.approx(setup.evaluator.relmse(local), rel=1e-6)
+    with pytest.raises(bc.bq.BenchError, match="--clock wall"):
+        bc.run_compare(parse(bc, ["cornell-box", "--workers", 1, "--clock", "cpu", "--no-mitsuba"]))
