@@ -484,7 +484,7 @@ def contribution_per_vpl(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2:
         draw, share = _systematic_pairs(pj, plain, m, visibility_samples, column_u)
         if len(draw) == 0:
             continue
-        u, inv = np.unique(draw, return_inverse=True)  # a heavy pair drawn twice is traced once
+        u, inv = _unique_draws(draw)  # a heavy pair drawn twice is traced once
         o, d, t = _listed_pair_rays(geom, end, sl, cols, pi[u], pj[u])
         blocked = geom.occluded_local(o, d, t)
         factor = _bsdf_factors(sl, cols, row, pi[u], pj[u], pl[u], d, blocked, receivers)
@@ -512,6 +512,14 @@ def _systematic_pairs(pj: np.ndarray, weight: np.ndarray, m: int, samples: int,
     share = np.empty(m * samples)
     n = vs.systematic_pairs(pj, weight, m, samples, column_u, draw, share)
     return draw[:n], share[:n]
+
+
+def _unique_draws(draw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(distinct pairs of ``draw``, position of each draw among them): a column's draws stand
+    together and never go back, so a repeat is always its predecessor."""
+    u = np.empty(len(draw), np.int64)
+    inv = np.empty(len(draw), np.int64)
+    return u[:vs.unique_runs(draw, u, inv)], inv
 
 
 class _Receivers:

@@ -29,3 +29,27 @@ def systematic_pairs(pj, weight, m, samples, column_u):
     k = np.searchsorted(cs, at.ravel(), side="right")
     k = np.clip(k, np.repeat(start[lit], samples), np.repeat(stop[lit] - 1, samples))
     return order[k], np.repeat(total[lit] / samples, samples)
+
+
+def systematic_pairs_sorted(pj, weight, m, samples, column_u):
+    """The same draws by a stable sort of the pairs by column and a walk along each column (the
+    compiled kernel's earlier form, kept as its exact reference: same sums in the same order)."""
+    order = np.argsort(pj, kind="stable")
+    total = np.zeros(m)
+    for k in range(len(pj)):
+        total[pj[k]] += weight[k]
+    count = np.bincount(pj, minlength=m)
+    start = np.concatenate([[0], np.cumsum(count)])
+    draw, share = [], []
+    for j in range(m):
+        if not total[j] > 0.0:
+            continue
+        p, last, c = start[j], start[j + 1] - 1, 0.0
+        for s in range(samples):
+            target = (column_u[j] + s) / samples * total[j]
+            while p < last and c + weight[order[p]] <= target:
+                c += weight[order[p]]
+                p += 1
+            draw.append(order[p])
+            share.append(total[j] / samples)
+    return np.array(draw, np.int64), np.array(share)

@@ -34,6 +34,38 @@ def test_systematic_pairs_draw_what_the_numpy_original_draws(seed, n_pairs, m):
     assert np.all(weight[draw[:n]] > 0)  # never a pair that carries nothing
 
 
+@pytest.mark.parametrize("seed,n_pairs,m", [(0, 5000, 40), (1, 5000, 40), (2, 7, 30), (3, 1, 1), (4, 0, 5),
+                                             (6, 3000, 200)])
+def test_systematic_pairs_draw_bit_for_bit_what_a_walk_along_each_sorted_column_draws(seed, n_pairs, m):
+    """Two passes in pair order draw exactly the pairs, in the same order, that a stable sort
+    by column and a walk along each column draw (the same running sums in the same order)."""
+    pj, weight, u = _pairs(seed, n_pairs, m)
+    if n_pairs > 10:
+        weight[::97] = np.nan  # a column with a non-finite weight draws nothing
+        weight[1::89] = 0.0
+    samples = 8
+    draw = np.empty(m * samples, np.int64)
+    share = np.empty(m * samples)
+    n = vs.systematic_pairs(pj, weight, m, samples, u, draw, share)
+    want_draw, want_share = oracle.systematic_pairs_sorted(pj, weight, m, samples, u)
+    assert n == len(want_draw)
+    assert np.array_equal(draw[:n], want_draw) and np.array_equal(share[:n], want_share)
+
+
+def test_unique_runs_equal_numpys_unique_on_draws():
+    pj, weight, u = _pairs(1, 4000, 60)
+    draw = np.empty(60 * 16, np.int64)
+    share = np.empty(60 * 16)
+    n = vs.systematic_pairs(pj, weight, 60, 16, u, draw, share)
+    d = draw[:n]
+    uniq = np.empty(n, np.int64)
+    inv = np.empty(n, np.int64)
+    k = vs.unique_runs(d, uniq, inv)
+    assert k < n  # heavy pairs drawn more than once
+    assert np.array_equal(np.sort(uniq[:k]), np.unique(d)) and np.array_equal(uniq[:k][inv], d)
+    assert vs.unique_runs(np.zeros(0, np.int64), uniq, inv) == 0
+
+
 def test_systematic_pairs_estimate_each_columns_sum_without_bias():
     """Σ over a column's draws of share · g/weight estimates Σ g over its pairs that carry
     weight, for g = weight × a visibility in [0, 1] (the scoring's shadowed light from a few

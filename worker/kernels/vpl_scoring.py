@@ -4,8 +4,9 @@ shading.contribution_per_vpl, over every (camera point, candidate) pair of a set
 :func:`pair_luminance` — each pair's luminance toward the eye (unshadowed, or with its shadow
 ray's answer and BSDF factors);
 :func:`systematic_pairs` — per candidate, ``samples`` pairs drawn in proportion to it (one
-uniform per candidate, evenly spaced), by a counting sort over the candidates: the pairs of a
-batch of sets number ~10⁶, where numpy's argsort and temporaries cost more than the scoring.
+uniform per candidate, evenly spaced), in two passes over the pairs: a batch of sets has ~10⁶
+pairs, where numpy's argsort and temporaries cost more than the scoring;
+:func:`unique_runs` — the distinct pairs drawn (each traced once).
 """
 from __future__ import annotations
 
@@ -46,37 +47,61 @@ def pair_luminance(pi, pj, w, blocked, factor, color, eye_weight, out):
 @njit(cache=True, nogil=True, error_model="numpy")
 def systematic_pairs(pj, weight, m, samples, column_u, out_draw, out_share):
     """Per column j with Σ weight > 0: ``samples`` draws among its pairs ∝ ``weight``, at the
-    points (column_u[j] + s)/samples of its cumulative weight (s = 0..samples-1). Writes each
-    draw's pair index and what it stands for (W_j / samples); returns how many were written
-    (out arrays: m · samples)."""
+    points (column_u[j] + s)/samples of its cumulative weight (s = 0..samples-1), the pairs of a
+    column taken in their order. Writes each draw's pair index and what it stands for
+    (W_j / samples), column by column; returns how many were written (out arrays: m · samples).
+
+    Two passes in pair order with a running sum per column (no sort: a counting sort's scatter
+    and gather over ~10⁶ pairs missed the cache on every pair)."""
     n = pj.shape[0]
-    start = np.zeros(m + 1, np.int64)
     total = np.zeros(m)
+    last = np.full(m, -1, np.int64)
     for k in range(n):
-        start[pj[k] + 1] += 1
         total[pj[k]] += weight[k]
-    for j in range(m):
-        start[j + 1] += start[j]
-    order = np.empty(n, np.int64)
-    fill = start[:m].copy()
-    for k in range(n):  # stable counting sort by column
-        j = pj[k]
-        order[fill[j]] = k
-        fill[j] += 1
+        last[pj[k]] = k
+    slot = np.empty(m, np.int64)  # first output position of each drawn column
     out = 0
     for j in range(m):
+        slot[j] = out
+        if total[j] > 0.0:
+            out += samples
+    c = np.zeros(m)
+    s = np.zeros(m, np.int64)
+    for k in range(n):
+        j = pj[k]
         if not total[j] > 0.0:
             continue
-        p = start[j]
-        last = start[j + 1] - 1
-        c = 0.0
-        share = total[j] / samples
-        for s in range(samples):
-            target = (column_u[j] + s) / samples * total[j]
-            while p < last and c + weight[order[p]] <= target:
-                c += weight[order[p]]
-                p += 1
-            out_draw[out] = order[p]
-            out_share[out] = share
-            out += 1
+        sj = s[j]
+        if sj == samples:
+            continue
+        if k == last[j]:  # the column's last pair takes every target left
+            while sj < samples:
+                out_draw[slot[j] + sj] = k
+                sj += 1
+        else:
+            w = weight[k]
+            while sj < samples and not (c[j] + w <= (column_u[j] + sj) / samples * total[j]):
+                out_draw[slot[j] + sj] = k
+                sj += 1
+            c[j] += w
+        s[j] = sj
+    for j in range(m):
+        if total[j] > 0.0:
+            share = total[j] / samples
+            for q in range(samples):
+                out_share[slot[j] + q] = share
     return out
+
+
+@njit(cache=True, nogil=True)
+def unique_runs(draw, out_unique, out_inverse):
+    """The distinct values of ``draw`` where equal values only ever stand next to each other
+    (systematic_pairs' draws: a column's draws never go back): out_unique[:u] in first-seen
+    order, draw[q] == out_unique[out_inverse[q]]; returns u. np.unique without its sort."""
+    u = 0
+    for q in range(draw.shape[0]):
+        if u == 0 or draw[q] != out_unique[u - 1]:
+            out_unique[u] = draw[q]
+            u += 1
+        out_inverse[q] = u - 1
+    return u
