@@ -128,35 +128,29 @@ def _proc_cpu_s(pid: int, tid: int | None = None) -> float:
 
 def run_point(scene, params, width: int, height: int, workers: int, frames: int, warmup: int,
               task_pixels: int | None, latency_inputs: int = 0) -> tuple[dict, object]:
-    from igi.master.broker import Broker
-    from igi.master.local_workers import LocalWorkers, wait_workers
+    from igi.master.local_workers import local_cluster
 
-    kw = {} if task_pixels is None else {"task_pixels": task_pixels}
     load_before = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
-    with Broker(scene, bind="tcp://127.0.0.1:*", **kw) as broker:
-        procs = LocalWorkers(broker.endpoint, workers)
-        try:
-            wait_workers(broker, procs, workers)
-            if warmup:
-                broker.render_sequence(params, frames=warmup, width=width, height=height)
-            s0 = broker.stats()
-            j0, own0 = _cpu_jiffies(), _own_cpu(procs)
-            loop0 = _proc_cpu_s(os.getpid(), broker._thread.native_id)
-            t0 = time.perf_counter()
-            broker.render_sequence(params, frames=frames, width=width, height=height)
-            wall = time.perf_counter() - t0
-            j1, own1 = _cpu_jiffies(), _own_cpu(procs)
-            loop1 = _proc_cpu_s(os.getpid(), broker._thread.native_id)
-            s1 = broker.stats()
-            last = broker.render_frame(broker.frame_spec(0, params, width=width, height=height))
-            latency = None
-            if latency_inputs > 0:  # camera input -> first frame showing it (the viewer's stream)
-                from .viewer_latency import stream_latency
+    kw = {} if task_pixels is None else {"task_pixels": task_pixels}
+    with local_cluster(scene, workers, **kw) as cluster:
+        broker, procs = cluster.broker, cluster.workers
+        if warmup:
+            broker.render_sequence(params, frames=warmup, width=width, height=height)
+        s0 = broker.stats()
+        j0, own0 = _cpu_jiffies(), _own_cpu(procs)
+        loop0 = _proc_cpu_s(os.getpid(), broker._thread.native_id)
+        t0 = time.perf_counter()
+        broker.render_sequence(params, frames=frames, width=width, height=height)
+        wall = time.perf_counter() - t0
+        j1, own1 = _cpu_jiffies(), _own_cpu(procs)
+        loop1 = _proc_cpu_s(os.getpid(), broker._thread.native_id)
+        s1 = broker.stats()
+        last = broker.render_frame(broker.frame_spec(0, params, width=width, height=height))
+        latency = None
+        if latency_inputs > 0:  # camera input -> first frame showing it (the viewer's stream)
+            from .viewer_latency import stream_latency
 
-                latency = stream_latency(broker, params, width, height, latency_inputs)
-        finally:
-            broker.stop()
-            procs.stop()
+            latency = stream_latency(broker, params, width, height, latency_inputs)
     tasks = s1["tasks_done"] - s0["tasks_done"]
     point = {
         "width": width, "height": height, "workers": workers, "frames": frames, "wall_s": wall,

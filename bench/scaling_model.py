@@ -630,7 +630,7 @@ def calibrate(scene, params=None, width: int = 640, height: int = 480, sample: i
     master["msg_s_all_sets"] = master["msg_s"]
     master["msg_s"] = master["msg_s_no_sets"] = master_none["msg_s"]
     alone_s = sum(builds) / max(1, len(builds))
-    amortized_s = _accumulating_set_cost(renderer, params, cam, fov, w, h)
+    amortized_s = _accumulating_set_cost(scene, params, cam, fov, w, h)
     costs = Costs(render_s_per_px=render_px, set_build_s=amortized_s,
                   encode_s_per_px=enc_s / enc_px, bytes_per_px=bytes_px, result_overhead_bytes=overhead,
                   master_msg_s=master["msg_s"], master_recv_s_per_px=master["recv_s_per_px"],
@@ -649,25 +649,30 @@ SET_COST_NOTE = (f"a VPL + photon set of one k per frame over frames 1-{ACCUMULA
                  "worker holding one k builds them (worker/set_cache.py: with later frames' sets in its batches)")
 
 
-def _accumulating_set_cost(renderer, params, cam, fov: float, w: int, h: int) -> float:
+def _accumulating_set_cost(scene, params, cam, fov: float, w: int, h: int) -> float:
     """CPU seconds per (frame, k) of the VPL and photon sets of one k over the first
     ACCUMULATED_FRAMES frames after an accumulation reset, asked for as render_tile does: what
     a worker of a large cluster, holding one k, pays per frame (set builds while accumulating;
-    a moving camera keeps its sets)."""
+    a moving camera keeps its sets). A renderer of its own that has asked for that k alone (its
+    cache predicts from the k's asked for last), the view's one-time pilot not timed."""
     import numpy as np
 
     from igi.common.params import make_params, params_to_dict
     from igi.master.accumulation import sequence_spec
+    from igi.worker.renderer import Renderer
     from igi.worker.vpl_importance import View
 
+    renderer = Renderer(scene)
     pdict = params_to_dict(params)
     view = View(tuple(np.asarray(cam, np.float64).ravel()), fov, w, h)
-    k = params.interleave ** 2 - 1  # a k of its own: none of its accumulated sets is cached yet
-    c0 = time.process_time()
-    for i in range(1, ACCUMULATED_FRAMES + 1):
+    k = 0
+    for i in range(ACCUMULATED_FRAMES + 1):
+        if i == 1:
+            c0 = time.process_time()
         spec = sequence_spec(i, i, cam, fov, w, h, pdict)
         p = make_params(**spec.params)
-        renderer.vpl_set(spec.seed, k, p, roulette=p.consistent, view=view, index=i)
+        renderer.vpl_set(spec.seed, k, p, roulette=p.consistent and (i > 0 or p.consistent_first_frame),
+                         view=view, index=i)
         renderer.photon_set(spec.seed, k, p, index=i)
     return (time.process_time() - c0) / ACCUMULATED_FRAMES
 

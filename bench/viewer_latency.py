@@ -165,31 +165,25 @@ def main(argv=None) -> int:
 
 
 def run(a: argparse.Namespace) -> int:
-    from igi.master.broker import Broker
     from igi.master.cli import load_scene_file
-    from igi.master.local_workers import LocalWorkers, wait_workers
+    from igi.master.local_workers import local_cluster
 
     w, h = (int(x) for x in a.size.lower().split("x"))
     scene = load_scene_file(a.scene)
     params = {} if a.photons is None else {"photons": a.photons}
-    with Broker(scene, bind="tcp://127.0.0.1:*") as broker:
-        workers = LocalWorkers(broker.endpoint, a.workers)
-        try:
-            wait_workers(broker, workers, a.workers)
-            broker.start_stream(params, width=w, height=h)
-            res = {"scene": a.scene, "size": a.size, "workers": a.workers,
-                   "broker": measure_latency(broker, a.inputs)}
-            if a.ws:
-                from igi.master import viewer
+    with local_cluster(scene, a.workers) as cluster:
+        broker = cluster.broker
+        broker.start_stream(params, width=w, height=h)
+        res = {"scene": a.scene, "size": a.size, "workers": a.workers,
+               "broker": measure_latency(broker, a.inputs)}
+        if a.ws:
+            from igi.master import viewer
 
-                v = viewer.start(broker, "127.0.0.1", 0, None, pub=None, quiet=True)
-                try:
-                    res["websocket"] = ws_latency(v.url, a.inputs)
-                finally:
-                    v.stop()
-        finally:
-            broker.stop()
-            workers.stop()
+            v = viewer.start(broker, "127.0.0.1", 0, None, pub=None, quiet=True)
+            try:
+                res["websocket"] = ws_latency(v.url, a.inputs)
+            finally:
+                v.stop()
     print(json.dumps(res, indent=2))
     return 0
 

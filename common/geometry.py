@@ -11,6 +11,7 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+from embreex import rtcore as rtc
 from embreex import rtcore_scene as rtcs
 from embreex.mesh_construction import TriangleMesh
 
@@ -160,14 +161,19 @@ class Geometry:
         self._fn32 = self.face_normal.astype(np.float32)
         self._any_smooth = bool(self.smooth.any())
         self._tri_normals = self.vertex_normals[self.faces].astype(np.float32)
-        self._embree = rtcs.EmbreeScene()  # closest hits: robust traversal (no ray slips through an edge)
+        device = rtc.EmbreeDevice()
+        self._embree = rtcs.EmbreeScene(device)  # closest hits: robust traversal (no ray slips through an edge)
         self._mesh = TriangleMesh(self._embree, local)
         # Shadow rays on a second BVH without Embree's robust mode: 20% faster occlusion queries
         # (cornell-box-sphere; 9% grey-white-room), and a shadow ray through a shared edge
         # decides differently about once in a million (3 of a frame's 3.9M, 7 of 6.6M) — where
         # an eye ray slipping through would show the background, a shadow ray adds one clamped VPL.
-        self._shadow = rtcs.EmbreeScene(robust=False)
+        self._shadow = rtcs.EmbreeScene(device, robust=False)
         self._shadow_mesh = TriangleMesh(self._shadow, local)
+        # Embree builds a BVH on its first query: both now, not inside the first frame.
+        ray = np.zeros((1, 3), np.float32)
+        self._embree.run(ray, ray + 1, output=1)
+        self._shadow.run(ray, ray + 1, query="OCCLUDED", dists=np.zeros(1, np.float32))
 
     # -- queries ---------------------------------------------------------------------------
     def intersect(self, origins: np.ndarray, directions: np.ndarray,

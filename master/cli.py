@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from igi.master.errors import RenderError, UsageError
-from igi.master.local_workers import LocalWorkers, supervise_workers, wait_workers
+from igi.master.local_workers import supervise_workers
 
 log = logging.getLogger("igi")
 
@@ -283,33 +283,18 @@ def _render_frames(args, scene, params, on_frame):
         image = render_local(scene, params, frames=args.frames, width=args.width, height=args.height,
                              on_frame=on_frame, task_pixels=args.task_pixels or DEFAULT_TASK_PIXELS)
     else:
-        from igi.master.broker import Broker
-
         from igi.master.broker import FrameCancelled
+        from igi.master.local_workers import local_cluster
 
-        with Broker(scene, bind="tcp://127.0.0.1:*", task_pixels=args.task_pixels) as broker:
-            workers = LocalWorkers(broker.endpoint, args.workers, threads=max(1, args.threads))
-            done, dead = threading.Event(), threading.Event()
-
-            def watchdog():  # every worker gone: stop the master, which cancels the frames
-                while not done.wait(0.5):
-                    if all(p.poll() is not None for p in workers.procs):
-                        dead.set()
-                        broker.stop()
-                        return
-            threading.Thread(target=watchdog, daemon=True).start()
+        with local_cluster(scene, args.workers, threads=max(1, args.threads),
+                           task_pixels=args.task_pixels) as cluster:
             try:
-                wait_workers(broker, workers, args.workers)
-                image = broker.render_sequence(params, frames=args.frames, width=args.width,
-                                               height=args.height, on_frame=on_frame)
+                image = cluster.broker.render_sequence(params, frames=args.frames, width=args.width,
+                                                       height=args.height, on_frame=on_frame)
             except FrameCancelled:
-                if dead.is_set():
+                if cluster.all_exited.is_set():
                     raise RenderError("every local worker exited before the render finished") from None
                 raise
-            finally:
-                done.set()
-                broker.stop()
-                workers.stop()
     return image
 
 

@@ -1,13 +1,15 @@
 """Worker processes on this machine (``igi render``, ``igi serve``, benchmarks): started with
 this Python, connected to a master's endpoint, stopped together; a dead one is a
-:class:`~master.errors.UsageError`."""
+:class:`~master.errors.UsageError`. :func:`local_cluster`: a loopback master with such workers."""
 from __future__ import annotations
 
 import os
 import signal
 import subprocess
 import sys
+import threading
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 from .errors import UsageError
@@ -81,3 +83,43 @@ def supervise_workers(endpoint: str, count: int, threads: int = 1, quiet: bool =
         return subprocess.Popen(worker_command(endpoint, threads, quiet, f"local{i}", curve_keys),
                                 env=worker_env(), stdin=subprocess.DEVNULL)
     return Supervisor(spawn, count)
+
+
+class LocalCluster:
+    """What :func:`local_cluster` yields: the master, its workers, and ``all_exited`` (set once
+    every worker process has exited: the master was then stopped and its frames cancelled)."""
+
+    def __init__(self, broker, workers: LocalWorkers):
+        self.broker, self.workers = broker, workers
+        self.all_exited = threading.Event()
+
+
+@contextmanager
+def local_cluster(scene, count: int, threads: int = 1, **broker_kw):
+    """A master on loopback (``master.broker.Broker``, with ``broker_kw``) and ``count`` local
+    worker processes, every one joined; on exit both are stopped. Should every worker exit, the
+    master is stopped, which cancels its frames (a waiting caller gets ``FrameCancelled``, not a
+    hang)."""
+    from .broker import Broker
+
+    with Broker(scene, bind="tcp://127.0.0.1:*", **broker_kw) as broker:
+        workers = None
+        done = threading.Event()
+        try:
+            workers = LocalWorkers(broker.endpoint, count, threads=threads)
+            cluster = LocalCluster(broker, workers)
+
+            def watchdog():
+                while not done.wait(0.5):
+                    if all(p.poll() is not None for p in workers.procs):
+                        cluster.all_exited.set()
+                        broker.stop()
+                        return
+            threading.Thread(target=watchdog, daemon=True).start()
+            wait_workers(broker, workers, count)
+            yield cluster
+        finally:
+            done.set()
+            broker.stop()
+            if workers is not None:
+                workers.stop()

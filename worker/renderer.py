@@ -85,6 +85,8 @@ def _set_blocks(keys: list[tuple], params: Params) -> tuple[int, list[int]]:
     be built ahead, in one batch with the current frame's."""
     (_, seed, index), _ = keys[0]
     if index == 0:  # later frames are offered only while accumulating: one frame, one seed
+        if any(frame != keys[0][0] for frame, _ in keys):
+            raise ValueError("sets of a first frame are built with their own frame's only")
         return seed, [k for _, k in keys]
     sets = params.interleave ** 2
     return params.seed, [frame[2] * sets + k for frame, k in keys]

@@ -51,6 +51,19 @@ def test_the_embree_timer_and_replay_cover_both_bvhs():
     geom.time_embree(False)
     assert geom.counters["occluded_seconds"] > 0 and geom.counters["intersect_seconds"] > 0
     assert [kind for kind, *_ in geom.record] == ["occluded", "intersect"]
+    seen = []
+
+    class Spy:  # which BVH the replay sends each batch to
+        def __init__(self, scene, name):  # (no ``inner``: replay would unwrap it as the timer)
+            self.scene, self.name = scene, name
+
+        def run(self, *a, **k):
+            seen.append((self.name, k.get("query", "INTERSECT")))
+            return self.scene.run(*a, **k)
+
+    geom._embree, geom._shadow = Spy(geom._embree, "robust"), Spy(geom._shadow, "shadow")
     assert geom.replay(geom.record) > 0
+    assert seen == [("shadow", "OCCLUDED"), ("robust", "INTERSECT")]
+    geom._embree, geom._shadow = geom._embree.scene, geom._shadow.scene
     assert np.array_equal(geom.occluded(o, d, length), blocked)  # the timer changed nothing
     assert np.array_equal(geom.intersect(o, d).prim, hits.prim)

@@ -165,3 +165,42 @@ def test_later_frames_fill_the_batch_by_whole_frames_and_skip_sets_held_or_in_bu
     expect = [(f2, 2), (f2, 0), (f2, 1)] + [(f, k) for f in _frames(3, frames - 1) for k in (2, 0, 1)
                                               if (f, k) != (f3, 1)]
     assert keys_built == [expect]
+
+
+def test_later_frames_take_at_most_half_the_cache():
+    cache, keys_built = FrameSets(8), []
+
+    def build(keys):
+        keys_built.append(list(keys))
+        return list(keys)
+
+    f1, f2 = _frames(1, 2)
+    cache.get(f1, 0, 9, build)
+    keys_built.clear()
+    cache.get(f2, 0, 9, build, _frames(3, 40))
+    assert len(keys_built[0]) == 4  # not BATCH_TARGET: half of an 8-set cache
+
+
+def test_later_frames_skip_a_set_another_thread_is_building():
+    cache = FrameSets(256)
+    f1, f2, f3 = _frames(1, 3)
+    cache.get(f1, 0, 9, lambda keys: list(keys))
+    started, release, built = threading.Event(), threading.Event(), []
+
+    def slow(keys):
+        started.set()
+        release.wait(10)
+        return list(keys)
+
+    a = threading.Thread(target=lambda: cache.get(f3, 0, 9, slow))  # f3's set, in building
+    a.start()
+    assert started.wait(10)
+
+    def build(keys):
+        built.append(list(keys))
+        return list(keys)
+
+    cache.get(f2, 0, 9, build, [f3, *_frames(4, 30)])
+    release.set()
+    a.join(10)
+    assert (f3, 0) not in built[0] and (f2, 0) in built[0] and (_frames(4, 1)[0], 0) in built[0]
