@@ -67,6 +67,9 @@ def systematic_pairs(pj, weight, m, samples, column_u, out_draw, out_share):
             out += samples
     c = np.zeros(m)
     s = np.zeros(m, np.int64)
+    target = np.empty(m)  # each column's next target, kept: no division per pair
+    for j in range(m):
+        target[j] = column_u[j] / samples * total[j]
     for k in range(n):
         j = pj[k]
         if not total[j] > 0.0:
@@ -80,9 +83,15 @@ def systematic_pairs(pj, weight, m, samples, column_u, out_draw, out_share):
                 sj += 1
         else:
             w = weight[k]
-            while sj < samples and not (c[j] + w <= (column_u[j] + sj) / samples * total[j]):
-                out_draw[slot[j] + sj] = k
-                sj += 1
+            if not (c[j] + w <= target[j]):
+                while True:
+                    out_draw[slot[j] + sj] = k
+                    sj += 1
+                    if sj == samples:
+                        break
+                    target[j] = (column_u[j] + sj) / samples * total[j]
+                    if c[j] + w <= target[j]:
+                        break
             c[j] += w
         s[j] = sj
     for j in range(m):
