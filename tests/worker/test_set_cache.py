@@ -111,15 +111,20 @@ def _frames(first: int, count: int) -> list[tuple]:
     return [(CFG, 7 + i, i) for i in range(first, first + count)]
 
 
-def test_a_worker_holding_one_k_builds_it_for_later_frames_in_the_same_batch():
-    """A worker of a large cluster holds one k: its batch takes the k of the later frames it is
-    offered, up to BATCH_TARGET sets, and those frames then find their sets cached."""
-    cache, keys_built = FrameSets(256), []
+def _keys_recorder():
+    """(the key lists of every build, a build that records its keys and returns them as sets)."""
+    keys_built = []
 
     def build(keys):
         keys_built.append(list(keys))
         return list(keys)
+    return keys_built, build
 
+
+def test_a_worker_holding_one_k_builds_it_for_later_frames_in_the_same_batch():
+    """A worker of a large cluster holds one k: its batch takes the k of the later frames it is
+    offered, up to BATCH_TARGET sets, and those frames then find their sets cached."""
+    cache, (keys_built, build) = FrameSets(256), _keys_recorder()
     f1, f2 = _frames(1, 2)
     cache.get(f1, 4, 9, build)
     keys_built.clear()
@@ -133,12 +138,7 @@ def test_a_worker_holding_one_k_builds_it_for_later_frames_in_the_same_batch():
 
 
 def test_a_worker_holding_many_ks_builds_only_its_frame():
-    cache, keys_built = FrameSets(256), []
-
-    def build(keys):
-        keys_built.append(list(keys))
-        return list(keys)
-
+    cache, (keys_built, build) = FrameSets(256), _keys_recorder()
     f1, f2 = _frames(1, 2)
     for k in range(BATCH_TARGET):
         cache.get(f1, k, 25, build)
@@ -148,12 +148,7 @@ def test_a_worker_holding_many_ks_builds_only_its_frame():
 
 
 def test_later_frames_fill_the_batch_by_whole_frames_and_skip_sets_held_or_in_building():
-    cache, keys_built = FrameSets(256), []
-
-    def build(keys):
-        keys_built.append(list(keys))
-        return list(keys)
-
+    cache, (keys_built, build) = FrameSets(256), _keys_recorder()
     f1, f2, f3, f4 = _frames(1, 4)
     cache.get(f3, 1, 9, build)  # already held: not built again
     for k in (0, 1, 2):  # the latest frame: k's 0, 1, 2 predicted
@@ -168,12 +163,7 @@ def test_later_frames_fill_the_batch_by_whole_frames_and_skip_sets_held_or_in_bu
 
 
 def test_later_frames_take_at_most_half_the_cache():
-    cache, keys_built = FrameSets(8), []
-
-    def build(keys):
-        keys_built.append(list(keys))
-        return list(keys)
-
+    cache, (keys_built, build) = FrameSets(8), _keys_recorder()
     f1, f2 = _frames(1, 2)
     cache.get(f1, 0, 9, build)
     keys_built.clear()
@@ -185,7 +175,7 @@ def test_later_frames_skip_a_set_another_thread_is_building():
     cache = FrameSets(256)
     f1, f2, f3 = _frames(1, 3)
     cache.get(f1, 0, 9, lambda keys: list(keys))
-    started, release, built = threading.Event(), threading.Event(), []
+    started, release = threading.Event(), threading.Event()
 
     def slow(keys):
         started.set()
@@ -196,10 +186,7 @@ def test_later_frames_skip_a_set_another_thread_is_building():
     a.start()
     assert started.wait(10)
 
-    def build(keys):
-        built.append(list(keys))
-        return list(keys)
-
+    built, build = _keys_recorder()
     cache.get(f2, 0, 9, build, [f3, *_frames(4, 30)])
     release.set()
     a.join(10)

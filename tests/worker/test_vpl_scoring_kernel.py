@@ -9,6 +9,14 @@ from igi.worker.kernels import vpl_scoring as vs
 from tests.support import oracle_vpl_scoring as oracle
 
 
+def _draw(pj, weight, m: int, samples: int, u):
+    """The kernel's draws and shares, trimmed to what it wrote."""
+    draw = np.empty(m * samples, np.int64)
+    share = np.empty(m * samples)
+    n = vs.systematic_pairs(pj, weight, m, samples, u, draw, share)
+    return draw[:n], share[:n]
+
+
 def _pairs(seed: int, n_pairs: int, m: int):
     g = np.random.default_rng(seed)
     pj = np.sort(g.integers(0, m, n_pairs)) if seed % 2 else g.integers(0, m, n_pairs)
@@ -19,11 +27,9 @@ def _pairs(seed: int, n_pairs: int, m: int):
 @pytest.mark.parametrize("seed,n_pairs,m", [(0, 5000, 40), (1, 5000, 40), (2, 7, 30), (3, 1, 1), (4, 0, 5)])
 def test_systematic_pairs_draw_what_the_numpy_original_draws(seed, n_pairs, m):
     pj, weight, u = _pairs(seed, n_pairs, m)
-    samples = 8
-    draw = np.empty(m * samples, np.int64)
-    share = np.empty(m * samples)
-    n = vs.systematic_pairs(pj, weight, m, samples, u, draw, share)
-    want_draw, want_share = oracle.systematic_pairs(pj, weight, m, samples, u)
+    draw, share = _draw(pj, weight, m, 8, u)
+    n = len(draw)
+    want_draw, want_share = oracle.systematic_pairs(pj, weight, m, 8, u)
     assert n == len(want_draw)
     # the numpy original cumulates across columns: a draw landing on a boundary within
     # rounding may pick the neighbouring pair; the pairs' weights must then agree
@@ -43,21 +49,15 @@ def test_systematic_pairs_draw_bit_for_bit_what_a_walk_along_each_sorted_column_
     if n_pairs > 10:
         weight[::97] = np.nan  # a column with a non-finite weight draws nothing
         weight[1::89] = 0.0
-    samples = 8
-    draw = np.empty(m * samples, np.int64)
-    share = np.empty(m * samples)
-    n = vs.systematic_pairs(pj, weight, m, samples, u, draw, share)
-    want_draw, want_share = oracle.systematic_pairs_sorted(pj, weight, m, samples, u)
-    assert n == len(want_draw)
-    assert np.array_equal(draw[:n], want_draw) and np.array_equal(share[:n], want_share)
+    draw, share = _draw(pj, weight, m, 8, u)
+    want_draw, want_share = oracle.systematic_pairs_sorted(pj, weight, m, 8, u)
+    assert np.array_equal(draw, want_draw) and np.array_equal(share, want_share)
 
 
 def test_unique_runs_equal_numpys_unique_on_draws():
     pj, weight, u = _pairs(1, 4000, 60)
-    draw = np.empty(60 * 16, np.int64)
-    share = np.empty(60 * 16)
-    n = vs.systematic_pairs(pj, weight, 60, 16, u, draw, share)
-    d = draw[:n]
+    d, _ = _draw(pj, weight, 60, 16, u)
+    n = len(d)
     uniq = np.empty(n, np.int64)
     inv = np.empty(n, np.int64)
     k = vs.unique_runs(d, uniq, inv)
