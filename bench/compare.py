@@ -299,7 +299,8 @@ def igi_budget_run(setup: bq.SceneSetup, params, budgets: list[float], converged
     that many local worker processes (wall clock only), else in this process."""
     from igi.worker.renderer import Renderer
 
-    warm_up(setup, params)
+    if not workers:  # (the workers warm up in _render_on_workers)
+        warm_up(setup, params)
     t0 = time.perf_counter()
     renderer = Renderer(setup.scene) if not workers else None
     setup_s = time.perf_counter() - t0
@@ -366,7 +367,7 @@ def _render_on_workers(setup: bq.SceneSetup, params, workers: int, on_frame, sta
     from igi.master.local_workers import local_cluster
 
     t0 = time.perf_counter()
-    with local_cluster(setup.scene, workers, task_pixels=None) as cluster:  # task sizes as igi render's
+    with local_cluster(setup.scene, workers) as cluster:  # the broker's task size, as igi render's default
         cluster.broker.render_sequence(replace(params, seed=(int(params.seed) + 99991) % 2**31), frames=1,
                                        width=max(1, setup.width // 4), height=max(1, setup.height // 4))
         startup_s = time.perf_counter() - t0

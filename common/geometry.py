@@ -8,6 +8,7 @@ few float32 ulps of the (centred) coordinate.
 from __future__ import annotations
 
 import logging
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -161,19 +162,28 @@ class Geometry:
         self._fn32 = self.face_normal.astype(np.float32)
         self._any_smooth = bool(self.smooth.any())
         self._tri_normals = self.vertex_normals[self.faces].astype(np.float32)
-        device = rtc.EmbreeDevice()
-        self._embree = rtcs.EmbreeScene(device)  # closest hits: robust traversal (no ray slips through an edge)
+        self._device = rtc.EmbreeDevice()
+        self._local = local
+        self._embree = rtcs.EmbreeScene(self._device)  # closest hits: robust (no ray slips through an edge)
         self._mesh = TriangleMesh(self._embree, local)
-        # Shadow rays on a second BVH without Embree's robust mode: 20% faster occlusion queries
-        # (cornell-box-sphere; 9% grey-white-room), and a shadow ray through a shared edge
-        # decides differently about once in a million (3 of a frame's 3.9M, 7 of 6.6M) — where
-        # an eye ray slipping through would show the background, a shadow ray adds one clamped VPL.
-        self._shadow = rtcs.EmbreeScene(device, robust=False)
-        self._shadow_mesh = TriangleMesh(self._shadow, local)
-        # Embree builds a BVH on its first query: both now, not inside the first frame.
-        ray = np.zeros((1, 3), np.float32)
-        self._embree.run(ray, ray + 1, output=1)
-        self._shadow.run(ray, ray + 1, query="OCCLUDED", dists=np.zeros(1, np.float32))
+        self._embree.run(*_ONE_RAY, output=1)  # Embree builds a BVH on its first query: now
+        self._shadow = None  # shadow_bvh(): made on first use (the master's picking never needs it)
+        self._shadow_lock = threading.Lock()
+
+    def shadow_bvh(self):
+        """The BVH of the shadow rays, built on first use (Renderer builds it up front): the
+        same triangles without Embree's robust mode — occlusion queries 20% faster
+        (cornell-box-sphere; 9% grey-white-room), and a shadow ray through a shared edge
+        decides differently about once in a million (3 of a frame's 3.9M, 7 of 6.6M). Where an
+        eye ray slipping through would show the background, a shadow ray adds one clamped VPL."""
+        if self._shadow is None:
+            with self._shadow_lock:
+                if self._shadow is None:
+                    scene = rtcs.EmbreeScene(self._device, robust=False)
+                    self._shadow_mesh = TriangleMesh(scene, self._local)
+                    scene.run(*_ONE_RAY, query="OCCLUDED", dists=np.zeros(1, np.float32))
+                    self._shadow = scene
+        return self._shadow
 
     # -- queries ---------------------------------------------------------------------------
     def intersect(self, origins: np.ndarray, directions: np.ndarray,
@@ -209,7 +219,7 @@ class Geometry:
         self.counters["occluded_rays"] += len(o)
         if self.record is not None:
             self.record.append(("occluded", o, d, dist))
-        r = self._shadow.run(o, d, query="OCCLUDED", dists=dist)
+        r = self.shadow_bvh().run(o, d, query="OCCLUDED", dists=dist)
         return r != -1
 
     def occluded_local(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray) -> np.ndarray:
@@ -222,7 +232,7 @@ class Geometry:
         d = np.ascontiguousarray(d, dtype=np.float32)
         if self.record is not None:
             self.record.append(("occluded", o, d, dist))
-        return self._shadow.run(o, d, query="OCCLUDED", dists=dist) != -1
+        return self.shadow_bvh().run(o, d, query="OCCLUDED", dists=dist) != -1
 
     def visible(self, x: np.ndarray, nx: np.ndarray, y: np.ndarray, ny: np.ndarray | None) -> np.ndarray:
         """Mutual visibility of surface points x and y (normals give the offset side)."""
@@ -262,7 +272,8 @@ class Geometry:
         import time
 
         embree = getattr(self._embree, "inner", self._embree)  # never the timing wrapper
-        shadow = getattr(self._shadow, "inner", self._shadow)
+        shadow = self.shadow_bvh()
+        shadow = getattr(shadow, "inner", shadow)
         t0 = time.perf_counter()
         for kind, o, d, dist in batches:
             if kind == "intersect":
@@ -276,7 +287,8 @@ class Geometry:
         ``intersect_seconds``, ``occluded_seconds``). Off by default, and then nothing is
         measured: the queries call Embree directly."""
         inner = getattr(self._embree, "inner", self._embree)
-        shadow = getattr(self._shadow, "inner", self._shadow)
+        shadow = self.shadow_bvh()
+        shadow = getattr(shadow, "inner", shadow)
         self._embree = _TimedEmbree(inner, self.counters) if on else inner
         self._shadow = _TimedEmbree(shadow, self.counters) if on else shadow
 
@@ -321,6 +333,9 @@ class Geometry:
             good = ln > 1e-12
             n[np.nonzero(sm)[0][good]] = ns[good] / ln[good, None]
         return pos, n, uv
+
+
+_ONE_RAY = (np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32))  # a query that builds a BVH
 
 
 class _TimedEmbree:

@@ -44,9 +44,13 @@ class LocalWorkers:
     def __init__(self, endpoint: str, count: int, threads: int = 1, quiet: bool = True,
                  curve_keys: str | None = None):
         self.procs: list[subprocess.Popen] = []
-        for i in range(count):
-            self.procs.append(subprocess.Popen(worker_command(endpoint, threads, quiet, f"local{i}", curve_keys),
-                                               env=worker_env(), stdin=subprocess.DEVNULL))
+        try:
+            for i in range(count):
+                self.procs.append(subprocess.Popen(worker_command(endpoint, threads, quiet, f"local{i}", curve_keys),
+                                                   env=worker_env(), stdin=subprocess.DEVNULL))
+        except BaseException:  # the ones already started do not outlive a failed start
+            self.stop()
+            raise
 
     def check(self) -> None:
         for p in self.procs:
@@ -96,17 +100,20 @@ class LocalCluster:
 
 @contextmanager
 def local_cluster(scene, count: int, threads: int = 1, **broker_kw):
-    """A master on loopback (``master.broker.Broker``, with ``broker_kw``) and ``count`` local
-    worker processes, every one joined; on exit both are stopped. Should every worker exit, the
-    master is stopped, which cancels its frames (a waiting caller gets ``FrameCancelled``, not a
-    hang)."""
+    """A master on loopback (``master.broker.Broker``, with ``broker_kw``) and ``count`` >= 1
+    local worker processes, every one joined (one that dies first: :class:`UsageError`); on
+    exit both are stopped. Should every worker exit later, the master is stopped, which cancels
+    its frames (a waiting caller gets ``FrameCancelled``, not a hang)."""
     from .broker import Broker
 
+    if count < 1:
+        raise UsageError(f"a local cluster needs at least one worker, not {count}")
     with Broker(scene, bind="tcp://127.0.0.1:*", **broker_kw) as broker:
         workers = None
         done = threading.Event()
         try:
             workers = LocalWorkers(broker.endpoint, count, threads=threads)
+            wait_workers(broker, workers, count)  # (it reports a worker that died while starting)
             cluster = LocalCluster(broker, workers)
 
             def watchdog():
@@ -115,8 +122,7 @@ def local_cluster(scene, count: int, threads: int = 1, **broker_kw):
                         cluster.all_exited.set()
                         broker.stop()
                         return
-            threading.Thread(target=watchdog, daemon=True).start()
-            wait_workers(broker, workers, count)
+            threading.Thread(target=watchdog, name="local-workers-watchdog", daemon=True).start()
             yield cluster
         finally:
             done.set()

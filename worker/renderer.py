@@ -140,6 +140,7 @@ class Renderer:
         self.scene = scene
         self.scene_version = scene_version
         self.geom = Geometry(scene)
+        self.geom.shadow_bvh()  # built now, not inside the first frame
         self.lights = LightSampler(scene, self.geom)
         # The plan decides which passes run; use_plan=False forces every pass on (benchmarks).
         self.plan = analyze(scene, self.geom, self.lights) if use_plan else None
