@@ -113,9 +113,7 @@ PARAMS: tuple[Param, ...] = (
           "this frame is a streamed view's first after a camera move (set by the stream, not by hand): "
           "it is shown once, so it takes at most moving_indirect_vpls indirect VPLs a set",
           "accumulate", viewer=False),
-    Param("ppm_alpha", float, 0.9,
-          "photon radius shrink per accumulated frame: r²ᵢ₊₁ = r²ᵢ(i+α)/(i+1) (also the glossy senders' "
-          "bound); < 1 converges, closer to 1 shrinks slower: less noise per frame over hundreds of frames",
+    Param("ppm_alpha", float, 2 / 3, "photon radius shrink per accumulated frame: r²ᵢ₊₁ = r²ᵢ(i+α)/(i+1)",
           "accumulate", 0.05, 1.0),
     Param("filter_frames", int, 32,
           "accumulated frames after which the discontinuity buffer is faded out (-1: always filter)",
