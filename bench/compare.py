@@ -362,14 +362,12 @@ def _render_on_workers(setup: bq.SceneSetup, params, workers: int, on_frame, sta
     then one small frame of another seed (as :func:`warm_up` in one process: each worker that
     takes a task has the scene decoded, its BVH built and its one-time costs paid; none of its
     sets is reused). The clock starts at the first measured frame; returns the start-up seconds."""
-    from dataclasses import replace
-
     from igi.master.local_workers import local_cluster
 
     t0 = time.perf_counter()
     with local_cluster(setup.scene, workers) as cluster:  # the broker's task size, as igi render's default
-        cluster.broker.render_sequence(replace(params, seed=(int(params.seed) + 99991) % 2**31), frames=1,
-                                       width=max(1, setup.width // 4), height=max(1, setup.height // 4))
+        p, w, h = bq.warm_up_frame(setup, params)
+        cluster.broker.render_sequence(p, frames=1, width=w, height=h)
         startup_s = time.perf_counter() - t0
         state["t0"], state["c0"] = time.perf_counter(), time.process_time()
         try:

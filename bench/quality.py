@@ -424,18 +424,26 @@ def fit_bias_noise(frames, errors) -> dict | None:
 
 # ---------------------------------------------------------------------------- rendering
 
-def warm_up(setup: "SceneSetup", params) -> float:
-    """One small frame on a throwaway Renderer (another seed), so measured runs do not pay this
-    process's one-time costs (lazy imports, first-call allocations); a later Renderer does not
-    see its cached VPL/photon sets."""
+def warm_up_frame(setup: "SceneSetup", params) -> tuple:
+    """(params, width, height) of the warm-up frame: ¼ size, another seed (its sets never reused)."""
     from dataclasses import replace
 
+    from igi.common.frame import frame_seed
+
+    return (replace(params, seed=frame_seed(params.seed, 99991)), max(1, setup.width // 4),
+            max(1, setup.height // 4))
+
+
+def warm_up(setup: "SceneSetup", params) -> float:
+    """One small frame on a throwaway Renderer (:func:`warm_up_frame`), so measured runs do not
+    pay this process's one-time costs (lazy imports, first-call allocations); a later Renderer
+    does not see its cached VPL/photon sets."""
     from igi.master.inprocess import render_local
     from igi.worker.renderer import Renderer
 
     t0 = time.perf_counter()
-    render_local(setup.scene, replace(params, seed=(int(params.seed) + 99991) % 2**31), frames=1,
-                 width=max(1, setup.width // 4), height=max(1, setup.height // 4), renderer=Renderer(setup.scene))
+    p, w, h = warm_up_frame(setup, params)
+    render_local(setup.scene, p, frames=1, width=w, height=h, renderer=Renderer(setup.scene))
     return time.perf_counter() - t0
 
 

@@ -655,24 +655,21 @@ def _accumulating_set_cost(scene, params, cam, fov: float, w: int, h: int) -> fl
     a worker of a large cluster, holding one k, pays per frame (set builds while accumulating;
     a moving camera keeps its sets). A renderer of its own that has asked for that k alone (its
     cache predicts from the k's asked for last), the view's one-time pilot not timed."""
-    import numpy as np
-
     from igi.common.params import make_params, params_to_dict
     from igi.master.accumulation import sequence_spec
-    from igi.worker.renderer import Renderer
+    from igi.worker.renderer import Renderer, consistent_frame
     from igi.worker.vpl_importance import View
 
     renderer = Renderer(scene)
     pdict = params_to_dict(params)
-    view = View(tuple(np.asarray(cam, np.float64).ravel()), fov, w, h)
+    view = View.of(cam, fov, w, h)
     k = 0
     for i in range(ACCUMULATED_FRAMES + 1):
         if i == 1:
             c0 = time.process_time()
         spec = sequence_spec(i, i, cam, fov, w, h, pdict)
         p = make_params(**spec.params)
-        renderer.vpl_set(spec.seed, k, p, roulette=p.consistent and (i > 0 or p.consistent_first_frame),
-                         view=view, index=i)
+        renderer.vpl_set(spec.seed, k, p, roulette=consistent_frame(p, i), view=view, index=i)
         renderer.photon_set(spec.seed, k, p, index=i)
     return (time.process_time() - c0) / ACCUMULATED_FRAMES
 

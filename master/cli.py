@@ -197,7 +197,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         r = Renderer(scene)
         print("\n".join(r.plan.lines()))
         cam, fov_x, w, h = resolve_camera(scene, None, args.width, args.height)
-        view = View(tuple(np.asarray(cam, np.float64).ravel()), fov_x, w, h)
+        view = View.of(cam, fov_x, w, h)
         if r.importance_on(params, view):
             r.portals(params, view)
             r.emitter_pmf(params, view)

@@ -62,6 +62,13 @@ def set_params(params: Params) -> Params:
     return replace(params, indirect_vpls=min(params.indirect_vpls, params.moving_indirect_vpls))
 
 
+def consistent_frame(params: Params, index: int) -> bool:
+    """Whether accumulation frame ``index`` takes the consistent estimators (walks of any
+    length, the clamp's energy given back): from the first frame on unless the view is moving
+    (the stream's frames at index 0)."""
+    return params.consistent and (index > 0 or params.consistent_first_frame)
+
+
 def frame_clamp_distance2(params: Params, diagonal: float, index: int, consistent: bool) -> float:
     """The squared clamp distance of accumulation frame ``index``: with the clamp's energy
     given back (``consistent``), the larger of the clamp and clamp_first/(index + 1) of the
@@ -95,13 +102,15 @@ def _set_blocks(keys: list[tuple], params: Params) -> tuple[int, list[int]]:
 LOOKAHEAD_FRAMES = 16  # at most this many later accumulation frames' sets in one batch
 
 
-def later_frames(seed: int, index: int, params: Params) -> list[tuple[int, int]]:
-    """(seed, index) of the accumulation frames after frame ``index`` whose sets a batch may
-    build ahead (set_cache.FrameSets.get): as many as the accumulation has already shown, at
-    most LOOKAHEAD_FRAMES; none for a frame outside the master's sequencing."""
+def later_frames(seed: int, index: int, params: Params, config: tuple = ()) -> list[tuple]:
+    """The set cache's frame keys (``config``, seed, index) of the accumulation frames after
+    frame ``index`` whose sets a batch may build ahead (set_cache.FrameSets.get): as many as the
+    accumulation has already shown, at most LOOKAHEAD_FRAMES; none for a frame outside the
+    master's sequencing."""
     if index <= 0 or seed != frame_seed(params.seed, index):
         return []
-    return [(frame_seed(params.seed, i), i) for i in range(index + 1, index + 1 + min(index, LOOKAHEAD_FRAMES))]
+    return [(config, frame_seed(params.seed, i), i)
+            for i in range(index + 1, index + 1 + min(index, LOOKAHEAD_FRAMES))]
 
 
 class _StageTimer:
@@ -272,7 +281,7 @@ class Renderer:
                                   roulette=roulette and params.max_depth < 0)
 
         return self._frame_sets.get((config, seed, index), k, params.interleave ** 2, build,
-                                    [(config, s, i) for s, i in later_frames(seed, index, params)])
+                                    later_frames(seed, index, params, config))
 
     def photon_set(self, seed: int, k: int, params: Params, index: int = 0) -> PhotonSet:
         radius = default_radius(self.geom.diagonal, params.photon_radius)
@@ -290,7 +299,7 @@ class Renderer:
                                      params.specular_depth, targets=self._specular_targets)
 
         return self._frame_sets.get((config, seed, index), k, params.interleave ** 2, build,
-                                    [(config, s, i) for s, i in later_frames(seed, index, params)])
+                                    later_frames(seed, index, params, config))
 
     @property
     def stats(self) -> dict:
@@ -309,11 +318,8 @@ class Renderer:
         xs, ys = tile.pixels(n, spec.width, spec.height)
         p = len(xs)
         index = accumulation_index(spec)
-        view = View(tuple(np.asarray(spec.camera_to_world, np.float64).ravel()), spec.fov_x, spec.width,
-                    spec.height)
-        # The consistent estimators (walks of any length, the clamp's energy given back) from the
-        # first frame on unless the view is moving (the stream's frames at index 0).
-        consistent = params.consistent and (index > 0 or params.consistent_first_frame)
+        view = View.of(spec.camera_to_world, spec.fov_x, spec.width, spec.height)
+        consistent = consistent_frame(params, index)
         with self._stage("VPL set"):
             vpls = self.vpl_set(spec.seed, tile.k, params, roulette=consistent, view=view, index=index)
         with self._stage("eye paths"):

@@ -56,6 +56,11 @@ class View:
     width: int
     height: int
 
+    @staticmethod
+    def of(camera_to_world, fov_x: float, width: int, height: int) -> "View":
+        """The view of a camera-to-world matrix (4×4 or 16 numbers)."""
+        return View(tuple(np.asarray(camera_to_world, np.float64).ravel()), fov_x, width, height)
+
     @property
     def key(self) -> tuple:
         return (tuple(round(float(v), 9) for v in self.to_world), round(float(self.fov_x), 9),

@@ -90,13 +90,13 @@ def test_a_moving_cameras_frame_decides_importance_sampling_from_the_still_frame
 def test_later_frames_are_offered_as_many_as_the_accumulation_has_shown_and_only_in_sequence():
     p = make_params(seed=11)
     assert later_frames(frame_seed(11, 0), 0, p) == []  # a first frame: the camera may move next
-    assert later_frames(frame_seed(11, 1), 1, p) == [(frame_seed(11, 2), 2)]
-    assert later_frames(frame_seed(11, 3), 3, p) == [(frame_seed(11, i), i) for i in (4, 5, 6)]
+    assert later_frames(frame_seed(11, 1), 1, p, "cfg") == [("cfg", frame_seed(11, 2), 2)]
+    assert later_frames(frame_seed(11, 3), 3, p) == [((), frame_seed(11, i), i) for i in (4, 5, 6)]
     far = later_frames(frame_seed(11, 100), 100, p)
-    assert len(far) == LOOKAHEAD_FRAMES and far[0] == (frame_seed(11, 101), 101)
+    assert len(far) == LOOKAHEAD_FRAMES and far[0] == ((), frame_seed(11, 101), 101)
     assert later_frames(frame_seed(11, 3) + 1, 3, p) == []  # not the master's sequencing
     wrap = make_params(seed=2**31 - 2)  # seeds wrap inside their declared range
-    assert later_frames(frame_seed(2**31 - 2, 1), 1, wrap) == [(0, 2)]
+    assert later_frames(frame_seed(2**31 - 2, 1), 1, wrap) == [((), 0, 2)]
 
 
 def _same(a, b) -> None:
@@ -114,7 +114,7 @@ def test_sets_built_ahead_for_later_frames_equal_the_sets_built_alone(monkeypatc
     their own frame) is bit for bit the set built when its frame comes."""
     scene = load_scene(bundled.resolve("cornell-box"))
     cam, fov_x, w, h = resolve_camera(scene, None, 32, 24)
-    view = View(tuple(np.asarray(cam, np.float64).ravel()), fov_x, w, h)
+    view = View.of(cam, fov_x, w, h)
     params = make_params(interleave=3, photons=300, vpl_importance=1, seed=5)
     frames = [(frame_seed(5, i), i) for i in range(1, 8)]
 
