@@ -596,7 +596,7 @@ def report(results: dict, model: dict, args) -> str:
     mf = results.get("merge_filter", {})
     if mf:
         a("Measured wall clock here (merge then finish of one frame, "
-          f"{model['master_threads_here']} threads on this loaded 2-core machine): " + ", ".join(
+          f"{model['master_threads_here']} threads on this {results['machine']['cores']}-core machine): " + ", ".join(
               f"{k}: {v['merge_filter_mpixel_s']:.1f} Mpixel/s" for k, v in mf.items()) + ".")
         a("")
     for key, preds in model["predictions"].items():
@@ -716,7 +716,7 @@ thread (one FIFO server: zmq receive, protocol decode, validation + lz4 + storin
 bookkeeping, next dispatch); the finishing thread (image: a serial share plus a share spread
 over the master's threads; accumulation), frames in order. CPUs are processor-sharing hosts:
 remote workers each have their own; the validation runs put master, workers and the measured
-background load on one 2-core host. Bottleneck: the resource with the highest utilization
+background load on the one host they ran on. Bottleneck: the resource with the highest utilization
 in the measured window when it is >= 85% busy; otherwise "task supply" (fewer tasks in
 flight than worker threads) or "frame latency" (the pipeline depth bounds the rate).
 
