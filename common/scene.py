@@ -93,11 +93,15 @@ def kind_in(kind: np.ndarray, kinds: tuple) -> np.ndarray:
     this runs per bounce of every tile). Codes outside the known kinds are in no set."""
     table = _KIND_TABLES.get(kinds)
     if table is None:
-        table = np.zeros(_N_KINDS + 1, bool)  # the last row: any unknown code
-        table[list(kinds)] = True
+        # one entry per byte value: int8 codes are read as their bytes (negative codes land in
+        # 128…255, never a known kind), so an int8 array takes one lookup and no range checks
+        table = np.zeros(256, bool)
+        table[[c for c in kinds if 0 <= c < _N_KINDS]] = True
         _KIND_TABLES[kinds] = table
     k = np.asarray(kind)
-    idx = np.where((k >= 0) & (k < _N_KINDS), k, _N_KINDS)
+    if k.dtype == np.int8:
+        return table.take(k.view(np.uint8))
+    idx = np.where((k >= 0) & (k < _N_KINDS), k, 255)
     return table[idx]
 
 

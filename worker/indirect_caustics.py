@@ -91,5 +91,5 @@ def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: E
         if len(k):
             r = rows[k]
             # each row's chain ends once (here or as a miss above): its rows are unique
-            out[r] += np.nan_to_num(thr[k] * l_y / np.maximum(albedo[r], 1e-6), nan=0.0, posinf=0.0, neginf=0.0)
+            out[r] += bsdf.finite_or_zero(thr[k] * l_y / np.maximum(albedo[r], 1e-6))
     return out

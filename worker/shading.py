@@ -587,7 +587,7 @@ class _VPLColumns:
             lam = (sp.kind == DIFFUSE) & (not force_general)
             rows = self.surf_rows
             self.side[rows] = np.where(vpls.wi_local[rows, 2] >= 0, 1.0, -1.0)
-            color[rows[lam]] *= sp.diffuse[lam] / np.pi
+            color[rows[lam]] *= sp.diffuse[lam].astype(np.float32) / np.float32(np.pi)  # ρ/π as it always rounded
             self.glossy[rows[~lam]] = True
             if not lam.all():
                 reg = regularized_senders(sp, lobe_alpha)
@@ -821,7 +821,7 @@ def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoin
     pl = emitter_pdf(lights, hits, v, d, LightMIS(direct_count, env_guide, emitter_pmf))
     w_mis = np.where(delta, 1.0, pdf_b ** 2 / np.maximum(pdf_b ** 2 + pl ** 2, 1e-300))
     contrib = weight * le * w_mis[:, None] / np.maximum(albedo[ok], 1e-6)
-    out[ok] = np.nan_to_num(contrib, nan=0.0, posinf=0.0, neginf=0.0)
+    out[ok] = bsdf.finite_or_zero(contrib)
     return out
 
 
@@ -870,7 +870,7 @@ def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: 
     share = np.clip(1.0 - t * t / clamp_d2, 0.0, 1.0)
     rows = ok[sel][keep]
     contrib = weight[sel][keep] * l_y * (share / survive)[:, None] / np.maximum(albedo[rows], 1e-6)
-    out[rows] += np.nan_to_num(contrib, nan=0.0, posinf=0.0, neginf=0.0)  # one ray per end point: rows unique
+    out[rows] += bsdf.finite_or_zero(contrib)  # one ray per end point: rows unique
     return out
 
 
