@@ -27,6 +27,8 @@ class Bench:
 BENCHES: dict[str, Bench] = {b.name: b for b in [
     Bench("accuracy", "igi.bench.accuracy",
           "relMSE vs the Mitsuba references as frames accumulate (paper vs consistent), JSON + markdown"),
+    Bench("contention", "igi.bench.core_contention",
+          "one core's slowdown with N cores busy: compute-bound loop vs memory-streaming pass (many-core hosts)"),
     Bench("compare", "igi.bench.compare",
           "igi vs Mitsuba 3 path tracer at equal wall time (budgets), bias vs noise, flicker"),
     Bench("plan", "igi.bench.plan",

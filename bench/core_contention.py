@@ -54,15 +54,20 @@ def _run(kind: str, copies: int, reps: int) -> list[float]:
         return pool.map(fn, [reps] * copies)
 
 
-def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--copies", default=None, help="comma-separated copy counts (default 1,2,4,… up to the cores)")
-    p.add_argument("--compute-reps", type=int, default=300_000_000)
-    p.add_argument("--memory-reps", type=int, default=40)
-    a = p.parse_args()
+    p.add_argument("--compute-reps", type=int, default=300_000_000, help="iterations of the compute loop")
+    p.add_argument("--memory-reps", type=int, default=40, help="passes over the 64 MiB arrays")
+    p.add_argument("-o", "--out", default="artifacts/bench-contention", help="output prefix: writes PREFIX.json")
+
+
+def run(a: argparse.Namespace) -> int:
     cores = os.cpu_count() or 1
     counts = [int(c) for c in a.copies.split(",")] if a.copies else sorted({1, 2, 4, 8, 16, cores} & set(range(1, cores + 1)))
-    out = {"machine": {"cpu": platform.processor() or platform.machine(), "cores": cores}, "points": []}
+    out = {"benchmark": "contention", "machine": {"cpu": platform.processor() or platform.machine(), "cores": cores,
+                                                  "python": platform.python_version(), "numpy": np.__version__},
+           "settings": {"copies": counts, "compute_reps": a.compute_reps, "memory_reps": a.memory_reps},
+           "points": []}
     base = {}
     for kind, reps in (("compute", a.compute_reps), ("memory", a.memory_reps)):
         for n in counts:
@@ -72,8 +77,15 @@ def main() -> None:
             out["points"].append({"kind": kind, "copies": n, "mean_s": mean, "max_s": float(max(ts)),
                                   "inflation": mean / base[kind]})
             print(f"{kind:8s} {n:3d} copies: {mean:.3f} s each (x{mean / base[kind]:.2f})", flush=True)
-    print(json.dumps(out))
+    path = a.out + ".json"
+    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+    with open(path, "w") as f:
+        json.dump(out, f, indent=2)
+    print(f"wrote {path}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_arguments(parser)
+    raise SystemExit(run(parser.parse_args()))
