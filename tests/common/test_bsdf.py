@@ -454,7 +454,13 @@ def test_gather_textures_null_and_mixed_dispatch():
     np.testing.assert_allclose(sp.cond_k[2], [3.0, 2.4, 1.8], rtol=1e-6)
     assert sp.beckmann[3] and not sp.beckmann[2]
     np.testing.assert_allclose(sp.spec_weight[3], 1.0 / (0.2 + 1.0), rtol=1e-6)
-    assert sp.diffuse.dtype == np.float32 and sp.kind.dtype == np.int8
+    assert sp.kind.dtype == np.int8 and sp.alpha.dtype == np.float32  # alpha is compared with thresholds
+    # colours and IORs: float64 holding their float32 values (texels too), handed to the
+    # kernels by pack() without a copy
+    for a in (sp.diffuse, sp.specular, sp.transmittance, sp.eta, sp.cond_eta, sp.cond_k, sp.spec_weight):
+        assert a.dtype == np.float64 and np.array_equal(a, a.astype(np.float32))
+    packed = bsdf.pack(sp)
+    assert packed[1] is sp.diffuse and packed[5] is sp.eta and packed[6] is sp.cond_eta
     # mixed-kind calls equal per-point single-kind calls
     rng = _rng(14)
     n = len(ids)
