@@ -625,3 +625,11 @@ def test_a_subset_by_a_mask_of_the_wrong_length_is_refused():
     assert len(sp.subset(np.array([3, 0]))) == 2
     with pytest.raises(IndexError):
         sp.subset(np.array([True, False, True]))
+
+
+def test_finite_or_zero_equals_nan_to_num_with_every_non_finite_zeroed_bit_for_bit():
+    a = np.array([[np.nan, np.inf, -np.inf], [0.0, -0.0, 1e-308], [-1e308, 5.0, np.float64(np.finfo(float).max)]])
+    got = bsdf.finite_or_zero(a)
+    want = np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)
+    assert got.dtype == want.dtype and np.array_equal(got.view(np.int64), want.view(np.int64))
+    assert bsdf.finite_or_zero(np.zeros((0, 3))).shape == (0, 3)

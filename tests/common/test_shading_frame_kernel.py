@@ -46,6 +46,10 @@ def test_transforms_broadcast_one_normal_and_take_float32_and_empty_input():
 
 
 def test_kind_in_is_isin_for_every_code_and_rejects_unknown_codes():
-    codes = np.arange(-3, 20).astype(np.int8)
+    codes = np.concatenate([np.arange(-3, 20), [-128, 127]]).astype(np.int8)
     for kinds in (SPECULAR_KINDS, (2, 6), (0,), ()):
-        np.testing.assert_array_equal(kind_in(codes, kinds), np.isin(codes, kinds) & (codes >= 0) & (codes <= 9))
+        want = np.isin(codes, kinds) & (codes >= 0) & (codes <= 9)
+        np.testing.assert_array_equal(kind_in(codes, kinds), want)
+        # codes of another integer type take the range-checked path (300: past a byte's table)
+        wide = np.concatenate([codes.astype(np.int64), [300, -300]])
+        np.testing.assert_array_equal(kind_in(wide, kinds), np.concatenate([want, [False, False]]))
