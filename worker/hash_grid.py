@@ -3,14 +3,14 @@
 Photons are binned into a regular grid of cell size 2r; only occupied cells are stored
 (a sorted array of collision-free integer cell keys with the photon ranges behind them),
 so a query ball of radius r touches exactly the 2x2x2 cells around its centre and is
-answered with 8 binary-search lookups. Building is vectorized numpy; the query is the compiled
-kernel of worker.kernels.photon_query (numpy for the rank-mapped key space of huge extents).
+answered with 8 binary-search lookups. Building (worker.kernels.hash_grid_build) and the query
+(worker.kernels.photon_query) are compiled; numpy serves the rank-mapped key space of huge extents.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from .kernels import photon_query
+from .kernels import hash_grid_build, photon_query
 
 # Cell coordinates beyond this would overflow int64 arithmetic (and floats lost integer
 # precision long before); photons there are refused, queries there simply find nothing.
@@ -41,8 +41,6 @@ class HashGrid:
         if not (np.isfinite(radius) and radius > 0):
             raise ValueError(f"radius must be finite and > 0, got {radius}")
         pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-        if not np.all(np.isfinite(pts)):
-            raise ValueError("photon positions must be finite")
         self.points = pts
         self.radius = radius
         self.cell_size = 2.0 * radius
@@ -55,6 +53,23 @@ class HashGrid:
             self._order = np.empty(0, np.int64)
             self._occupied = np.empty(0, np.uint8)
             return
+        # The usual case in one compiled call; a huge key space (tiny radius, far-apart photons)
+        # is ranked per axis below.
+        status, origin, ext, order, keys, starts, counts, occupied = hash_grid_build.build(
+            pts, self._inv, _CELL_LIMIT, _RADIX_LIMIT, _BITMAP_CELLS)
+        if status == hash_grid_build.NON_FINITE:
+            raise ValueError("photon positions must be finite")
+        if status == hash_grid_build.OVERFLOW:
+            raise ValueError("photon positions too large for this radius (cell index overflow)")
+        if status == hash_grid_build.OK:
+            self._axes, self._origin, self._ext = None, origin, ext
+            self._order, self._keys, self._starts, self._counts, self._occupied = order, keys, starts, counts, occupied
+            return
+        self._build_numpy(pts)
+
+    def _build_numpy(self, pts: np.ndarray) -> None:
+        """The build in vectorized numpy, any key space (huge ones ranked per axis; the compiled
+        build's oracle in the tests)."""
         cells = _cells(pts, self._inv)
         if np.any(cells[:, 0] == np.iinfo(np.int64).min):
             raise ValueError("photon positions too large for this radius (cell index overflow)")

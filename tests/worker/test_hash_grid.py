@@ -216,3 +216,54 @@ def test_occupancy_bitmap_skips_only_cells_without_photons():
     assert len(with_bits) > 100
     grid._occupied = np.empty(0, np.uint8)
     assert _pairs(*grid.query(qs)) == with_bits == _kdtree_pairs(pts, qs, 0.02)
+
+
+def _numpy_built(points, r) -> HashGrid:
+    g = HashGrid(np.zeros((0, 3)), r)  # then the numpy build over the same points
+    g.points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    g._build_numpy(g.points)
+    return g
+
+
+@pytest.mark.parametrize("case", ["uniform", "clustered", "lattice", "one photon", "one cell", "negative",
+                                  "duplicates", "wide box"])
+def test_compiled_build_equals_the_numpy_build(case):
+    """The compiled build (worker.kernels.hash_grid_build) gives the numpy build's grid: key
+    space, stable photon order, cell ranges and occupancy bitmap, bit for bit."""
+    rng = np.random.default_rng(7)
+    r = 0.05
+    pts = {"uniform": rng.random((700, 3)),
+           "clustered": rng.normal(0, 0.02, (500, 3)) + rng.random((5, 3))[rng.integers(0, 5, 500)],
+           "lattice": np.stack(np.meshgrid(*(np.arange(-3, 4) * r,) * 3, indexing="ij"), -1).reshape(-1, 3),
+           "one photon": np.array([[0.3, -0.2, 7.0]]),
+           "one cell": np.full((9, 3), 0.01),
+           "negative": -rng.random((300, 3)) * 40,
+           "duplicates": np.repeat(rng.random((20, 3)), 6, axis=0),
+           "wide box": rng.random((200, 3)) * 2e3}[case]
+    got, want = HashGrid(pts, r), _numpy_built(pts, r)
+    assert got._axes is None and want._axes is None
+    for name in ("_origin", "_ext", "_order", "_keys", "_starts", "_counts", "_occupied"):
+        a, b = getattr(got, name), getattr(want, name)
+        assert a.dtype == b.dtype and np.array_equal(a, b), name
+    q = rng.random((50, 3)) if case != "negative" else -rng.random((50, 3)) * 40
+    for a, b in zip(got.query(q), want.query(q)):
+        assert np.array_equal(a, b)
+
+
+def test_compiled_build_refuses_non_finite_and_overflowing_photons():
+    with pytest.raises(ValueError, match="finite"):
+        HashGrid(np.array([[0.0, 0.0, 0.0], [np.nan, 0.0, 0.0]]), 0.1)
+    with pytest.raises(ValueError, match="finite"):
+        HashGrid(np.array([[np.inf, 0.0, 0.0]]), 0.1)
+    with pytest.raises(ValueError, match="overflow"):
+        HashGrid(np.array([[0.0, 0.0, 0.0], [1e300, 0.0, 0.0]]), 0.1)
+
+
+def test_huge_key_space_is_ranked_by_the_numpy_build():
+    """Photons so far apart for the radius that the box has >= 2^62 cells: the compiled build
+    hands over to the rank-mapped numpy build, and queries still find every neighbour."""
+    pts = np.array([[0.0, 0.0, 0.0], [1e15, 1e15, 1e15], [1e15 + 1e-4, 1e15, 1e15], [-3e14, 2e14, 5.0]])
+    g = HashGrid(pts, 1e-3)
+    assert g._axes is not None
+    pidx, qidx = g.query(pts)
+    assert _pairs(pidx, qidx) == _brute_pairs(pts, pts, 1e-3)
