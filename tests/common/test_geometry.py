@@ -67,3 +67,25 @@ def test_the_embree_timer_and_replay_cover_both_bvhs():
     geom._embree, geom._shadow = geom._embree.scene, geom._shadow.scene
     assert np.array_equal(geom.occluded(o, d, length), blocked)  # the timer changed nothing
     assert np.array_equal(geom.intersect(o, d).prim, hits.prim)
+
+
+def test_compiled_triangle_sampling_equals_the_numpy_form():
+    """Geometry.sample_triangles (common.kernels.triangle_sampling) gives the numpy form's
+    positions, normals (interpolated vertex normals on smooth meshes, the face normal else) and
+    uvs bit for bit, on scenes with smooth spheres and textured meshes, at the square's corners
+    and edges too."""
+    from tests.support.paths import SHARED
+
+    for path in (bundled.resolve("cornell-box"), SHARED / "scenes/cornell-box-sphere/scene.xml",
+                 SHARED / "scenes/modern-hall/scene.xml"):
+        geom = Geometry(load_scene(str(path)))
+        rng = np.random.default_rng(3)
+        n = 20_000
+        tri = rng.integers(0, len(geom.faces), n)
+        u = rng.random((n, 2))
+        u[:8] = [[0, 0], [1, 1], [0, 1], [1, 0], [0.5, 0], [0, 0.5], [1, 0.5], [0.5, 1]]
+        got = geom.sample_triangles(tri, u)
+        want = geom._sample_triangles_numpy(tri, u)
+        for a, b in zip(got, want):
+            assert a.shape == b.shape and np.array_equal(a, b)
+        assert geom.smooth[tri].any() or path == bundled.resolve("cornell-box")
