@@ -322,30 +322,6 @@ class Geometry:
                                  self.vertex_normals, idx, u, pos, nrm, uv)
         return pos, nrm, uv
 
-    def _sample_triangles_numpy(self, tri_idx: np.ndarray, u: np.ndarray) -> tuple:
-        """sample_triangles in numpy (the compiled kernel's oracle in the tests)."""
-        su = np.sqrt(u[:, 0])
-        b1 = 1 - su
-        b2 = u[:, 1] * su
-        tri = self._tri[tri_idx]
-        pos = (1 - b1 - b2)[:, None] * tri[:, 0] + b1[:, None] * tri[:, 1] + b2[:, None] * tri[:, 2]
-        f = self.faces[tri_idx]
-        vt = self.vertex_uvs
-        uv = (1 - b1 - b2)[:, None] * vt[f[:, 0]] + b1[:, None] * vt[f[:, 1]] + b2[:, None] * vt[f[:, 2]]
-        # Emission follows the shading normal, as in Mitsuba (a mirroring to_world flips the
-        # winding but not the vertex normals).
-        n = self.face_normal[tri_idx].copy()
-        sm = self.smooth[tri_idx]
-        if sm.any():
-            vn = self.vertex_normals
-            fs = f[sm]
-            w0, w1, w2 = (1 - b1 - b2)[sm, None], b1[sm, None], b2[sm, None]
-            ns = w0 * vn[fs[:, 0]] + w1 * vn[fs[:, 1]] + w2 * vn[fs[:, 2]]
-            ln = np.linalg.norm(ns, axis=1)
-            good = ln > 1e-12
-            n[np.nonzero(sm)[0][good]] = ns[good] / ln[good, None]
-        return pos, n, uv
-
 
 _ONE_RAY = (np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32))  # a query that builds a BVH
 
