@@ -174,6 +174,7 @@ def _material_tables(materials: list[Material]) -> dict:
     # materials with a texture to look up per point (gather runs per bounce: not recomputed there)
     tables["textured"] = [i for i, mat in enumerate(materials)
                           if mat.has_texture or not mat.specular_transmittance.is_constant]
+    tables["textured_mask"] = np.isin(np.arange(m + 1), tables["textured"])
     if len(_TABLES) > 16:
         _TABLES.clear()
     _TABLES[key] = (tuple(materials), tables)
@@ -215,6 +216,25 @@ def gather(materials: list[Material], mat_ids: np.ndarray, uv: np.ndarray | None
                          alpha=alpha, eta=eta, cond_eta=cond_eta, cond_k=cond_k, beckmann=beck,
                          nonlinear=nonlin, twosided=twos, spec_weight=spec_weight,
                          coat_row=coat)
+
+
+def material_points(materials: list[Material], mat_ids: np.ndarray, uv: np.ndarray | None) -> tuple[tuple, np.ndarray]:
+    """``(P, row)``: the kernels' packed parameters of the points with material indices
+    ``mat_ids`` (negative: NULL) at ``uv``, point j's parameters at row ``row[j]`` of ``P``.
+    Where none of the points' materials looks a texture up, P holds one row per material
+    (built once per materials list) and ``row`` is the material index: no per-point copies of
+    the 17 parameter arrays (chains run this per bounce on a few thousand points). Otherwise
+    ``pack(gather(...))`` with ``row = arange``; the values are the same either way."""
+    mat_ids = np.asarray(mat_ids, dtype=np.int64).ravel()
+    m = len(materials)
+    t = _material_tables(materials)
+    row = np.where((mat_ids < 0) | (mat_ids >= m), m, mat_ids)
+    if t["textured"] and len(row) and t["textured_mask"][row].any():
+        return pack(gather(materials, mat_ids, uv)), np.arange(len(row), dtype=np.int64)
+    P = t.get("packed")
+    if P is None:
+        P = t["packed"] = pack(gather(materials, np.r_[np.arange(m), -1], None))
+    return P, row
 
 
 def carrying(weight: np.ndarray) -> np.ndarray:

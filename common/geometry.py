@@ -253,14 +253,17 @@ class Geometry:
         a = np.abs(p - self.center)  # the columns' maxima: numpy's axis=1 reductions are slow
         return self.eps + 4 * np.finfo(np.float32).eps * np.maximum(np.maximum(a[:, 0], a[:, 1]), a[:, 2])
 
+    def offset_terms(self) -> tuple[np.ndarray, float, float]:
+        """``(center, eps, ulps)`` of :meth:`offset` for compiled callers (hit_surface.offset_point)."""
+        return self.center, float(self.eps), float(4 * np.finfo(np.float32).eps)
+
     def offset(self, p: np.ndarray, ng: np.ndarray, towards: np.ndarray,
                scale: np.ndarray | None = None) -> np.ndarray:
         """Move p off its surface, along ng, to the side ``towards`` points to."""
         if scale is None:
             p, ng, towards = rows3(p, ng, towards)
             out = np.empty(p.shape)
-            hit_surface.offset_points(p, ng, towards, self.center, float(self.eps),
-                                      float(4 * np.finfo(np.float32).eps), out)
+            hit_surface.offset_points(p, ng, towards, *self.offset_terms(), out)
             return out
         side = np.sign(np.einsum("ij,ij->i", ng, towards))
         side[side == 0] = 1.0

@@ -18,11 +18,11 @@ import numpy as np
 
 from igi.common import bsdf
 from igi.common.geometry import Geometry, Hits
-from igi.common.lights import LightSampler, to_local, to_world
+from igi.common.lights import LightSampler
 from igi.common.scene import SPECULAR_KINDS, Scene, kind_in
 
 from .caustics import PhotonSet
-from .shading import BSDFRays, EndPoints, reflected_radiance
+from .shading import BSDFRays, EndPoints, delta_bounce, reflected_radiance
 from .vpl import VPLSet
 
 
@@ -56,18 +56,11 @@ def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: E
     env = lights.environment()
     ends: list[tuple] = []
     for _ in range(specular_depth):
-        sp = bsdf.gather(scene.materials, mat_i, uv)
-        wo, w, _p, delta = bsdf.sample(sp, to_local(-d, ns), rng.random(len(rows)), rng.random((len(rows), 2)),
-                                       mode="radiance")
-        live = np.nonzero(delta & bsdf.carrying(w))[0]
-        rows, thr, seg = rows[live], thr[live] * w[live], seg[live] + 1
-        d = to_world(wo[live], ns[live])
-        if max_depth >= 0:
-            keep = np.nonzero(seg <= max_depth)[0]
-            rows, thr, seg, d, live = rows[keep], thr[keep], seg[keep], d[keep], live[keep]
+        rows, thr, seg, d, origin = _delta_bounce(scene, geom, rows, thr, seg, d, pos, ns, ng, mat_i, uv, max_depth,
+                                                  rng)
         if len(rows) == 0:
             break
-        h = geom.intersect(geom.offset(pos[live], ng[live], d), d)
+        h = geom.intersect(origin, d)
         miss = np.nonzero(~h.valid)[0]
         if len(miss) and np.any(env > 0):
             np.add.at(out, rows[miss], thr[miss] * env / np.maximum(albedo[rows[miss]], 1e-6))
@@ -93,3 +86,12 @@ def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: E
             # each row's chain ends once (here or as a miss above): its rows are unique
             out[r] += bsdf.finite_or_zero(thr[k] * l_y / np.maximum(albedo[r], 1e-6))
     return out
+
+
+def _delta_bounce(scene: Scene, geom: Geometry, rows, thr, seg, d, pos, ns, ng, mat_i, uv, max_depth: int,
+                  rng: np.random.Generator) -> tuple:
+    """The chain vertices' delta samples that carry light, as the next bounce's rays:
+    ``(rows, throughput, segments, directions, offset origins)``."""
+    src, thr, seg, d, origin = delta_bounce(scene.materials, geom, np.arange(len(rows)), pos, ns, ng, d, thr, seg,
+                                            mat_i, uv, max_depth, rng)
+    return rows[src], thr, seg, d, origin

@@ -27,6 +27,7 @@ from igi.common.scene import (DIFFUSE, NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGH
                               Scene, kind_in)
 
 from .caustics import PhotonSet, gather_photons
+from .kernels import specular_chain as sc
 from .kernels import vpl_gather as vg
 from .kernels import vpl_scoring as vs
 from .regularization import regularization_gain, regularized_senders
@@ -259,7 +260,8 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis
         if len(pix) == 0:
             break
         seg = bounce + 1  # segments of the path once this ray hits
-        o = geom.offset(pos, ng, dirs)
+        if bounce == 1:  # (later bounces' origins come offset from delta_bounce)
+            o = geom.offset(pos, ng, dirs)
         hits = geom.intersect(o, dirs)
         v = hits.valid
         if _allowed(seg, max_depth):
@@ -298,26 +300,52 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis
         di = np.nonzero(delta)[0]
         if (len(di) == 0 and len(lobe) == 0) or not _allowed(seg + 1, max_depth):
             break
-        n = len(di)
-        wo, weight, _pdf, _dl = bsdf.sample(sp.subset(di), wi[di], rng.random(n), rng.random((n, 2)),
-                                            mode="radiance")
-        lobe_main = main[lobe] & ~nd_mask[lobe]  # a plastic's layer keeps the pixel's main end point
-        pdf = np.zeros(n)
+        # the delta vertices' rays in one compiled pass; the split lobes' (rare) after them
+        src, thr_d, _seg, dirs_d, o_d = delta_bounce(scene.materials, geom, di, hpos, hns, hng, dirs, thr, None,
+                                                     hits.material, hits.uv, -1, rng, delta_only=False)
         if len(lobe):
+            lobe_main = main[lobe] & ~nd_mask[lobe]  # a plastic's layer keeps the pixel's main end point
             wo_l, weight_l, pdf_l, lobe_end = _sample_lobe(lobe_sp, wi[lobe], rng, light_mis)
             if lobe_end is not None:
                 out.append(_lobe_light_points(pix[lobe], hpos[lobe], hns[lobe], hng[lobe], wi[lobe], lobe_end,
                                               thr[lobe], seg, dist[lobe]))
-            di, wo, weight = np.concatenate([di, lobe]), np.concatenate([wo, wo_l]), np.concatenate([weight, weight_l])
-            pdf = np.concatenate([pdf, pdf_l])
-        keep = bsdf.carrying(weight)
-        new_main = np.concatenate([main[di[:n]], lobe_main])[keep]
-        mis_pdf = pdf[keep]
-        di = di[keep]
-        pix, thr, main, dist = pix[di], thr[di] * weight[keep], new_main, dist[di]
-        dirs = to_world(wo[keep], hns[di])
-        pos, ng = hpos[di], hng[di]
+            kl = np.flatnonzero(bsdf.carrying(weight_l))
+            src_l = lobe[kl]
+            dirs_l = to_world(wo_l[kl], hns[src_l])
+            main = np.concatenate([main[src], lobe_main[kl]])
+            mis_pdf = np.concatenate([np.zeros(len(src)), pdf_l[kl]])
+            thr = np.concatenate([thr_d, thr[src_l] * weight_l[kl]])
+            o = np.concatenate([o_d, geom.offset(hpos[src_l], hng[src_l], dirs_l)])
+            dirs = np.concatenate([dirs_d, dirs_l])
+            src = np.concatenate([src, src_l])
+        else:
+            main, mis_pdf, thr, o, dirs = main[src], np.zeros(len(src)), thr_d, o_d, dirs_d
+        pix, dist = pix[src], dist[src]
     return out
+
+
+def delta_bounce(materials: list, geom: Geometry, src: np.ndarray, pos: np.ndarray, ns: np.ndarray, ng: np.ndarray,
+                 d: np.ndarray, thr: np.ndarray, seg: np.ndarray | None, mat: np.ndarray, uv: np.ndarray,
+                 max_depth: int, rng: np.random.Generator, delta_only: bool = True) -> tuple:
+    """One bounce of mirror/glass chains (worker.kernels.specular_chain): the vertices ``src``
+    of the per-vertex arrays (position, normals, arrival direction ``d``, throughput, segments,
+    material, uv) sample their BSDF with ``rng`` (u1 for all, then u2); the delta samples that
+    carry light within ``max_depth`` come back as the next rays, in order:
+    ``(src, throughput, segments, directions, offset origins)``. ``seg`` None: not counted
+    (segments come back 1). ``delta_only`` False: a non-delta sample that carries light is kept
+    too (chains sample only pure delta kinds, whose samples are all delta or failed)."""
+    n = len(src)
+    u1, u2 = rng.random(n), rng.random((n, 2))
+    P, prow = bsdf.material_points(materials, mat, uv)
+    if seg is None:
+        seg = np.zeros(len(pos), np.int64)
+    out_src, out_seg = np.empty(n, np.int64), np.empty(n, np.int64)
+    out_thr, out_d, out_o = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+    a = np.ascontiguousarray
+    c = sc.delta_bounce(P, prow, a(src, np.int64), a(pos, np.float64), a(ns, np.float64), a(ng, np.float64),
+                        a(d, np.float64), a(thr, np.float64), a(seg, np.int64), u1, u2, int(max_depth),
+                        bool(delta_only), *geom.offset_terms(), out_src, out_thr, out_seg, out_d, out_o)
+    return out_src[:c], out_thr[:c], out_seg[:c], out_d[:c], out_o[:c]
 
 
 def _split_smooth(sp, nd_mask: np.ndarray, alpha: float):

@@ -57,17 +57,23 @@ def reconstruct(valid, prim, u, v, t, center, v0c, e1c, e2c, fn32, smooth, tri_n
             mesh[i] = -1
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def offset_point(px, py, pz, nx, ny, nz, tx, ty, tz, center, eps, ulps):
+    """Point p moved off its surface along ng = n to the side t points to, by the scene epsilon
+    plus ``ulps`` float32 ulps of the centred coordinate's largest component."""
+    m = max(max(max(0.0, abs(px - center[0])), abs(py - center[1])), abs(pz - center[2]))
+    scale = eps + ulps * m
+    dot = nx * tx + ny * ty + nz * tz
+    side = -1.0 if dot < 0.0 else 1.0  # 0 (and NaN): the normal's side
+    return px + nx * (side * scale), py + ny * (side * scale), pz + nz * (side * scale)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def offset_points(p, ng, towards, center, eps, ulps, out):
-    """``p`` moved off its surface along ``ng`` to the side ``towards`` points to, by the scene
-    epsilon plus ``ulps`` float32 ulps of the centred coordinate (common.geometry.Geometry.offset
-    fused: one pass instead of six numpy ones per bounce)."""
+    """``p`` moved off its surface along ``ng`` to the side ``towards`` points to
+    (:func:`offset_point` per row; common.geometry.Geometry.offset fused: one pass instead of
+    six numpy ones per bounce)."""
     for i in range(p.shape[0]):
-        m = 0.0
-        for a in range(3):
-            m = max(m, abs(p[i, a] - center[a]))
-        scale = eps + ulps * m
-        dot = ng[i, 0] * towards[i, 0] + ng[i, 1] * towards[i, 1] + ng[i, 2] * towards[i, 2]
-        side = -1.0 if dot < 0.0 else 1.0  # 0 (and NaN): the normal's side
-        for a in range(3):
-            out[i, a] = p[i, a] + ng[i, a] * (side * scale)
+        out[i, 0], out[i, 1], out[i, 2] = offset_point(p[i, 0], p[i, 1], p[i, 2], ng[i, 0], ng[i, 1], ng[i, 2],
+                                                       towards[i, 0], towards[i, 1], towards[i, 2], center,
+                                                       eps, ulps)
