@@ -51,7 +51,15 @@ TRANSMISSIVE_KINDS = (DIELECTRIC, THINDIELECTRIC)  # two-sided by nature; ``twos
 
 @dataclass
 class SurfacePoints:
-    """Per-point BSDF parameters (textures already looked up)."""
+    """Per-point BSDF parameters (textures already looked up).
+
+    Built by :func:`gather`, the points are *material-backed*: they hold each point's material
+    row and only the fields that differ from their material's (bitmap-textured colours, kinds
+    or roughness set by :meth:`replaced`); any other field is taken from the per-material tables
+    the first time it is read. A subset then copies one index array instead of thirteen (eye
+    paths, chains and set builds subset and concatenate points many times a tile). Built from
+    arrays (the constructor, ``dataclasses.replace``), every field is held. Fields are never
+    changed in place: :meth:`replaced` makes a changed copy."""
 
     kind: np.ndarray  # (N,) int8 codes from common.scene
     diffuse: np.ndarray  # (N, 3) diffuse reflectance
@@ -72,13 +80,59 @@ class SurfacePoints:
     # Stale if alpha, eta or beckmann are changed in place afterwards.
     coat_row: np.ndarray | None = None
 
+    @classmethod
+    def _backed(cls, tables: dict, rows: np.ndarray, held: dict) -> "SurfacePoints":
+        """Points of material-table ``rows`` (tables of :func:`_material_tables`), with the
+        fields ``held`` per point."""
+        sp = object.__new__(cls)
+        d = sp.__dict__
+        d["_tables"], d["_rows"], d["_held"] = tables, rows, tuple(held)
+        d.update(held)
+        return sp
+
+    def __getattr__(self, name: str):
+        # Only reached for a field a material-backed instance has not read yet.
+        d = self.__dict__
+        column = _TABLE_COLUMN.get(name)
+        tables = d.get("_tables")
+        if column is None or tables is None:
+            raise AttributeError(name)
+        value = d[name] = tables[column].take(d["_rows"], axis=0)
+        return value
+
     def __len__(self) -> int:
-        return len(self.kind)
+        rows = self.__dict__.get("_rows")
+        return len(self.kind) if rows is None else len(rows)
 
     def subset(self, mask_or_index) -> "SurfacePoints":
         rows = row_selector(mask_or_index, len(self))
+        d = self.__dict__
+        if "_tables" in d:
+            return SurfacePoints._backed(d["_tables"], take_rows(d["_rows"], rows),
+                                         {name: take_rows(d[name], rows) for name in d["_held"]})
         return SurfacePoints(*[None if v is None else take_rows(v, rows)
                                for v in (getattr(self, name) for name in _SP_FIELDS)])
+
+    def replaced(self, **changes) -> "SurfacePoints":
+        """A copy with the fields ``changes`` (per-point arrays) replaced; material-backed
+        points stay backed, holding the changed fields."""
+        d = self.__dict__
+        if "_tables" not in d:
+            return replace(self, **changes)
+        held = {name: d[name] for name in d["_held"]}
+        held.update(changes)
+        return SurfacePoints._backed(d["_tables"], d["_rows"], held)
+
+    @staticmethod
+    def concat(parts: list["SurfacePoints"]) -> "SurfacePoints":
+        """The points of ``parts`` in order (an optional field None in all: None)."""
+        first = parts[0].__dict__
+        if "_tables" in first and all(p.__dict__.get("_tables") is first["_tables"] for p in parts):
+            held = dict.fromkeys(name for p in parts for name in p.__dict__["_held"])
+            return SurfacePoints._backed(first["_tables"], np.concatenate([p.__dict__["_rows"] for p in parts]),
+                                         {name: np.concatenate([getattr(p, name) for p in parts]) for name in held})
+        return SurfacePoints(**{name: None if all(getattr(p, name) is None for p in parts)
+                                else np.concatenate([getattr(p, name) for p in parts]) for name in _SP_FIELDS})
 
     def packed(self) -> tuple:
         """The per-point parameter tuple ``P`` of the compiled kernels (see :func:`pack`)."""
@@ -116,6 +170,15 @@ def take_rows(v: np.ndarray, rows) -> np.ndarray:
 
 
 _SP_FIELDS = tuple(f.name for f in fields(SurfacePoints))  # subset() runs per bounce: no fields() call
+# The optional fields' class-level defaults (None) would shadow a material-backed instance's
+# lazy lookup (__getattr__ is reached only when normal lookup fails); the constructor keeps
+# its own copy of the defaults.
+for _name in ("spec_weight", "coat_row"):
+    delattr(SurfacePoints, _name)
+# SurfacePoints field -> the per-material table it is read from (material-backed points)
+_TABLE_COLUMN = {"kind": "kind", "diffuse": "diffuse", "specular": "specular", "transmittance": "transm",
+                 "alpha": "alpha", "eta": "eta", "cond_eta": "cond_eta", "cond_k": "cond_k", "beckmann": "beck",
+                 "nonlinear": "nonlin", "twosided": "twos", "spec_weight": "spec_weight", "coat_row": "coat"}
 _TABLES: dict = {}
 
 
@@ -182,40 +245,33 @@ def _material_tables(materials: list[Material]) -> dict:
 
 
 
-_GATHERED = ("kind", "diffuse", "specular", "transm", "alpha", "eta", "cond_eta", "cond_k", "beck", "nonlin", "twos",
-             "spec_weight", "coat")
-
-
 def gather(materials: list[Material], mat_ids: np.ndarray, uv: np.ndarray | None) -> SurfacePoints:
     """Build :class:`SurfacePoints` for points with material indices ``mat_ids`` (negative: NULL)
-    looking textures up at ``uv`` (N, 2) (None: uv = 0). Scalars come from per-material tables;
-    only bitmap textures are evaluated, once per material over that material's points."""
+    looking textures up at ``uv`` (N, 2) (None: uv = 0). The points are material-backed (fields
+    read from per-material tables when used); only bitmap textures are evaluated, once per
+    material over that material's points, into colours held per point."""
     mat_ids = np.asarray(mat_ids, dtype=np.int64).ravel()
     n = len(mat_ids)
     m = len(materials)
     ids = np.where((mat_ids < 0) | (mat_ids >= m), m, mat_ids)  # m = the appended NULL row
 
     t = _material_tables(materials)
-    # take() copies rows ~4x faster than fancy indexing (gather runs per bounce)
-    kind, diffuse, specular, transm, alpha, eta, cond_eta, cond_k, beck, nonlin, twos, spec_weight, coat = (
-        t[name].take(ids, axis=0) for name in _GATHERED)
-
+    held = {}
     textured = t["textured"]
-    if textured and n:
+    if textured and n and t["textured_mask"][ids].any():
         uvs = np.zeros((n, 2), np.float64) if uv is None else np.asarray(uv)
         for i in textured:
             sel = np.nonzero(ids == i)[0]
             if not len(sel):
                 continue
             mat = materials[i]
-            for tex, arr in ((mat.diffuse, diffuse), (mat.specular, specular),
-                             (mat.specular_transmittance, transm)):
+            for tex, name, column in ((mat.diffuse, "diffuse", "diffuse"), (mat.specular, "specular", "specular"),
+                                      (mat.specular_transmittance, "transmittance", "transm")):
                 if not tex.is_constant:
-                    arr[sel] = np.asarray(tex.eval(uvs[sel]), np.float32)  # a texel's float32 value
-    return SurfacePoints(kind=kind, diffuse=diffuse, specular=specular, transmittance=transm,
-                         alpha=alpha, eta=eta, cond_eta=cond_eta, cond_k=cond_k, beckmann=beck,
-                         nonlinear=nonlin, twosided=twos, spec_weight=spec_weight,
-                         coat_row=coat)
+                    if name not in held:  # take() copies rows ~4x faster than fancy indexing
+                        held[name] = t[column].take(ids, axis=0)
+                    held[name][sel] = np.asarray(tex.eval(uvs[sel]), np.float32)  # a texel's float32 value
+    return SurfacePoints._backed(t, ids, held)
 
 
 def material_points(materials: list[Material], mat_ids: np.ndarray, uv: np.ndarray | None) -> tuple[tuple, np.ndarray]:
@@ -430,7 +486,7 @@ def lobe_only(sp: SurfacePoints) -> SurfacePoints:
     rp = sp.kind == ROUGHPLASTIC
     if not rp.any():
         return sp
-    return replace(sp, kind=np.where(rp, ROUGHPLASTIC_LOBE, sp.kind).astype(sp.kind.dtype))
+    return sp.replaced(kind=np.where(rp, ROUGHPLASTIC_LOBE, sp.kind).astype(sp.kind.dtype))
 
 
 def specular_components(sp: SurfacePoints, wi: np.ndarray, mode: str = "radiance"):

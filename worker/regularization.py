@@ -47,7 +47,7 @@ def regularized_senders(surface: bsdf.SurfacePoints, lobe_alpha: float) -> bsdf.
     if lobe_alpha <= 0 or not np.any(glossy & (surface.alpha < lobe_alpha)):
         return surface
     alpha = np.where(glossy, np.maximum(surface.alpha, lobe_alpha), surface.alpha).astype(surface.alpha.dtype)
-    return replace(surface, alpha=alpha)
+    return surface.replaced(alpha=alpha)
 
 
 def _lobe_albedo(point: bsdf.SurfacePoints, alpha: float) -> np.ndarray:

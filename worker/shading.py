@@ -362,7 +362,7 @@ def _split_smooth(sp, nd_mask: np.ndarray, alpha: float):
     lobe_sp = sp.subset(lobe)  # the whole BSDF, for sampling the lobe
     kind = sp.kind.copy()
     kind[lobe[kind[lobe] == ROUGHPLASTIC]] = ROUGHPLASTIC_DIFFUSE
-    return replace(sp, kind=kind), lobe, lobe_sp, nd_mask & ~(smooth & (kind == ROUGHCONDUCTOR))
+    return sp.replaced(kind=kind), lobe, lobe_sp, nd_mask & ~(smooth & (kind == ROUGHCONDUCTOR))
 
 
 def _end_points_empty() -> EndPoints:

@@ -8,7 +8,7 @@ drawn from block k of one scrambled Sobol stream, so a set is a pure function of
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -239,10 +239,8 @@ def subset_vpls(vpls: VPLSet, rows: np.ndarray, power_scale: np.ndarray | None =
 
 
 def concat_surface(sps: list) -> "bsdf.SurfacePoints":
-    """Concatenate SurfacePoints batches field by field (an optional field None in all: None)."""
-    first = sps[0]
-    return type(first)(**{f.name: None if all(getattr(s, f.name) is None for s in sps)
-                          else np.concatenate([getattr(s, f.name) for s in sps]) for f in fields(first)})
+    """Concatenate SurfacePoints batches (an optional field None in all: None)."""
+    return bsdf.SurfacePoints.concat(sps)
 
 
 def concat_vpls(parts: list[VPLSet]) -> VPLSet:

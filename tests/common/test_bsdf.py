@@ -633,3 +633,79 @@ def test_finite_or_zero_equals_nan_to_num_with_every_non_finite_zeroed_bit_for_b
     want = np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)
     assert got.dtype == want.dtype and np.array_equal(got.view(np.int64), want.view(np.int64))
     assert bsdf.finite_or_zero(np.zeros((0, 3))).shape == (0, 3)
+
+
+def _mixed_materials():
+    from igi.common.scene import CONDUCTOR, DIELECTRIC, DIFFUSE, PLASTIC, ROUGHPLASTIC, Material, Texture
+
+    img = np.random.default_rng(2).random((3, 5, 3)).astype(np.float32)
+    return [Material("wall", DIFFUSE, diffuse=Texture.constant([0.7, 0.5, 0.3])),
+            Material("glass", DIELECTRIC, int_ior=1.33),
+            Material("gold", CONDUCTOR, eta=np.array([0.2, 0.4, 1.4]), k=np.array([3.6, 2.4, 1.8])),
+            Material("coat", ROUGHPLASTIC, alpha=0.2, diffuse=Texture.constant([0.1, 0.6, 0.2])),
+            Material("varnish", PLASTIC, specular=Texture.constant(0.5)),
+            Material("poster", DIFFUSE, diffuse=Texture(image=img, filter="nearest"))]
+
+
+def _explicit(sp):
+    """The same points with every field held as an array (the constructor's form)."""
+    return bsdf.SurfacePoints(**{f.name: getattr(sp, f.name) for f in dataclasses.fields(sp)})
+
+
+def _assert_same_points(a, b):
+    assert len(a) == len(b)
+    for f in dataclasses.fields(bsdf.SurfacePoints):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        assert x is not None and y is not None, f.name
+        assert x.dtype == y.dtype, f.name
+        np.testing.assert_array_equal(x, y, err_msg=f.name)
+
+
+def test_gathered_points_read_every_field_from_their_materials_including_the_optional_ones():
+    """gather's points are material-backed: each field, the optional sampling weight and coat
+    row too (class defaults must not shadow them), has the material's value at every point,
+    a bitmap texture's texel where one is read."""
+    mats = _mixed_materials()
+    g = np.random.default_rng(4)
+    ids = g.integers(-1, len(mats), 400)
+    uv = g.random((400, 2))
+    sp = bsdf.gather(mats, ids, uv)
+    assert sp.spec_weight is not None and sp.coat_row is not None
+    one = [bsdf.gather([m], np.zeros(1, np.int64), None) for m in mats]
+    for name in ("kind", "alpha", "eta", "cond_eta", "spec_weight", "coat_row", "beckmann", "specular"):
+        for i, m in enumerate(mats):
+            np.testing.assert_array_equal(getattr(sp, name)[ids == i], np.repeat(getattr(one[i], name), (ids == i).sum(), 0),
+                                          err_msg=f"{name} of {m.name}")
+    poster = ids == len(mats) - 1
+    np.testing.assert_array_equal(sp.diffuse[poster], mats[-1].diffuse.eval(uv[poster]).astype(np.float64))
+    assert (sp.kind[ids == -1] == NULL).all()
+
+
+def test_backed_subsets_concats_and_replacements_equal_the_explicit_forms():
+    """subset / concat / replaced of material-backed points give the same fields as the same
+    operations on the points held as arrays; a replaced field survives later subsets; the
+    parent is not changed."""
+    from igi.common.scene import ROUGHPLASTIC_DIFFUSE
+
+    mats = _mixed_materials()
+    g = np.random.default_rng(5)
+    ids = g.integers(-1, len(mats), 300)
+    uv = g.random((300, 2))
+    sp = bsdf.gather(mats, ids, uv)
+    ex = _explicit(bsdf.gather(mats, ids, uv))
+    rows = g.integers(0, 300, 120)
+    mask = g.random(300) < 0.4
+    _assert_same_points(sp.subset(rows), ex.subset(rows))
+    _assert_same_points(sp.subset(mask), ex.subset(mask))
+    _assert_same_points(bsdf.SurfacePoints.concat([sp.subset(rows), sp.subset(mask)]),
+                        bsdf.SurfacePoints.concat([ex.subset(rows), ex.subset(mask)]))
+    _assert_same_points(bsdf.SurfacePoints.concat([sp.subset(rows), ex.subset(mask)]),  # backed + explicit
+                        bsdf.SurfacePoints.concat([ex.subset(rows), ex.subset(mask)]))
+    alpha = g.random(300).astype(np.float32)
+    kind_before = sp.kind.copy()
+    r = sp.replaced(alpha=alpha, kind=np.full(300, ROUGHPLASTIC_DIFFUSE, np.int8))
+    _assert_same_points(r.subset(rows), dataclasses.replace(ex, alpha=alpha,
+                                                            kind=np.full(300, ROUGHPLASTIC_DIFFUSE, np.int8)).subset(rows))
+    np.testing.assert_array_equal(sp.kind, kind_before)
+    assert not np.array_equal(sp.alpha, alpha)
+    _assert_same_points(dataclasses.replace(sp, alpha=alpha), dataclasses.replace(ex, alpha=alpha))
