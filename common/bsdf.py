@@ -58,8 +58,9 @@ class SurfacePoints:
     or roughness set by :meth:`replaced`); any other field is taken from the per-material tables
     the first time it is read. A subset then copies one index array instead of thirteen (eye
     paths, chains and set builds subset and concatenate points many times a tile). Built from
-    arrays (the constructor, ``dataclasses.replace``), every field is held. Fields are never
-    changed in place: :meth:`replaced` makes a changed copy."""
+    arrays (the constructor, ``dataclasses.replace``), every field is held. A field assigned
+    is held from then on; arrays are never changed in place (:meth:`replaced` makes a changed
+    copy)."""
 
     kind: np.ndarray  # (N,) int8 codes from common.scene
     diffuse: np.ndarray  # (N, 3) diffuse reflectance
@@ -99,6 +100,13 @@ class SurfacePoints:
             raise AttributeError(name)
         value = d[name] = tables[column].take(d["_rows"], axis=0)
         return value
+
+    def __setattr__(self, name: str, value) -> None:
+        # A field set on material-backed points is held per point from now on.
+        d = self.__dict__
+        if "_tables" in d and name in _TABLE_COLUMN and name not in d["_held"]:
+            d["_held"] += (name,)
+        d[name] = value
 
     def __len__(self) -> int:
         rows = self.__dict__.get("_rows")
@@ -275,22 +283,25 @@ def gather(materials: list[Material], mat_ids: np.ndarray, uv: np.ndarray | None
 
 
 def material_points(materials: list[Material], mat_ids: np.ndarray, uv: np.ndarray | None) -> tuple[tuple, np.ndarray]:
-    """``(P, row)``: the kernels' packed parameters of the points with material indices
-    ``mat_ids`` (negative: NULL) at ``uv``, point j's parameters at row ``row[j]`` of ``P``.
-    Where none of the points' materials looks a texture up, P holds one row per material
-    (built once per materials list) and ``row`` is the material index: no per-point copies of
-    the 17 parameter arrays (chains run this per bounce on a few thousand points). Otherwise
-    ``pack(gather(...))`` with ``row = arange``; the values are the same either way."""
-    mat_ids = np.asarray(mat_ids, dtype=np.int64).ravel()
-    m = len(materials)
-    t = _material_tables(materials)
-    row = np.where((mat_ids < 0) | (mat_ids >= m), m, mat_ids)
-    if t["textured"] and len(row) and t["textured_mask"][row].any():
-        return pack(gather(materials, mat_ids, uv)), np.arange(len(row), dtype=np.int64)
-    P = t.get("packed")
-    if P is None:
-        P = t["packed"] = pack(gather(materials, np.r_[np.arange(m), -1], None))
-    return P, row
+    """``(P, row)`` of the points with material indices ``mat_ids`` (negative: NULL) at ``uv``:
+    :func:`packed_rows` of their :func:`gather`."""
+    return packed_rows(gather(materials, mat_ids, uv))
+
+
+def packed_rows(sp: SurfacePoints) -> tuple[tuple, np.ndarray]:
+    """``(P, row)``: the kernels' packed parameters holding point j's at row ``row[j]``.
+    Material-backed points that hold no field of their own read their material's row of one P
+    per materials list (built once): no per-point copy of the 17 parameter arrays. Otherwise
+    ``(pack(sp), arange)``. The values are the same either way."""
+    d = sp.__dict__
+    if "_tables" in d and not d["_held"]:
+        t = d["_tables"]
+        P = t.get("packed")
+        if P is None:
+            m = len(t["kind"]) - 1
+            P = t["packed"] = pack(SurfacePoints._backed(t, np.arange(m + 1, dtype=np.int64), {}))
+        return P, d["_rows"]
+    return pack(sp), np.arange(len(sp), dtype=np.int64)
 
 
 def carrying(weight: np.ndarray) -> np.ndarray:
@@ -383,8 +394,8 @@ def coat_transmittance(sp: SurfacePoints) -> tuple[np.ndarray, np.ndarray, np.nd
     ``(tables (G, R) float64, row (n,) int64, t_avg (n,))`` with t_avg the cosine-weighted mean
     (as :func:`albedo` uses), so the diffuse layer per unit albedo is cos/π · t(cos)/t_avg.
     Points that are not rough plastics get row 0 (t = 1)."""
-    P = pack(sp)
-    return P[12], P[14], P[16]
+    P, row = packed_rows(sp)
+    return P[12], P[14].take(row), P[16].take(row)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -410,7 +421,7 @@ def _eval_pdf(sp, wi, wo):
     wi, wo = _dirs(wi, n), _dirs(wo, n)
     rgb = np.empty((n, 3))
     p = np.empty(n)
-    kb.eval_many(pack(sp), wi, wo, rgb, p)
+    kb.eval_many(*packed_rows(sp), wi, wo, rgb, p)
     return rgb.astype(dt, copy=False), p.astype(dt, copy=False)
 
 
@@ -431,7 +442,7 @@ def sample(sp: SurfacePoints, wi: np.ndarray, u1: np.ndarray, u2: np.ndarray, mo
     weight = np.empty((n, 3))
     p = np.empty(n)
     delta = np.empty(n, bool)
-    kb.sample_many(pack(sp), wi, u1, u2, mode == "radiance", wo, weight, p, delta)
+    kb.sample_many(*packed_rows(sp), wi, u1, u2, mode == "radiance", wo, weight, p, delta)
     return wo.astype(dt, copy=False), weight.astype(dt, copy=False), p.astype(dt, copy=False), delta
 
 
@@ -474,7 +485,7 @@ def sample_lobe(sp: SurfacePoints, wi: np.ndarray, u2: np.ndarray) -> tuple[np.n
     u2 = _f64(u2).reshape(-1, 2)
     wo = np.empty((n, 3))
     weight = np.empty((n, 3))
-    kb.sample_lobe_many(pack(sp), wi, u2, wo, weight)
+    kb.sample_lobe_many(*packed_rows(sp), wi, u2, wo, weight)
     return wo.astype(dt, copy=False), weight.astype(dt, copy=False)
 
 
@@ -501,7 +512,7 @@ def specular_components(sp: SurfacePoints, wi: np.ndarray, mode: str = "radiance
     n = len(sp)
     wi = _dirs(wi, n)
     r_wo, r_w, t_wo, t_w = (np.empty((n, 3)) for _ in range(4))
-    kb.specular_many(pack(sp), wi, mode == "radiance", r_wo, r_w, t_wo, t_w)
+    kb.specular_many(*packed_rows(sp), wi, mode == "radiance", r_wo, r_w, t_wo, t_w)
     r_w = r_w.astype(dt, copy=False)
     t_w = t_w.astype(dt, copy=False)
     return [(r_wo.astype(dt, copy=False), r_w, np.any(r_w > 0, axis=-1)),
@@ -521,5 +532,5 @@ def albedo(sp: SurfacePoints, wi: np.ndarray) -> np.ndarray:
     n = len(sp)
     wi = _dirs(wi, n)
     out = np.empty((n, 3))
-    kb.albedo_many(pack(sp), wi, out)
+    kb.albedo_many(*packed_rows(sp), wi, out)
     return out.astype(dt, copy=False)

@@ -559,8 +559,9 @@ class _Receivers:
         self.end, self.albedo_in = end, albedo
 
     @cached_property
-    def P(self) -> tuple:
-        return bsdf.pack(self.end.sp)
+    def packed(self) -> tuple:
+        """(P, row): the end points' packed BSDFs, end point e at row ``row[e]``."""
+        return bsdf.packed_rows(self.end.sp)
 
     @cached_property
     def wi(self) -> np.ndarray:
@@ -607,6 +608,7 @@ class _VPLColumns:
         self.glossy = np.zeros(m, bool)
         self.surf_rows = np.nonzero(surface)[0]
         self.P = None  # the surface VPLs' packed BSDFs (glossy senders, regularized)
+        p_row = None  # surface VPL s's row in P
         # Surface VPLs: Lambertian ones fold rho/π into their colour and radiate on the side
         # their light arrived from; the others need their BSDF per pair.
         self.side = np.ones(m, f32)
@@ -620,12 +622,14 @@ class _VPLColumns:
             self.glossy[rows[~lam]] = True
             if not lam.all():
                 reg = regularized_senders(sp, lobe_alpha)
-                self.P = bsdf.pack(reg)
+                self.P, p_row = bsdf.packed_rows(reg)
                 if reg is not sp:
                     color[rows] *= regularization_gain(sp, reg, vpls.wi_local[rows])
         # glossy columns' BSDF rows in P (their surface VPLs in order), -1 elsewhere
         self.vpl_row = np.full(m, -1, np.int64)
         self.vpl_row[self.surf_rows] = np.arange(len(self.surf_rows))
+        # glossy columns' rows in P (its rows need not be the surface VPLs' order), -1 elsewhere
+        self.p_row = self.vpl_row if p_row is None else np.where(self.vpl_row >= 0, p_row[self.vpl_row], -1)
         self.vwi = np.ascontiguousarray(vpls.wi_local, dtype=np.float64)
         self.vnormal = np.ascontiguousarray(vpls.normal, dtype=np.float64)
         self.color = np.ascontiguousarray(color)
@@ -754,9 +758,10 @@ def _bsdf_factors(sl: slice, cols: _VPLColumns, row: np.ndarray, pi: np.ndarray,
     if not (np.any(row == vg.ROW_GLOSSY) or cols.glossy.any()):
         return np.zeros((0, 3))
     factor = np.empty((len(pi), 3))
-    P_vpl = cols.P if cols.P is not None else receivers.P  # (typing only: no glossy column reads it)
-    if not vg.pair_factors(pi, pj, d, pl, blocked, row, sl.start, receivers.P, receivers.wi, receivers.ns,
-                           receivers.albedo, cols.glossy, P_vpl, cols.vpl_row, cols.vwi, cols.vnormal, factor):
+    P_end, end_row = receivers.packed
+    P_vpl = cols.P if cols.P is not None else P_end  # (typing only: no glossy column reads it)
+    if not vg.pair_factors(pi, pj, d, pl, blocked, row, sl.start, P_end, end_row, receivers.wi, receivers.ns,
+                           receivers.albedo, cols.glossy, P_vpl, cols.p_row, cols.vwi, cols.vnormal, factor):
         return np.zeros((0, 3))
     return factor
 

@@ -732,10 +732,10 @@ def specular(P, i: int, wix: float, wiy: float, wiz: float, radiance: bool) -> t
 
 
 @njit(**_KERNEL)
-def eval_many(P, wi, wo, out_rgb, out_pdf) -> None:
-    """out_rgb[i], out_pdf[i] = :func:`eval_pdf` of point i at (wi[i], wo[i])."""
+def eval_many(P, row, wi, wo, out_rgb, out_pdf) -> None:
+    """out_rgb[i], out_pdf[i] = :func:`eval_pdf` of point i (row ``row[i]`` of P) at (wi[i], wo[i])."""
     for i in range(wi.shape[0]):
-        r, g, b, p = eval_pdf(P, i, wi[i, 0], wi[i, 1], wi[i, 2], wo[i, 0], wo[i, 1], wo[i, 2])
+        r, g, b, p = eval_pdf(P, row[i], wi[i, 0], wi[i, 1], wi[i, 2], wo[i, 0], wo[i, 1], wo[i, 2])
         out_rgb[i, 0] = r
         out_rgb[i, 1] = g
         out_rgb[i, 2] = b
@@ -743,10 +743,10 @@ def eval_many(P, wi, wo, out_rgb, out_pdf) -> None:
 
 
 @njit(**_KERNEL)
-def sample_many(P, wi, u1, u2, radiance, out_wo, out_w, out_pdf, out_delta) -> None:
-    """Row i: :func:`sample` of point i with (u1[i], u2[i])."""
+def sample_many(P, row, wi, u1, u2, radiance, out_wo, out_w, out_pdf, out_delta) -> None:
+    """Row i: :func:`sample` of point i (row ``row[i]`` of P) with (u1[i], u2[i])."""
     for i in range(wi.shape[0]):
-        ox, oy, oz, wr, wg, wb, p, d = sample(P, i, wi[i, 0], wi[i, 1], wi[i, 2], u1[i], u2[i, 0], u2[i, 1],
+        ox, oy, oz, wr, wg, wb, p, d = sample(P, row[i], wi[i, 0], wi[i, 1], wi[i, 2], u1[i], u2[i, 0], u2[i, 1],
                                               radiance)
         out_wo[i, 0] = ox
         out_wo[i, 1] = oy
@@ -759,10 +759,10 @@ def sample_many(P, wi, u1, u2, radiance, out_wo, out_w, out_pdf, out_delta) -> N
 
 
 @njit(**_KERNEL)
-def sample_lobe_many(P, wi, u2, out_wo, out_w) -> None:
-    """Row i: :func:`sample_lobe` of point i with u2[i]."""
+def sample_lobe_many(P, row, wi, u2, out_wo, out_w) -> None:
+    """Row i: :func:`sample_lobe` of point i (row ``row[i]`` of P) with u2[i]."""
     for i in range(wi.shape[0]):
-        ox, oy, oz, wr, wg, wb = sample_lobe(P, i, wi[i, 0], wi[i, 1], wi[i, 2], u2[i, 0], u2[i, 1])
+        ox, oy, oz, wr, wg, wb = sample_lobe(P, row[i], wi[i, 0], wi[i, 1], wi[i, 2], u2[i, 0], u2[i, 1])
         out_wo[i, 0] = ox
         out_wo[i, 1] = oy
         out_wo[i, 2] = oz
@@ -772,20 +772,20 @@ def sample_lobe_many(P, wi, u2, out_wo, out_w) -> None:
 
 
 @njit(**_KERNEL)
-def albedo_many(P, wi, out_rgb) -> None:
-    """Row i: :func:`albedo` of point i at wi[i]."""
+def albedo_many(P, row, wi, out_rgb) -> None:
+    """Row i: :func:`albedo` of point i (row ``row[i]`` of P) at wi[i]."""
     for i in range(wi.shape[0]):
-        r, g, b = albedo(P, i, wi[i, 2])
+        r, g, b = albedo(P, row[i], wi[i, 2])
         out_rgb[i, 0] = r
         out_rgb[i, 1] = g
         out_rgb[i, 2] = b
 
 
 @njit(**_KERNEL)
-def specular_many(P, wi, radiance, r_wo, r_w, t_wo, t_w) -> None:
-    """Row i: :func:`specular` of point i at wi[i]."""
+def specular_many(P, row, wi, radiance, r_wo, r_w, t_wo, t_w) -> None:
+    """Row i: :func:`specular` of point i (row ``row[i]`` of P) at wi[i]."""
     for i in range(wi.shape[0]):
-        res = specular(P, i, wi[i, 0], wi[i, 1], wi[i, 2], radiance)
+        res = specular(P, row[i], wi[i, 0], wi[i, 1], wi[i, 2], radiance)
         for c in range(3):
             r_wo[i, c] = res[c]
             r_w[i, c] = res[3 + c]

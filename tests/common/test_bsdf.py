@@ -709,3 +709,23 @@ def test_backed_subsets_concats_and_replacements_equal_the_explicit_forms():
     np.testing.assert_array_equal(sp.kind, kind_before)
     assert not np.array_equal(sp.alpha, alpha)
     _assert_same_points(dataclasses.replace(sp, alpha=alpha), dataclasses.replace(ex, alpha=alpha))
+
+
+def test_a_field_assigned_on_gathered_points_is_what_every_evaluation_uses():
+    """Assigning a field of material-backed points (as tests and callers do with ``kind``)
+    makes it the points' own: evaluations, subsets and the packed rows read it, not the
+    material's."""
+    from igi.common.scene import ROUGHPLASTIC_DIFFUSE, Material
+
+    n = 64
+    mat = Material("p", ROUGHPLASTIC, diffuse=Texture.constant([0.6, 0.3, 0.1]), alpha=0.15)
+    wi, wo = _wi(0.4, n), _wi(1.1, n, phi=2.0)
+    wo[:, 2] = np.abs(wo[:, 2])
+    sp = bsdf.gather([mat], np.zeros(n, np.int64), None)
+    sp.kind = np.full(n, ROUGHPLASTIC_DIFFUSE, np.int8)
+    want = bsdf.eval(dataclasses.replace(_sp(mat, n), kind=np.full(n, ROUGHPLASTIC_DIFFUSE, np.int8)), wi, wo)
+    np.testing.assert_array_equal(bsdf.eval(sp, wi, wo), want)
+    np.testing.assert_array_equal(bsdf.eval(sp.subset(np.arange(10)), wi[:10], wo[:10]), want[:10])
+    P, row = bsdf.packed_rows(sp)
+    assert (P[0][row] == ROUGHPLASTIC_DIFFUSE).all()
+    assert not np.array_equal(want, bsdf.eval(_sp(mat, n), wi, wo))  # the assignment mattered

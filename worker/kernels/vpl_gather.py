@@ -293,14 +293,15 @@ def accumulate(n, pi, pj, w, blocked, color, factor, out):
 # No reference counting (_nrt=False, as common.kernels.bsdf): the BSDF helpers it inlines take
 # the 17 arrays of P, and counting their references on each of them cost ~160 ns a pair.
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def pair_factors(pi, pj, d, pl, blocked, row, base, P_end, wi, ns, albedo,
+def pair_factors(pi, pj, d, pl, blocked, row, base, P_end, end_row, wi, ns, albedo,
                  glossy_col, P_vpl, vpl_row, vwi, vnormal, out):
     """Per-pair RGB factors of the unoccluded pairs (``out`` (k, 3), 1 elsewhere): a glossy
     receiver's f_x(wi, ω)/albedo with its MIS weight against the emitter sample's light pdf
     ``pl``, times a glossy VPL's f_y(ω_in, y→x) in place of its Lambertian colour.
 
-    Rows ``pi`` are chunk-relative: end point ``base + i`` of P_end / wi / ns / albedo. VPL
-    column j's BSDF is row ``vpl_row[j]`` of P_vpl (its surface VPLs). Returns whether any
+    Rows ``pi`` are chunk-relative: end point ``base + i`` of wi / ns / albedo, whose BSDF is
+    row ``end_row[base + i]`` of P_end. VPL column j's BSDF is row ``vpl_row[j]`` of P_vpl.
+    Returns whether any
     pair needed a factor (False: the caller may drop ``out``)."""
     any_factor = False
     for k in range(pi.shape[0]):
@@ -315,7 +316,7 @@ def pair_factors(pi, pj, d, pl, blocked, row, base, P_end, wi, ns, albedo,
         if row[i] == ROW_GLOSSY:
             e = base + i
             lx, ly, lz = shading_frame.to_local(dx, dy, dz, ns[e, 0], ns[e, 1], ns[e, 2])
-            r, g, b, pb = kb.eval_pdf(P_end, e, wi[e, 0], wi[e, 1], wi[e, 2], lx, ly, lz)
+            r, g, b, pb = kb.eval_pdf(P_end, end_row[e], wi[e, 0], wi[e, 1], wi[e, 2], lx, ly, lz)
             out[k, 0] = r / max(albedo[e, 0], 1e-6)
             out[k, 1] = g / max(albedo[e, 1], 1e-6)
             out[k, 2] = b / max(albedo[e, 2], 1e-6)

@@ -156,6 +156,7 @@ def _bsdf_calls() -> dict:
     f, f3, f5, f6 = 0.5, (0.5,) * 3, (0.5,) * 5, (0.5,) * 6
     w1, w2, o1 = np.full((1, 3), 0.5), np.full((1, 2), 0.5), np.zeros(1)
     o3 = np.zeros((1, 3))
+    r1 = np.zeros(1, np.int64)
     calls = {
         "max0": lambda: kb.max0(f), "clamp": lambda: kb.clamp(f, 0.0, 1.0), "erfinv": lambda: kb.erfinv(f),
         "fresnel_dielectric": lambda: kb.fresnel_dielectric(f, 1.5),
@@ -168,11 +169,11 @@ def _bsdf_calls() -> dict:
         "lerp_table": lambda: kb.lerp_table(P[12], 0, f), "_fin": lambda: kb._fin(f),
         "_half": lambda: kb._half(*f6), "_reflect_m": lambda: kb._reflect_m(*f6),
         "_lobe_probability": lambda: kb._lobe_probability(*f3),
-        "_thin_r": lambda: kb._thin_r(f, 1.5), "eval_many": lambda: kb.eval_many(P, w1, w1, o3.copy(), o1.copy()),
-        "sample_many": lambda: kb.sample_many(P, w1, o1, w2, True, o3.copy(), o3.copy(), o1.copy(), np.zeros(1, bool)),
-        "sample_lobe_many": lambda: kb.sample_lobe_many(P, w1, w2, o3.copy(), o3.copy()),
-        "albedo_many": lambda: kb.albedo_many(P, w1, o3.copy()),
-        "specular_many": lambda: kb.specular_many(P, w1, True, o3.copy(), o3.copy(), o3.copy(), o3.copy()),
+        "_thin_r": lambda: kb._thin_r(f, 1.5), "eval_many": lambda: kb.eval_many(P, r1, w1, w1, o3.copy(), o1.copy()),
+        "sample_many": lambda: kb.sample_many(P, r1, w1, o1, w2, True, o3.copy(), o3.copy(), o1.copy(), np.zeros(1, bool)),
+        "sample_lobe_many": lambda: kb.sample_lobe_many(P, r1, w1, w2, o3.copy(), o3.copy()),
+        "albedo_many": lambda: kb.albedo_many(P, r1, w1, o3.copy()),
+        "specular_many": lambda: kb.specular_many(P, r1, w1, True, o3.copy(), o3.copy(), o3.copy(), o3.copy()),
         "coat_columns": lambda: bsdf.pack(bsdf.SurfacePoints.constant(Material("warm-up", DIFFUSE), 1)),
     }
     return {f"igi.common.kernels.bsdf.{name}": call for name, call in calls.items()}
