@@ -12,6 +12,7 @@ import functools
 
 import numpy as np
 
+from .kernels import camera_rays as kc
 from .scene import Camera, Scene
 
 
@@ -24,15 +25,14 @@ def camera_rays(to_world: np.ndarray, fov_x: float, width: int, height: int,
     """
     m = np.asarray(to_world, np.float64).reshape(4, 4)
     jit = np.asarray(jitter, np.float64)
-    jx = jit[..., 0]
-    jy = jit[..., 1]
-    sx = (px + jx) / width
-    sy = (py + jy) / height
-    aspect = width / height
-    t = np.tan(np.radians(fov_x) / 2)
-    d_cam = np.stack([(1 - 2 * sx) * t, (1 - 2 * sy) * t / aspect, np.ones_like(sx, dtype=np.float64)], axis=-1)
+    px = np.ascontiguousarray(px, np.int64).ravel()
+    py = np.ascontiguousarray(py, np.int64).ravel()
+    per_pixel = jit.ndim == 2
+    d_cam = np.empty((len(px), 3))
+    kc.film_directions(px, py, np.ascontiguousarray(jit.reshape(-1, 2)), per_pixel, float(width), float(height),
+                       float(np.tan(np.radians(fov_x) / 2)), d_cam)
     d = d_cam @ m[:3, :3].T
-    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    kc.normalize_rows(d)
     o = np.broadcast_to(m[:3, 3], d.shape).copy()
     return o, d
 
@@ -69,9 +69,11 @@ def pixel_jitter(jitter: tuple, px: np.ndarray, py: np.ndarray) -> np.ndarray:
     Rotated per pixel, each pixel still walks a stratified sequence over the frames, and the
     pixels of a block sample a stratified set of positions within each frame (interleaved
     sampling of the pixel area, Keller & Heidrich 2001). The same on every worker."""
-    off = pixel_tile()[np.asarray(py, np.int64) % 8, np.asarray(px, np.int64) % 8]
-    x = off + np.asarray(jitter, np.float64)
-    return x - np.floor(x)  # np.mod(x, 1.0), ~10x faster
+    px = np.ascontiguousarray(px, np.int64).ravel()
+    out = np.empty((len(px), 2))
+    jx, jy = np.asarray(jitter, np.float64)
+    kc.rotated_jitter(pixel_tile(), float(jx), float(jy), px, np.ascontiguousarray(py, np.int64).ravel(), out)
+    return out
 
 
 def rays_for_camera(cam: Camera, px: np.ndarray, py: np.ndarray, jitter=(0.5, 0.5)):

@@ -671,15 +671,15 @@ def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, c
 def _shadow_origins(geom: Geometry, end: EndPoints, sl: slice) -> tuple:
     """The chunk's end points as the gather kernels take them, float32 in Embree's centred
     frame: (x, ns, ng, side of the eye ±1, offset length along ng toward that side)."""
-    f32 = np.float32
-    pos = end.position[sl]
-    x = np.ascontiguousarray(pos - geom.center, dtype=f32)
-    ns = np.ascontiguousarray(end.ns[sl], dtype=f32)
-    ng = np.ascontiguousarray(end.ng[sl], dtype=f32)
-    side = np.where(end.wi[sl, 2] >= 0, f32(1), f32(-1))
     # Live pairs lie on the side of the surface the eye sees (cos_x > 0, reflective BSDFs),
     # so one offset origin per end point serves all its shadow rays.
-    off = (geom.offset_scale(pos).astype(f32) * side).astype(f32)
+    f32, a = np.float32, np.ascontiguousarray
+    n = len(end.position[sl])
+    x, ns, ng = np.empty((n, 3), f32), np.empty((n, 3), f32), np.empty((n, 3), f32)
+    side, off = np.empty(n, f32), np.empty(n, f32)
+    center, eps, ulps = geom.offset_terms()
+    vg.shadow_origins(a(end.position[sl], np.float64), a(end.ns[sl], np.float64), a(end.ng[sl], np.float64),
+                      a(end.wi[sl], np.float64), center, eps, ulps, x, ns, ng, side, off)
     return x, ns, ng, side, off
 
 

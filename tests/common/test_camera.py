@@ -87,3 +87,32 @@ def test_pixel_jitter_keeps_each_pixels_sequence_over_frames_stratified():
             gaps = np.diff(np.append(s, s[0] + 1.0))  # on the circle: the rotation wraps
             assert gaps.max() < 2.0 / frames  # a rotated Halton sequence: no gap of two strata
     assert len({tuple(p) for p in pixel_tile().reshape(-1, 2)}) == 64  # pixels differ within a tile
+
+
+def test_compiled_primary_rays_and_jitter_equal_the_numpy_forms_bit_for_bit():
+    """common.camera's compiled rays and per-pixel jitter (common.kernels.camera_rays) give the
+    numpy forms' values exactly (tests/support/oracle_camera.py): one jitter point or one per
+    pixel, odd film sizes, wide and narrow fields of view, scaled and rotated cameras, empty."""
+    from igi.common.camera import camera_rays, pixel_jitter
+    from tests.support.oracle_camera import camera_rays_numpy, pixel_jitter_numpy
+
+    g = np.random.default_rng(0)
+    for _ in range(12):
+        w, h = (int(v) for v in g.integers(1, 2000, 2))
+        n = 3000
+        px, py = g.integers(0, w, n), g.integers(0, h, n)
+        m = np.eye(4)
+        m[:3, :3] = np.linalg.qr(g.normal(size=(3, 3)))[0] * g.uniform(0.5, 2)
+        m[:3, 3] = g.normal(size=3) * 10
+        fov = g.uniform(1, 170)
+        j = (g.random(), g.random())
+        per_pixel = pixel_jitter(j, px, py)
+        np.testing.assert_array_equal(per_pixel, pixel_jitter_numpy(j, px, py))
+        assert per_pixel.min() >= 0 and per_pixel.max() < 1
+        for jit in ((0.5, 0.5), j, per_pixel):
+            for got, want in zip(camera_rays(m.ravel(), fov, w, h, px, py, jit),
+                                 camera_rays_numpy(m.ravel(), fov, w, h, px, py, jit)):
+                np.testing.assert_array_equal(got, want)
+    empty = np.zeros(0, np.int64)
+    assert camera_rays(np.eye(4), 40.0, 8, 8, empty, empty)[1].shape == (0, 3)
+    assert pixel_jitter((0.1, 0.2), empty, empty).shape == (0, 2)

@@ -205,3 +205,15 @@ def shadow_roulette(k, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base) -
             out += 1
         s = e
     return out
+
+
+def shadow_origins_numpy(geom, end, sl):
+    """worker.shading._shadow_origins as numpy computed it (before vpl_gather.shadow_origins)."""
+    f32 = np.float32
+    pos = end.position[sl]
+    x = np.ascontiguousarray(pos - geom.center, dtype=f32)
+    ns = np.ascontiguousarray(end.ns[sl], dtype=f32)
+    ng = np.ascontiguousarray(end.ng[sl], dtype=f32)
+    side = np.where(end.wi[sl, 2] >= 0, f32(1), f32(-1))
+    off = (geom.offset_scale(pos).astype(f32) * side).astype(f32)
+    return x, ns, ng, side, off

@@ -281,3 +281,26 @@ def test_glossy_rows_trace_no_shadow_ray_below_their_horizon():
     pi2 = shading._pair_rays(r.geom, behind, sl, vpls, cols, -1)[0]
     assert not np.isin(pi2, g_rows).any()
     _agree(r, behind, vpls)
+
+
+def test_shadow_origins_equal_the_numpy_form_with_grazing_far_and_nan_points():
+    """The pair kernels' float32 end points and offsets (vpl_gather.shadow_origins) are the
+    numpy form's bit for bit: far from the centre (large ulps), eyes exactly in the tangent
+    plane (wi z = ±0: the front side), NaN positions, and an empty chunk."""
+    from igi.worker.shading import _shadow_origins
+    from tests.support.oracle_vpl_gather import shadow_origins_numpy
+
+    r = Renderer(load_shared("cornell-box"))
+    end = eye_end_points(r, 48, 36)
+    g = np.random.default_rng(2)
+    n = len(end)
+    pos = end.position + g.normal(size=(n, 3)) * np.logspace(-3, 3, n)[:, None]
+    wi = end.wi.copy()
+    wi[::5, 2] = 0.0
+    wi[1::5, 2] = -0.0
+    pos[7] = np.nan
+    end = dataclasses.replace(end, position=pos, wi=wi)
+    for sl in (slice(0, n), slice(3, 40), slice(5, 5)):
+        for got, want in zip(_shadow_origins(r.geom, end, sl), shadow_origins_numpy(r.geom, end, sl)):
+            assert got.dtype == want.dtype
+            np.testing.assert_array_equal(got, want)

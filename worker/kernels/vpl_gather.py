@@ -85,6 +85,28 @@ def _write_ray(k, o0, o1, o2, d0, d1, d2, inv_d, directional_j, eps2, out_o, out
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def shadow_origins(pos, ns, ng, wi, center, eps, ulps, out_x, out_ns, out_ng, out_side, out_off) -> None:
+    """The end points as the pair kernels take them, float32 in Embree's centred frame: x,
+    ns, ng, the eye's side ±1 (wi's z >= 0: +1) and the offset length along ng toward it
+    (the scene epsilon plus ``ulps`` of the largest centred coordinate, as
+    common.geometry.Geometry.offset_scale)."""
+    for i in range(pos.shape[0]):
+        a0 = pos[i, 0] - center[0]
+        a1 = pos[i, 1] - center[1]
+        a2 = pos[i, 2] - center[2]
+        out_x[i, 0] = np.float32(a0)
+        out_x[i, 1] = np.float32(a1)
+        out_x[i, 2] = np.float32(a2)
+        for c in range(3):
+            out_ns[i, c] = np.float32(ns[i, c])
+            out_ng[i, c] = np.float32(ng[i, c])
+        s = np.float32(1.0) if wi[i, 2] >= 0 else np.float32(-1.0)
+        out_side[i] = s
+        m = np.maximum(np.maximum(abs(a0), abs(a1)), abs(a2))
+        out_off[i] = np.float32(np.float32(eps + ulps * m) * s)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def pair_rays(x, ng, off, vpos, vnormal, directional, eps2, pi, pj, out_o, out_d, out_t):
     """The shadow rays of the listed pairs (row pi[k] of x/ng/off, VPL pj[k]): what
     :func:`pair_weights` writes for them, for callers that trace only a few of its pairs
