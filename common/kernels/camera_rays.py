@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
 _KERNEL = dict(cache=True, nogil=True, error_model="numpy")
