@@ -22,6 +22,7 @@ from igi.common.sobol_stream import SobolStream, stream_seed
 from igi.common.specular import specular_targets
 
 from .hash_grid import HashGrid
+from .kernels import photon_estimate
 
 PHOTON_STREAM = "caustic photons"
 EMIT_DIMS = 5  # 2 position, 1 target, 2 direction in the cone
@@ -254,21 +255,12 @@ def gather_photons(end, photons: PhotonSet, albedo: np.ndarray, max_depth: int) 
     qi = near[qn]
     if len(pi_idx) == 0:
         return out
-    # Photons arriving on the side the eye sees only: thin walls must not leak caustics through.
-    eye_side = np.sign(end.wi[qi, 2])
-    same = np.einsum("ij,ij->i", photons.direction[pi_idx], end.ns[qi]) * eye_side > 0
-    if max_depth >= 0:
-        same &= end.segments[qi] + photons.depth[pi_idx] <= max_depth
-    pi_idx, qi = pi_idx[same], qi[same]
-    if len(qi) == 0:
-        return out
-    wo_local = to_local(photons.direction[pi_idx], end.ns[qi])
-    sp = end.sp.subset(qi)
-    f = bsdf.eval(sp, end.wi[qi], wo_local, mode="radiance")
-    # eval includes |cos θ|; the photon estimate uses f alone (flux already per area).
-    cos = np.maximum(np.abs(wo_local[:, 2]), 1e-6)
-    f = f / cos[:, None]
-    a = np.maximum(albedo[qi], 1e-6)
-    contrib = photons.power[pi_idx] * f / a / (np.pi * photons.radius ** 2)
-    np.add.at(out, qi, np.nan_to_num(contrib, nan=0.0, posinf=0.0))
+    # Photons arriving on the side the eye sees only (thin walls must not leak caustics
+    # through), f alone (eval's |cos θ| divided out: flux is already per area).
+    P, prow = bsdf.packed_rows(end.sp)
+    a = np.ascontiguousarray
+    photon_estimate.estimate(pi_idx, qi, a(photons.direction, np.float64), a(photons.depth, np.int64),
+                             a(photons.power, np.float64), a(end.ns, np.float64), a(end.wi, np.float64),
+                             a(end.segments, np.int64), int(max_depth), P, prow, a(albedo, np.float64),
+                             float(np.pi * photons.radius ** 2), out)
     return out
