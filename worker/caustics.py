@@ -16,13 +16,14 @@ import numpy as np
 
 from igi.common import bsdf
 from igi.common.geometry import Geometry
-from igi.common.lights import LightSampler, spot_falloff, to_local, to_world, uniform_sphere
+from igi.common.lights import LightSampler, spot_falloff, to_world, uniform_sphere
 from igi.common.scene import AREA, NULL, POINT, SPECULAR_KINDS, SPOT, Scene, kind_in
 from igi.common.sobol_stream import SobolStream, stream_seed
 from igi.common.specular import specular_targets
 
 from .hash_grid import HashGrid
 from .kernels import photon_estimate
+from .light_paths import continue_paths
 
 PHOTON_STREAM = "caustic photons"
 EMIT_DIMS = 5  # 2 position, 1 target, 2 direction in the cone
@@ -188,9 +189,9 @@ def _trace_photons(scene, geom, o, d, flux, u, max_bounces):
     alive = np.nonzero(np.any(flux > 0, axis=1))[0]
     bounced = np.zeros(len(o), bool)
     out_p, out_w, out_d, out_n, out_dp, out_src = [], [], [], [], [], []
-    o = o.copy()
-    d = d.copy()
-    flux = flux.copy()
+    o = np.array(o, np.float64, order="C")  # continue_paths updates o, d, flux in place
+    d = np.array(d, np.float64, order="C")
+    flux = np.array(flux, np.float64, order="C")
     for b in range(max_bounces + 1):
         if len(alive) == 0:
             break
@@ -215,18 +216,8 @@ def _trace_photons(scene, geom, o, d, flux, u, max_bounces):
         si = np.nonzero(spec)[0]
         if b == max_bounces or len(si) == 0:
             break
-        idx = alive[si]
-        wi = to_local(-d[idx], ns[si])
-        col = EMIT_DIMS + BOUNCE_DIMS * b
-        wo, weight, _pdf, _delta = bsdf.sample(sp.subset(si), wi, u[idx, col], u[idx, col + 1:col + 3],
-                                               mode="importance")
-        wd = to_world(wo, ns[si])
-        flux[idx] = flux[idx] * weight
-        d[idx] = wd
-        o[idx] = geom.offset(pos[si], ng[si], wd)
-        bounced[idx] = True
-        ok = bsdf.carrying(flux[idx])
-        alive = idx[ok]
+        bounced[alive[si]] = True
+        alive = continue_paths(sp, geom, si, alive, pos, ns, ng, d, o, flux, u, EMIT_DIMS + BOUNCE_DIMS * b)
     if not out_p:
         return None
     return (np.concatenate(out_p), np.concatenate(out_w), np.concatenate(out_d),

@@ -14,11 +14,12 @@ import numpy as np
 
 from igi.common import bsdf
 from igi.common.geometry import Geometry
-from igi.common.lights import VPL_SPOT, VPL_SURFACE, LightSampler, PointSamples, to_local, to_world
+from igi.common.lights import VPL_SPOT, VPL_SURFACE, LightSampler, PointSamples, to_local
 from igi.common.scene import NULL, SPECULAR_KINDS, Scene, kind_in
 from igi.common.sobol_stream import SobolStream, stream_seed
 from igi.common.sobol_stream import rng as make_rng
 
+from .light_paths import continue_paths
 from .portals import portal_walks
 
 # Sobol dimensions: direct samples use 3 (emitter, 2 for the point); a walk uses 5 to leave
@@ -162,9 +163,9 @@ def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarr
     rays = lights.emit_rays(u[:, :WALK_DIMS_START])
     if portals is not None:
         portal_walks(rays, u[:, :WALK_DIMS_START], lights, portals)
-    flux = rays.flux / walks
-    d = rays.direction
-    o = rays.origin.copy()
+    flux = np.ascontiguousarray(rays.flux / walks, np.float64)
+    d = np.ascontiguousarray(rays.direction, np.float64)  # (continue_paths updates d, o, flux in place)
+    o = np.array(rays.origin, np.float64, order="C")
     is_surface = np.linalg.norm(rays.normal - rays.direction, axis=1) > 1e-9  # area: offset off the emitter
     if is_surface.any():
         o[is_surface] = geom.offset(o[is_surface], rays.normal[is_surface], d[is_surface])
@@ -198,20 +199,12 @@ def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarr
             row_l.append(alive[sel])
         if bounce + 1 >= max_length:
             break
-        col = WALK_DIMS_START + WALK_DIMS_PER_BOUNCE * bounce
-        wo, weight, _pdf, _delta = bsdf.sample(sp, wi, u[alive, col], u[alive, col + 1:col + 3],
-                                               mode="importance")
-        wo_world = to_world(wo, ns)
-        if roulette_after is not None and bounce + 1 >= roulette_after:
-            # Russian roulette: survive with the bounce's throughput ratio, reweight survivors.
-            q = np.clip(np.max(weight, axis=1), 0.0, 0.95)
-            survive = survival[alive, bounce] < q
-            weight = np.where(survive[:, None], weight / np.maximum(q, 1e-12)[:, None], 0.0)
-        flux[alive] = flux[alive] * weight
-        ok = bsdf.carrying(flux[alive])
-        d[alive] = wo_world
-        o[alive] = geom.offset(pos, ng, wo_world)
-        alive = alive[ok]
+        # Russian roulette past ``roulette_after`` bounces: survive with the bounce's
+        # throughput ratio, survivors reweighted.
+        roulette = roulette_after is not None and bounce + 1 >= roulette_after
+        alive = continue_paths(sp, geom, np.arange(len(alive)), alive, pos, ns, ng, d, o, flux, u,
+                               WALK_DIMS_START + WALK_DIMS_PER_BOUNCE * bounce, survival if roulette else None,
+                               bounce)
     if not pos_l:
         return _empty_set(), np.zeros(0, np.int64)
     sp_all = concat_surface(sp_l)

@@ -1,0 +1,89 @@
+"""The compiled bounce of light walks and caustic photons (worker.kernels.light_paths via
+worker.light_paths.continue_paths) continues exactly the paths the numpy bounce did
+(tests/support/oracle_light_paths.py): every BSDF kind, textured points, Russian roulette
+(including its NaN weights), grazing and NaN directions, zero and Inf flux, empty selections."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from igi.bench.stress_scenes import load_shared
+from igi.common import bsdf
+from igi.common.geometry import Geometry
+from igi.common.scene import (CONDUCTOR, DIELECTRIC, DIFFUSE, PLASTIC, ROUGHCONDUCTOR, ROUGHPLASTIC, THINDIELECTRIC,
+                              Material, Texture)
+from igi.worker.light_paths import continue_paths
+from tests.support.oracle_light_paths import continue_paths_numpy
+
+pytestmark = pytest.mark.filterwarnings("ignore::RuntimeWarning")  # the oracle's numpy on NaN inputs
+
+
+def _materials():
+    img = np.random.default_rng(5).random((4, 4, 3)).astype(np.float32)
+    return [Material("wall", DIFFUSE, diffuse=Texture.constant([0.7, 0.5, 0.3])),
+            Material("mirror", CONDUCTOR), Material("glass", DIELECTRIC, int_ior=1.5),
+            Material("thin", THINDIELECTRIC), Material("varnish", PLASTIC),
+            Material("brushed", ROUGHCONDUCTOR, alpha=0.2), Material("coat", ROUGHPLASTIC, alpha=0.3),
+            Material("poster", DIFFUSE, diffuse=Texture(image=img))]
+
+
+def _paths(g, n_paths, n_hits, geom):
+    rows = np.sort(g.choice(n_paths, n_hits, replace=False))
+    pos = geom.center + (g.random((n_hits, 3)) - 0.5) * geom.extent
+    ns = g.normal(size=(n_hits, 3))
+    ns /= np.linalg.norm(ns, axis=1)[:, None]
+    d = g.normal(size=(n_paths, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    graze = rows[::9]
+    t = np.cross(ns[::9], g.normal(size=(len(graze), 3)))
+    d[graze] = t / np.linalg.norm(t, axis=1)[:, None]
+    d[rows[4]] = np.nan
+    flux = g.random((n_paths, 3))
+    flux[rows[6]] = 0.0
+    flux[rows[8]] = [np.inf, 1.0, 1.0]
+    o = g.normal(size=(n_paths, 3))
+    return rows, pos, ns, ns.copy(), d, o, flux
+
+
+@pytest.mark.parametrize("roulette", [False, True])
+@pytest.mark.parametrize("subset", [False, True])
+def test_bounce_equals_the_numpy_bounce(roulette, subset):
+    geom = Geometry(load_shared("cornell-box"))
+    mats = _materials()
+    g = np.random.default_rng(11)
+    n_paths, n_hits = 4000, 2500
+    rows, pos, ns, ng, d, o, flux = _paths(g, n_paths, n_hits, geom)
+    sp = bsdf.gather(mats, g.integers(-1, len(mats), n_hits), g.random((n_hits, 2)))
+    sel = np.sort(g.choice(n_hits, 1500, replace=False)) if subset else np.arange(n_hits)
+    u = g.random((n_paths, 20))
+    survival = g.random((n_paths, 6)) if roulette else None
+    got_state = [a.copy() for a in (d, o, flux)]
+    want_state = [a.copy() for a in (d, o, flux)]
+    got = continue_paths(sp, geom, sel, rows, pos, ns, ng, *got_state, u, 8, survival, 2)
+    want = continue_paths_numpy(sp, geom, sel, rows, pos, ns, ng, *want_state, u, 8, survival, 2)
+    assert 100 < len(want) < len(sel)
+    np.testing.assert_array_equal(got, want)
+    for name, a, b in zip(("direction", "origin", "flux"), got_state, want_state):
+        np.testing.assert_array_equal(a, b, err_msg=name)
+
+
+def test_an_empty_selection_changes_nothing():
+    geom = Geometry(load_shared("cornell-box"))
+    g = np.random.default_rng(1)
+    rows, pos, ns, ng, d, o, flux = _paths(g, 50, 20, geom)
+    sp = bsdf.gather(_materials(), np.zeros(20, np.int64), None)
+    before = [a.copy() for a in (d, o, flux)]
+    out = continue_paths(sp, geom, np.zeros(0, np.int64), rows, pos, ns, ng, d, o, flux, g.random((50, 8)), 5)
+    assert len(out) == 0
+    for a, b in zip((d, o, flux), before):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_state_arrays_that_cannot_be_updated_in_place_are_refused():
+    geom = Geometry(load_shared("cornell-box"))
+    g = np.random.default_rng(1)
+    rows, pos, ns, ng, d, o, flux = _paths(g, 50, 20, geom)
+    sp = bsdf.gather(_materials(), np.zeros(20, np.int64), None)
+    with pytest.raises(ValueError, match="in place"):
+        continue_paths(sp, geom, np.arange(20), rows, pos, ns, ng, d.astype(np.float32), o, flux,
+                       g.random((50, 8)), 5)
