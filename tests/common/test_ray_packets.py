@@ -1,0 +1,76 @@
+"""Occlusion in Embree packets (common.ray_packets, common.kernels.ray_packets) answers every
+shadow ray as embreex's one-ray-per-call scene does on the same triangles: real scenes, rays
+of every length (zero, huge, unbounded), along edges and through vertices, NaN directions,
+batch sizes that are not a multiple of 16, empty batches; the Geometry falls back to embreex
+where the packets are not at hand."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from embreex import rtcore as rtc
+from embreex import rtcore_scene as rtcs
+from embreex.mesh_construction import TriangleMesh
+
+from igi.bench.stress_scenes import load_shared
+from igi.common import geometry as geometry_module
+from igi.common.geometry import Geometry
+from igi.common.kernels import ray_packets as kernels
+from igi.common.ray_packets import PacketScene, packet_scene
+
+pytestmark = pytest.mark.skipif(not kernels.AVAILABLE, reason="Embree's C library not found beside embreex")
+
+
+def _embreex_occluded(local, o, d, t):
+    scene = rtcs.EmbreeScene(rtc.EmbreeDevice(), robust=False)
+    _mesh = TriangleMesh(scene, local)  # noqa: F841 - the scene holds it
+    return scene.run(o, d, query="OCCLUDED", dists=t.copy())
+
+
+def _rays(g, geom, n):
+    local = geom._local
+    o = ((g.random((n, 3)) - 0.5) * geom.extent).astype(np.float32)
+    # aim at triangles' vertices, edge midpoints and interiors, from inside the scene
+    tri = g.integers(0, len(local), n)
+    bary = g.choice([0.0, 0.5, 1.0 / 3.0], size=(n, 1))
+    target = local[tri, 0] * (1 - bary) + local[tri, 1] * bary
+    d = (target - o).astype(np.float32)
+    dist = np.linalg.norm(d, axis=1)
+    t = (dist * g.choice([0.5, 0.999, 1.0, 1.001, 2.0], n)).astype(np.float32)
+    t[::13] = 0.0
+    t[1::13] = 3.0e38
+    d[5] = np.nan
+    d[6] = 0.0
+    return o, d, t
+
+
+@pytest.mark.parametrize("name", ["cornell-box-sphere", "veach-ajar", "modern-hall"])
+def test_packets_answer_every_ray_as_embreex_does(name):
+    geom = Geometry(load_shared(name))
+    g = np.random.default_rng(4)
+    o, d, t = _rays(g, geom, 20011)  # not a multiple of 16
+    scene = packet_scene(geom._local)
+    assert isinstance(scene, PacketScene)
+    got = scene.run(o, d, query="OCCLUDED", dists=t)
+    want = _embreex_occluded(geom._local, o, d, t)
+    assert got.dtype == np.int32
+    np.testing.assert_array_equal(got != -1, want != -1)
+    assert 0.05 < np.mean(got != -1) < 0.98  # both answers occur
+    assert scene.run(o[:0], d[:0], query="OCCLUDED", dists=t[:0]).shape == (0,)
+
+
+def test_the_geometry_traces_shadow_rays_in_packets_and_falls_back_to_embreex(monkeypatch):
+    geom = Geometry(load_shared("cornell-box"))
+    assert isinstance(geom.shadow_bvh(), PacketScene)
+    g = np.random.default_rng(1)
+    o, d, t = _rays(g, geom, 3000)
+    packets = geom.occluded_local(o, d, t)
+    monkeypatch.setattr(geometry_module, "packet_scene", lambda *a, **k: None)
+    plain = Geometry(load_shared("cornell-box"))
+    assert not isinstance(plain.shadow_bvh(), PacketScene)
+    np.testing.assert_array_equal(plain.occluded_local(o, d, t), packets)
+
+
+def test_a_packet_scene_refuses_closest_hit_queries():
+    scene = packet_scene(Geometry(load_shared("cornell-box"))._local)
+    with pytest.raises(ValueError, match="occlusion queries only"):
+        scene.run(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32), query="INTERSECT")
