@@ -168,6 +168,10 @@ class Geometry:
         self._embree = rtcs.EmbreeScene(self._device)  # closest hits: robust (no ray slips through an edge)
         self._mesh = TriangleMesh(self._embree, local)
         self._embree.run(*_ONE_RAY, output=1)  # Embree builds a BVH on its first query: now
+        # The same robust BVH through Embree's C API, where at hand (common.ray_packets): the
+        # closest hits, the same answers without embreex's per-call copies; embreex's scene
+        # stays for replays and where the packets are not at hand.
+        self._packets = packet_scene(local, robust=True)
         self._shadow = None  # shadow_bvh(): made on first use (the master's picking never needs it)
         self._shadow_lock = threading.Lock()
 
@@ -198,8 +202,6 @@ class Geometry:
         ``tmax`` (one for all rays, or per ray): only hits with t < tmax count (Embree stops
         short rays early)."""
         n = len(origins)
-        o = (origins - self.center).astype(np.float32)
-        d = directions.astype(np.float32)
         if n == 0:
             return self._empty()
         self.counters["intersect_rays"] += n
@@ -207,7 +209,13 @@ class Geometry:
             np.minimum(np.broadcast_to(np.asarray(tmax, np.float64), (n,)), 3.0e38), dtype=np.float32)
         if self.record is not None:
             # Embree writes each hit's distance into ``dist``: keep the ray's own tmax
-            self.record.append(("intersect", o, d, None if dist is None else dist.copy()))
+            self.record.append(("intersect", (origins - self.center).astype(np.float32),
+                                directions.astype(np.float32), None if dist is None else dist.copy()))
+        if self._packets is not None:
+            valid, prim, u, v, t = self._packets.closest(origins, directions, dist, self.center)
+            return self._surface(origins, directions, valid, prim, u, v, t)
+        o = (origins - self.center).astype(np.float32)
+        d = directions.astype(np.float32)
         r = self._embree.run(o, d, output=1) if dist is None else self._embree.run(o, d, dists=dist, output=1)
         prim = r["primID"].astype(np.int64)
         valid = (r["geomID"] != -1) & (prim >= 0)
@@ -298,6 +306,9 @@ class Geometry:
         inner = getattr(self._embree, "inner", self._embree)
         shadow = self.shadow_bvh()
         shadow = getattr(shadow, "inner", shadow)
+        if self._packets is not None:
+            packets = getattr(self._packets, "inner", self._packets)
+            self._packets = _TimedEmbree(packets, self.counters) if on else packets
         self._embree = _TimedEmbree(inner, self.counters) if on else inner
         self._shadow = _TimedEmbree(shadow, self.counters) if on else shadow
 
@@ -343,11 +354,17 @@ class _TimedEmbree:
         self.counters = counters
 
     def run(self, *args, **kwargs):
+        key = "occluded_seconds" if kwargs.get("query") == "OCCLUDED" else "intersect_seconds"
+        return self._timed(key, self.inner.run, *args, **kwargs)
+
+    def closest(self, *args):
+        return self._timed("intersect_seconds", self.inner.closest, *args)
+
+    def _timed(self, key: str, fn, *args, **kwargs):
         import time
 
-        key = "occluded_seconds" if kwargs.get("query") == "OCCLUDED" else "intersect_seconds"
         t0 = time.perf_counter()
         try:
-            return self.inner.run(*args, **kwargs)
+            return fn(*args, **kwargs)
         finally:
             self.counters[key] = self.counters.get(key, 0.0) + time.perf_counter() - t0

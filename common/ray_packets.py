@@ -1,5 +1,7 @@
 """An Embree scene built through Embree's C API (ctypes, on the library embreex ships) and
-queried in 16-ray packets by common.kernels.ray_packets: the shadow rays' BVH.
+queried in 16-ray packets by common.kernels.ray_packets: the shadow rays' BVH, and the closest
+hits' (robust) one, whose rays go to Embree from the caller's float64 arrays in one compiled
+pass (no float32 copies, no per-call dictionaries of result arrays).
 
 It answers ``run(o, d, query="OCCLUDED", dists=t)`` as embreex's scenes do (geomID per ray, -1
 where nothing blocks it), so it takes their place under Geometry.shadow_bvh, the benchmark
@@ -62,7 +64,7 @@ class PacketScene:
 
     def run(self, o: np.ndarray, d: np.ndarray, query: str = "OCCLUDED", dists=None) -> np.ndarray:
         """embreex's occlusion ``run``: geomID per ray (0 blocked, -1 not); no ``dists``: rays
-        of unbounded length. (Closest hits stay embreex's: robust packets measured no faster.)"""
+        of unbounded length. Closest hits: :meth:`closest`."""
         if query != "OCCLUDED":
             raise ValueError(f"PacketScene answers occlusion queries only, not {query!r}")
         n = len(o)
@@ -71,6 +73,21 @@ class PacketScene:
         ray_packets.occluded(self._handle, np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32),
                              tfar, blocked)
         return np.where(blocked, 0, -1).astype(np.int32)
+
+
+    def closest(self, origins: np.ndarray, directions: np.ndarray, tfar: np.ndarray | None,
+                center: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Closest hits of the float64 rays (origins - ``center``, directions), rounded to
+        float32 as Embree takes them, up to ``tfar`` (float32 per ray; None: unbounded):
+        ``(valid, prim int64 (-1 on a miss), u, v, t)`` as float64 (a miss: u = v = 0, t = tfar)."""
+        n = len(origins)
+        tfar = np.full(n, 1e37, np.float32) if tfar is None else np.ascontiguousarray(tfar, np.float32).reshape(n)
+        prim = np.empty(n, np.int64)
+        u, v, t = np.empty(n), np.empty(n), np.empty(n)
+        c = np.ascontiguousarray
+        ray_packets.closest_hits(self._handle, c(origins, np.float64).reshape(n, 3),
+                                 c(directions, np.float64).reshape(n, 3), tfar, c(center, np.float64), prim, u, v, t)
+        return prim >= 0, prim, u, v, t
 
 
 def packet_scene(triangles: np.ndarray, robust: bool = False) -> PacketScene | None:

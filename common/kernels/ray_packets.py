@@ -94,3 +94,58 @@ def occluded(scene, o, d, tfar, out) -> None:
         for k in range(m):
             out[s + k] = ray[8 * LANES + k] < 0.0
 
+
+
+# void rtcIntersect16(const int* valid, RTCScene scene, RTCRayHit16* rayhit, RTCIntersectArguments* args)
+_rtcIntersect16 = types.ExternalFunction("rtcIntersect16", types.void(types.uintp, types.uintp, types.uintp,
+                                                                       types.uintp))
+_HIT = 12 * LANES  # RTCHit16 after RTCRay16: Ng_x, Ng_y, Ng_z, u, v, primID, geomID, instID[levels]
+_HIT_ROOM = 16 * LANES  # the hit's 7 fields and room for up to 9 instance levels
+_INVALID = 0xFFFFFFFF  # RTC_INVALID_GEOMETRY_ID
+
+
+@njit(cache=True, nogil=True)
+def closest_hits(scene, origins, directions, tfar, center, out_prim, out_u, out_v, out_t) -> None:
+    """Closest hit of ray i in the Embree ``scene``, 16 rays per Embree call: the float64 ray
+    (origins[i] - center, directions[i]) rounded to float32 as Embree takes it, 0 < t <
+    tfar[i] (float32). out_prim[i] the triangle (-1 on a miss), out_u/out_v its barycentrics,
+    out_t the distance (tfar[i] on a miss), as float64."""
+    buf = np.empty(_HIT + _HIT_ROOM + LANES, np.float32)
+    a = ((64 - buf.ctypes.data % 64) % 64) // 4
+    ray = buf[a:a + _HIT + _HIT_ROOM]
+    bits = ray.view(np.uint32)
+    vbuf = np.empty(2 * LANES, np.int32)
+    b = ((64 - vbuf.ctypes.data % 64) % 64) // 4
+    valid = vbuf[b:b + LANES]
+    n = origins.shape[0]
+    for s in range(0, n, LANES):
+        m = min(LANES, n - s)
+        for k in range(LANES):
+            if k < m:
+                i = s + k
+                ray[k] = np.float32(origins[i, 0] - center[0])
+                ray[LANES + k] = np.float32(origins[i, 1] - center[1])
+                ray[2 * LANES + k] = np.float32(origins[i, 2] - center[2])
+                ray[3 * LANES + k] = 0.0  # tnear
+                ray[4 * LANES + k] = np.float32(directions[i, 0])
+                ray[5 * LANES + k] = np.float32(directions[i, 1])
+                ray[6 * LANES + k] = np.float32(directions[i, 2])
+                ray[7 * LANES + k] = 0.0  # time
+                ray[8 * LANES + k] = tfar[i]
+                bits[9 * LANES + k] = 0xFFFFFFFF  # mask
+                bits[10 * LANES + k] = 0  # id
+                bits[11 * LANES + k] = 0  # flags
+                bits[_HIT + 5 * LANES + k] = _INVALID  # primID
+                bits[_HIT + 6 * LANES + k] = _INVALID  # geomID
+                bits[_HIT + 7 * LANES + k] = _INVALID  # instID[0]
+                valid[k] = -1
+            else:
+                valid[k] = 0
+        _rtcIntersect16(valid.ctypes.data, scene, ray.ctypes.data, 0)
+        for k in range(m):
+            i = s + k
+            hit = bits[_HIT + 6 * LANES + k] != _INVALID and bits[_HIT + 5 * LANES + k] < 0x80000000
+            out_prim[i] = np.int64(bits[_HIT + 5 * LANES + k]) if hit else -1
+            out_u[i] = ray[_HIT + 3 * LANES + k] if hit else 0.0
+            out_v[i] = ray[_HIT + 4 * LANES + k] if hit else 0.0
+            out_t[i] = ray[8 * LANES + k]

@@ -74,3 +74,28 @@ def test_a_packet_scene_refuses_closest_hit_queries():
     scene = packet_scene(Geometry(load_shared("cornell-box"))._local)
     with pytest.raises(ValueError, match="occlusion queries only"):
         scene.run(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32), query="INTERSECT")
+
+
+@pytest.mark.parametrize("name", ["cornell-box-sphere", "veach-ajar", "modern-hall"])
+def test_closest_hits_are_embreex_robust_hits(name):
+    """The Geometry's closest hits through the packets (float64 rays rounded in the kernel)
+    equal embreex's robust scene's on the same rays: triangle, barycentrics, distance; misses
+    with u = v = 0 and t = tfar; short rays (tmax) stop early alike."""
+    geom = Geometry(load_shared(name))
+    assert isinstance(geom._packets, PacketScene)
+    g = np.random.default_rng(9)
+    n = 20011
+    o = geom.center + (g.random((n, 3)) - 0.5) * geom.extent
+    d = g.normal(size=(n, 3))
+    d[7] = np.nan
+    tmax = np.where(g.random(n) < 0.3, g.random(n) * geom.diagonal * 0.2, 3.0e38).astype(np.float32)
+    for t in (None, tmax):
+        valid, prim, u, v, tt = geom._packets.closest(o, d, t, geom.center)
+        o32, d32 = (o - geom.center).astype(np.float32), d.astype(np.float32)
+        r = geom._embree.run(o32, d32, output=1) if t is None else geom._embree.run(o32, d32, dists=t.copy(), output=1)
+        want_valid = (r["geomID"] != -1) & (r["primID"] >= 0)
+        np.testing.assert_array_equal(valid, want_valid)
+        np.testing.assert_array_equal(prim, np.where(want_valid, r["primID"], -1))
+        for got, key in ((u, "u"), (v, "v"), (tt, "tfar")):
+            np.testing.assert_array_equal(got, r[key].astype(np.float64), err_msg=key)
+        assert 0.1 < valid.mean() < 1.0
