@@ -33,6 +33,9 @@ def _cells(x: np.ndarray, inv_cell: float) -> np.ndarray:
     return out
 
 
+SPAN_MARGIN = 1e-9  # relative widening of a query's cell span (see HashGrid._query_numpy)
+
+
 class HashGrid:
     """Photons in a hashed grid of cell size 2 * radius."""
 
@@ -135,7 +138,8 @@ class HashGrid:
             return empty
         r = self.radius
         if self._axes is None:  # the usual mixed-radix key space: the compiled query
-            return photon_query.query(q, r, self._inv, self._origin, np.asarray(self._ext, np.int64),
+            return photon_query.query(q, r, r * (1.0 + SPAN_MARGIN), self._inv, self._origin,
+                                      np.asarray(self._ext, np.int64),
                                       self._keys, self._starts, self._counts, self._order, self.points,
                                       self._occupied)
         return self._query_numpy(q)
@@ -148,9 +152,12 @@ class HashGrid:
         r = self.radius
         # floor(x/(2r) - 0.5) written as floor((x - r)/(2r)): the same cell in exact
         # arithmetic, and monotone rounding makes it never above a photon's floor(p/(2r))
-        # for p >= x - r, so no photon of the ball is lost at a cell border.
-        lo = _cells(q - r, self._inv)
-        hi = _cells(q + r, self._inv)
+        # for p >= x - r, so no photon of the ball is lost at a cell border. The span is
+        # widened by SPAN_MARGIN of r: a photon just outside the ball whose rounded distance
+        # is r (x - r - 4e-22 at r = 0.25) is inside by the distance test, so its cell is read.
+        w = r * (1.0 + SPAN_MARGIN)
+        lo = _cells(q - w, self._inv)
+        hi = _cells(q + w, self._inv)
         ok = lo[:, 0] != np.iinfo(np.int64).min
         span = np.where(ok[:, None], hi - lo, 1)
         # The ball is exactly one cell wide, so hi - lo is 1 (or 0); rounding can make it 2

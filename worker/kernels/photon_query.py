@@ -39,18 +39,18 @@ def _find(keys, key) -> int:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _visit(q, r, inv, origin, ext, keys, starts, counts, order, points, occupied, out_p, out_q, fill):
+def _visit(q, r, w, inv, origin, ext, keys, starts, counts, order, points, occupied, out_p, out_q, fill):
     r2 = r * r
     bitmap = occupied.shape[0] > 0
     ey, ez = ext[1], ext[2]
     total = 0
     for i in range(q.shape[0]):
-        g0, lx = _cell(q[i, 0] - r, inv)
-        g1, hx = _cell(q[i, 0] + r, inv)
-        g2, ly = _cell(q[i, 1] - r, inv)
-        g3, hy = _cell(q[i, 1] + r, inv)
-        g4, lz = _cell(q[i, 2] - r, inv)
-        g5, hz = _cell(q[i, 2] + r, inv)
+        g0, lx = _cell(q[i, 0] - w, inv)
+        g1, hx = _cell(q[i, 0] + w, inv)
+        g2, ly = _cell(q[i, 1] - w, inv)
+        g3, hy = _cell(q[i, 1] + w, inv)
+        g4, lz = _cell(q[i, 2] - w, inv)
+        g5, hz = _cell(q[i, 2] + w, inv)
         if not (g0 and g1 and g2 and g3 and g4 and g5):
             continue
         # Rounding can widen the ball's span to a third layer; never less than two.
@@ -88,13 +88,15 @@ def _visit(q, r, inv, origin, ext, keys, starts, counts, order, points, occupied
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def query(q, r, inv, origin, ext, keys, starts, counts, order, points, occupied):
+def query(q, r, w, inv, origin, ext, keys, starts, counts, order, points, occupied):
     """(photon index, query index) of every photon within r of each query, grouped by
-    ascending query index; queries outside the grid's key space find nothing. ``occupied``:
-    one bit per key of the key space (bit key & 7 of byte key >> 3), or empty: none kept."""
+    ascending query index; the cells read span the query ± ``w`` (r, widened a little: see
+    worker.hash_grid.SPAN_MARGIN); queries outside the grid's key space find nothing.
+    ``occupied``: one bit per key of the key space (bit key & 7 of byte key >> 3), or empty:
+    none kept."""
     empty = np.empty(0, np.int64)
-    n = _visit(q, r, inv, origin, ext, keys, starts, counts, order, points, occupied, empty, empty, False)
+    n = _visit(q, r, w, inv, origin, ext, keys, starts, counts, order, points, occupied, empty, empty, False)
     out_p = np.empty(n, np.int64)
     out_q = np.empty(n, np.int64)
-    _visit(q, r, inv, origin, ext, keys, starts, counts, order, points, occupied, out_p, out_q, True)
+    _visit(q, r, w, inv, origin, ext, keys, starts, counts, order, points, occupied, out_p, out_q, True)
     return out_p, out_q
