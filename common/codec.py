@@ -74,12 +74,6 @@ def to_f16(a: np.ndarray) -> np.ndarray:
     return h
 
 
-def _shuffle(a: np.ndarray) -> bytes:
-    """Bytes of a grouped by byte position (all byte 0s, then all byte 1s, ...)."""
-    b = np.ascontiguousarray(a).view(np.uint8).reshape(-1, a.dtype.itemsize)
-    return b.T.tobytes()
-
-
 def _sections(p: int) -> list[tuple[str, np.dtype, int]]:
     return [("reflectance", np.dtype("<f2"), 3 * p), ("irradiance", np.dtype("<f2"), 3 * p),
             ("unfiltered", np.dtype("<f2"), 3 * p), ("depth", np.dtype("<f4"), p),
@@ -95,11 +89,15 @@ def encode(buffers: TileBuffers, compression_level: int = 0) -> bytes:
                         ("depth", (p,)), ("normal", (p, 3))):
         if np.shape(getattr(buffers, name)) != shape:
             raise ValueError(f"buffer {name} has shape {np.shape(getattr(buffers, name))}, expected {shape}")
-    depth = np.asarray(buffers.depth, dtype=np.float32)
-    depth = np.where(np.isnan(depth), np.float32(np.inf), depth)
-    parts = [to_f16(buffers.reflectance), to_f16(buffers.irradiance), to_f16(buffers.unfiltered),
-             depth.astype("<f4"), oct_encode(buffers.normal).astype("<i2")]
-    raw = b"".join(_shuffle(a.reshape(-1)) for a in parts)
+    from igi.common.kernels.wire_encode import payload_into
+
+    colours = np.empty((3, p, 3), np.float32)
+    for i, name in enumerate(("reflectance", "irradiance", "unfiltered")):
+        colours[i] = getattr(buffers, name)
+    depth = np.ascontiguousarray(buffers.depth, dtype=np.float32).reshape(p)
+    raw = np.empty(BYTES_PER_PIXEL * p, np.uint8)
+    # one compiled pass: float16 colours, depth, normals, each section byte-shuffled
+    payload_into(colours, colours.view(np.uint32), depth, depth.view(np.uint32), oct_encode(buffers.normal), raw)
     body = lz4.frame.compress(raw, compression_level=compression_level, content_checksum=True,
                               store_size=True)
     return _HEADER.pack(MAGIC, VERSION, 0, 0, p) + body

@@ -1,5 +1,6 @@
 """Encode side of the wire codec (common.codec, version 1), compiled: the octahedral snorm16
-normals of a task's buffers.
+normals of a task's buffers, and the whole byte-shuffled payload (float16 colours, float32
+depth, the normals) written in one pass (:func:`payload_into`).
 
 Why: the numpy form made a dozen passes with temporaries over each tile's normals (~0.5 ms a
 12k-pixel tile, the largest piece of a task's encode); here each normal is read once. The float
@@ -39,3 +40,62 @@ def oct_encode_into(n, out) -> None:
             px, py = fx, fy
         out[i, 0] = np.int16(np.rint(min(max(px, -one), one) * _SNORM))
         out[i, 1] = np.int16(np.rint(min(max(py, -one), one) * _SNORM))
+
+
+
+_F16_MAX = np.float32(65504.0)
+_F16_MAX_BITS = 0x477FE000  # float32 bits of +65504
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def f16_bits(x, b) -> int:
+    """common.codec.to_f16 of one float32 ``x`` (float32 bits ``b``), as float16 bits: NaN -> 0,
+    ±inf and overflow clamped to ±65504, float16 subnormals by rint(|x|·2^24) (as the numpy
+    form writes them), normals rounded to nearest even (numpy's cast)."""
+    if x != x:
+        x, b = np.float32(0.0), np.uint32(0)
+    elif x > _F16_MAX:
+        x, b = _F16_MAX, np.uint32(_F16_MAX_BITS)
+    elif x < -_F16_MAX:
+        x, b = -_F16_MAX, np.uint32(_F16_MAX_BITS | 0x80000000)
+    bits = np.int64(b)
+    sign = (bits >> 16) & 0x8000
+    a = bits & 0x7FFFFFFF
+    if a < 0x38800000:  # |x| < 2^-14: a float16 subnormal (or zero)
+        return sign | np.int64(np.rint(abs(x) * np.float32(16777216.0)))
+    return sign | ((a - 0x38000000 + 0xFFF + ((a >> 13) & 1)) >> 13)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def payload_into(colours, colour_bits, depth, depth_bits, normal_codes, out) -> None:
+    """The uncompressed wire payload of one task into ``out`` (uint8, 26 bytes a pixel):
+    ``colours`` (3, P, 3) float32 — reflectance, irradiance, unfiltered — as float16 (3P items
+    each), ``depth`` (P,) float32 with NaN as +inf, ``normal_codes`` (P, 2) int16; each section
+    byte-shuffled (all first bytes of its items, then all second bytes, ...). ``*_bits``: the
+    float32 arrays' uint32 views."""
+    p = depth.shape[0]
+    off = 0
+    n = 3 * p
+    for part in range(3):
+        for i in range(p):
+            for c in range(3):
+                j = 3 * i + c
+                h = f16_bits(colours[part, i, c], colour_bits[part, i, c])
+                out[off + j] = h & 0xFF
+                out[off + n + j] = h >> 8
+        off += 2 * n
+    for i in range(p):
+        x = depth[i]
+        b = np.uint32(0x7F800000) if x != x else depth_bits[i]
+        out[off + i] = b & 0xFF
+        out[off + p + i] = (b >> 8) & 0xFF
+        out[off + 2 * p + i] = (b >> 16) & 0xFF
+        out[off + 3 * p + i] = b >> 24
+    off += 4 * p
+    n = 2 * p
+    for i in range(p):
+        for c in range(2):
+            j = 2 * i + c
+            v = np.int64(normal_codes[i, c]) & 0xFFFF
+            out[off + j] = v & 0xFF
+            out[off + n + j] = v >> 8

@@ -126,3 +126,24 @@ def decode_raw(p: int, raw: np.ndarray) -> TileBuffers:
         depth=out["depth"].astype(np.float32),
         normal=oct_decode(out["normal"].reshape(p, 2)),
     )
+
+
+def encode_numpy(buffers: TileBuffers, compression_level: int = 0) -> bytes:
+    """common.codec.encode as numpy built its payload (before wire_encode.payload_into): each
+    section through to_f16 / astype, byte-shuffled with a transpose, joined, lz4."""
+    import lz4.frame
+
+    from igi.common.codec import _HEADER, MAGIC, VERSION, oct_encode, to_f16
+
+    def shuffle(a):
+        b = np.ascontiguousarray(a).view(np.uint8).reshape(-1, a.dtype.itemsize)
+        return b.T.tobytes()
+
+    p = len(buffers)
+    depth = np.asarray(buffers.depth, dtype=np.float32)
+    depth = np.where(np.isnan(depth), np.float32(np.inf), depth)
+    parts = [to_f16(buffers.reflectance), to_f16(buffers.irradiance), to_f16(buffers.unfiltered),
+             depth.astype("<f4"), oct_encode(buffers.normal).astype("<i2")]
+    raw = b"".join(shuffle(a.reshape(-1)) for a in parts)
+    body = lz4.frame.compress(raw, compression_level=compression_level, content_checksum=True, store_size=True)
+    return _HEADER.pack(MAGIC, VERSION, 0, 0, p) + body
