@@ -27,6 +27,7 @@ from igi.common.scene import (DIFFUSE, NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGH
                               Scene, kind_in)
 
 from .caustics import PhotonSet, gather_photons
+from .kernels import bsdf_rays as br
 from .kernels import specular_chain as sc
 from .kernels import vpl_gather as vg
 from .kernels import vpl_scoring as vs
@@ -795,19 +796,16 @@ def trace_bsdf_rays(geom: Geometry, lights: LightSampler, end: EndPoints, max_de
     if end.direct_only is not None:
         ok &= ~end.direct_only
     ok = np.nonzero(ok)[0]
-    every = len(ok) == e  # the common case: no copies of the end points' arrays
-
-    def rows(a):
-        return a if every else a.take(ok, axis=0)
-
-    wo, weight, pdf_b, delta = bsdf.sample(end.sp if every else end.sp.subset(ok), rows(end.wi),
-                                           rng.random(len(ok)), rng.random((len(ok), 2)), mode="radiance")
-    live = np.flatnonzero(bsdf.carrying(weight))
-    if len(live) < len(ok):
-        ok, wo, weight, pdf_b, delta = (a.take(live, axis=0) for a in (ok, wo, weight, pdf_b, delta))
-        every = False
-    d = to_world(wo, rows(end.ns))
-    o = geom.offset(rows(end.position), rows(end.ng), d)
+    n = len(ok)
+    u1, u2 = rng.random(n), rng.random((n, 2))
+    P, prow = bsdf.packed_rows(end.sp)
+    out_ok = np.empty(n, np.int64)
+    weight, d, o = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+    pdf_b, delta = np.empty(n), np.empty(n, bool)
+    a = np.ascontiguousarray
+    c = br.sample_rays(P, prow, ok, a(end.wi, np.float64), a(end.ns, np.float64), a(end.position, np.float64),
+                       a(end.ng, np.float64), u1, u2, True, *geom.offset_terms(), out_ok, weight, pdf_b, delta, d, o)
+    ok, weight, pdf_b, delta, d, o = out_ok[:c], weight[:c], pdf_b[:c], delta[:c], d[:c], o[:c]
     reach = lights.may_reach_emitter(o, d)
     if targets is not None and len(targets[1]) and not reach.all():
         reach |= rays_meet_spheres(o, d, *targets)
