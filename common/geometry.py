@@ -165,15 +165,35 @@ class Geometry:
         self._tri_normals = self.vertex_normals[self.faces].astype(np.float32)
         self._device = rtc.EmbreeDevice()
         self._local = local
-        self._embree = rtcs.EmbreeScene(self._device)  # closest hits: robust (no ray slips through an edge)
-        self._mesh = TriangleMesh(self._embree, local)
-        self._embree.run(*_ONE_RAY, output=1)  # Embree builds a BVH on its first query: now
-        # The same robust BVH through Embree's C API, where at hand (common.ray_packets): the
-        # closest hits, the same answers without embreex's per-call copies; embreex's scene
-        # stays for replays and where the packets are not at hand.
-        self._packets = packet_scene(local, robust=True)
         self._shadow = None  # shadow_bvh(): made on first use (the master's picking never needs it)
-        self._shadow_lock = threading.Lock()
+        self._build_lock = threading.Lock()
+        # Closest hits: a robust BVH (no ray slips through an edge), through Embree's C API
+        # where at hand (common.ray_packets: the same answers without embreex's per-call
+        # copies); embreex's own robust scene is then built only if asked for (benchmark
+        # replays), so the triangles are not held in two closest-hit BVHs.
+        self._embree_scene = None
+        self._packets = packet_scene(local, robust=True)
+        if self._packets is None:
+            self.embreex_bvh()  # Embree builds a BVH on its first query: now
+
+    def embreex_bvh(self):
+        """embreex's robust scene of the triangles, built on first use."""
+        if self._embree_scene is None:
+            with self._build_lock:
+                if self._embree_scene is None:
+                    scene = rtcs.EmbreeScene(self._device)
+                    self._mesh = TriangleMesh(scene, self._local)
+                    scene.run(*_ONE_RAY, output=1)
+                    self._embree_scene = scene
+        return self._embree_scene
+
+    @property
+    def _embree(self):
+        return self.embreex_bvh()
+
+    @_embree.setter
+    def _embree(self, scene) -> None:  # (time_embree's timer, tests' spies)
+        self._embree_scene = scene
 
     def shadow_bvh(self):
         """The BVH of the shadow rays, built on first use (Renderer builds it up front), queried
@@ -183,7 +203,7 @@ class Geometry:
         decides differently about once in a million (3 of a frame's 3.9M, 7 of 6.6M). Where an
         eye ray slipping through would show the background, a shadow ray adds one clamped VPL."""
         if self._shadow is None:
-            with self._shadow_lock:
+            with self._build_lock:
                 if self._shadow is None:
                     # Embree's C API in 16-ray packets (common.ray_packets) where at hand: the
                     # same answers ~1.6x faster than embreex's one ray per call.

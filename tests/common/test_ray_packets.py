@@ -99,3 +99,17 @@ def test_closest_hits_are_embreex_robust_hits(name):
         for got, key in ((u, "u"), (v, "v"), (tt, "tfar")):
             np.testing.assert_array_equal(got, r[key].astype(np.float64), err_msg=key)
         assert 0.1 < valid.mean() < 1.0
+
+
+def test_embreex_closest_hit_scene_is_built_only_when_asked_for():
+    """With the packet scenes at hand the triangles sit in one closest-hit BVH: embreex's
+    robust scene is built only for a benchmark replay (or where the packets are missing)."""
+    geom = Geometry(load_shared("cornell-box"))
+    g = np.random.default_rng(3)
+    o, d, t = _rays(g, geom, 500)
+    geom.record = []
+    hits = geom.intersect(o.astype(np.float64) + geom.center, d.astype(np.float64))
+    assert geom._embree_scene is None
+    assert geom.replay(geom.record) >= 0 and geom._embree_scene is not None
+    r = geom._embree.run(o, d, output=1)
+    np.testing.assert_array_equal(hits.prim, np.where((r["geomID"] != -1) & (r["primID"] >= 0), r["primID"], -1))
