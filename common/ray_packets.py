@@ -75,6 +75,14 @@ class PacketScene:
         return np.where(blocked, 0, -1).astype(np.int32)
 
 
+    def occluded(self, o: np.ndarray, d: np.ndarray, tfar: np.ndarray) -> np.ndarray:
+        """(n,) bool: whether something blocks each float32 ray, 0 < t < min(tfar, 3e38)."""
+        blocked = np.empty(len(o), bool)
+        c = np.ascontiguousarray
+        ray_packets.occluded(self._handle, c(o, np.float32), c(d, np.float32), c(tfar, np.float32).reshape(len(o)),
+                             blocked)
+        return blocked
+
     def closest(self, origins: np.ndarray, directions: np.ndarray, tfar: np.ndarray | None,
                 center: np.ndarray) -> tuple[np.ndarray, ...]:
         """Closest hits of the float64 rays (origins - ``center``, directions), rounded to

@@ -56,12 +56,14 @@ _rtcOccluded16 = types.ExternalFunction("rtcOccluded16", types.void(types.uintp,
 
 LANES = 16
 _FIELDS = 12  # RTCRay16's 16-lane fields
+_TFAR_MAX = np.float32(3.0e38)  # longer segments are clamped (as Geometry.occluded's callers did)
 
 
 @njit(cache=True, nogil=True)
 def occluded(scene, o, d, tfar, out) -> None:
-    """out[i] = whether something blocks ray i (origin o[i], direction d[i], 0 < t < tfar[i],
-    float32) in the Embree ``scene`` (an RTCScene handle), 16 rays per Embree call."""
+    """out[i] = whether something blocks ray i (origin o[i], direction d[i], 0 < t <
+    min(tfar[i], 3e38), float32) in the Embree ``scene`` (an RTCScene handle), 16 rays per
+    Embree call."""
     buf = np.empty(LANES * _FIELDS + LANES, np.float32)  # one packet, 64-byte aligned inside
     a = ((64 - buf.ctypes.data % 64) % 64) // 4
     ray = buf[a:a + LANES * _FIELDS]
@@ -83,7 +85,8 @@ def occluded(scene, o, d, tfar, out) -> None:
                 ray[5 * LANES + k] = d[i, 1]
                 ray[6 * LANES + k] = d[i, 2]
                 ray[7 * LANES + k] = 0.0  # time
-                ray[8 * LANES + k] = tfar[i]
+                t = tfar[i]
+                ray[8 * LANES + k] = _TFAR_MAX if t > _TFAR_MAX else t  # (NaN stays NaN)
                 bits[9 * LANES + k] = 0xFFFFFFFF  # mask
                 bits[10 * LANES + k] = 0  # id
                 bits[11 * LANES + k] = 0  # flags
