@@ -147,8 +147,10 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
     depth[idx] = t_hit
     pos, ns, ng = hits.position, hits.ns, hits.ng
     normal[idx] = ns
-    cos_front = -np.einsum("ij,ij->i", d, ns)
-    unf[idx] += lights.emitted_radiance(hits.emitter, cos_front)
+    lit = np.flatnonzero(hits.emitter >= 0)  # emission seen directly (the rest would add 0)
+    if len(lit):
+        cos_front = -np.einsum("ij,ij->i", d[lit], ns[lit])
+        unf[idx[lit]] += lights.emitted_radiance(hits.emitter[lit], cos_front)
     sp = bsdf.gather(scene.materials, hits.material, hits.uv)
     wi = to_local(-d, ns)
     delta = kind_in(sp.kind, SPECULAR_KINDS)
