@@ -59,37 +59,51 @@ _FIELDS = 12  # RTCRay16's 16-lane fields
 _TFAR_MAX = np.float32(3.0e38)  # longer segments are clamped (as Geometry.occluded's callers did)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _packet(floats: int):
+    """A packet buffer of ``floats`` float32 (its uint32 view too) and a 16-lane valid mask,
+    both 64-byte aligned as Embree's 16-wide calls require."""
+    buf = np.empty(floats + LANES, np.float32)
+    a = ((64 - buf.ctypes.data % 64) % 64) // 4
+    ray = buf[a:a + floats]
+    vbuf = np.empty(2 * LANES, np.int32)
+    b = ((64 - vbuf.ctypes.data % 64) % 64) // 4
+    return ray, ray.view(np.uint32), vbuf[b:b + LANES]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _put_ray(ray, bits, k, ox, oy, oz, dx, dy, dz, tfar) -> None:
+    """Lane k of an RTCRay16: origin, direction (float32), tnear 0, time 0, tfar, mask all
+    ones, id and flags 0."""
+    ray[k] = ox
+    ray[LANES + k] = oy
+    ray[2 * LANES + k] = oz
+    ray[3 * LANES + k] = 0.0
+    ray[4 * LANES + k] = dx
+    ray[5 * LANES + k] = dy
+    ray[6 * LANES + k] = dz
+    ray[7 * LANES + k] = 0.0
+    ray[8 * LANES + k] = tfar
+    bits[9 * LANES + k] = 0xFFFFFFFF
+    bits[10 * LANES + k] = 0
+    bits[11 * LANES + k] = 0
+
+
 @njit(cache=True, nogil=True)
 def occluded(scene, o, d, tfar, out) -> None:
     """out[i] = whether something blocks ray i (origin o[i], direction d[i], 0 < t <
     min(tfar[i], 3e38), float32) in the Embree ``scene`` (an RTCScene handle), 16 rays per
     Embree call."""
-    buf = np.empty(LANES * _FIELDS + LANES, np.float32)  # one packet, 64-byte aligned inside
-    a = ((64 - buf.ctypes.data % 64) % 64) // 4
-    ray = buf[a:a + LANES * _FIELDS]
-    bits = ray.view(np.uint32)
-    vbuf = np.empty(2 * LANES, np.int32)
-    b = ((64 - vbuf.ctypes.data % 64) % 64) // 4
-    valid = vbuf[b:b + LANES]
+    ray, bits, valid = _packet(LANES * _FIELDS)
     n = o.shape[0]
     for s in range(0, n, LANES):
         m = min(LANES, n - s)
         for k in range(LANES):
             if k < m:
                 i = s + k
-                ray[k] = o[i, 0]
-                ray[LANES + k] = o[i, 1]
-                ray[2 * LANES + k] = o[i, 2]
-                ray[3 * LANES + k] = 0.0  # tnear
-                ray[4 * LANES + k] = d[i, 0]
-                ray[5 * LANES + k] = d[i, 1]
-                ray[6 * LANES + k] = d[i, 2]
-                ray[7 * LANES + k] = 0.0  # time
                 t = tfar[i]
-                ray[8 * LANES + k] = _TFAR_MAX if t > _TFAR_MAX else t  # (NaN stays NaN)
-                bits[9 * LANES + k] = 0xFFFFFFFF  # mask
-                bits[10 * LANES + k] = 0  # id
-                bits[11 * LANES + k] = 0  # flags
+                _put_ray(ray, bits, k, o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2],
+                         _TFAR_MAX if t > _TFAR_MAX else t)  # (NaN stays NaN)
                 valid[k] = -1
             else:
                 valid[k] = 0
@@ -113,31 +127,16 @@ def closest_hits(scene, origins, directions, tfar, center, out_prim, out_u, out_
     (origins[i] - center, directions[i]) rounded to float32 as Embree takes it, 0 < t <
     tfar[i] (float32). out_prim[i] the triangle (-1 on a miss), out_u/out_v its barycentrics,
     out_t the distance (tfar[i] on a miss), as float64."""
-    buf = np.empty(_HIT + _HIT_ROOM + LANES, np.float32)
-    a = ((64 - buf.ctypes.data % 64) % 64) // 4
-    ray = buf[a:a + _HIT + _HIT_ROOM]
-    bits = ray.view(np.uint32)
-    vbuf = np.empty(2 * LANES, np.int32)
-    b = ((64 - vbuf.ctypes.data % 64) % 64) // 4
-    valid = vbuf[b:b + LANES]
+    ray, bits, valid = _packet(_HIT + _HIT_ROOM)
     n = origins.shape[0]
     for s in range(0, n, LANES):
         m = min(LANES, n - s)
         for k in range(LANES):
             if k < m:
                 i = s + k
-                ray[k] = np.float32(origins[i, 0] - center[0])
-                ray[LANES + k] = np.float32(origins[i, 1] - center[1])
-                ray[2 * LANES + k] = np.float32(origins[i, 2] - center[2])
-                ray[3 * LANES + k] = 0.0  # tnear
-                ray[4 * LANES + k] = np.float32(directions[i, 0])
-                ray[5 * LANES + k] = np.float32(directions[i, 1])
-                ray[6 * LANES + k] = np.float32(directions[i, 2])
-                ray[7 * LANES + k] = 0.0  # time
-                ray[8 * LANES + k] = tfar[i]
-                bits[9 * LANES + k] = 0xFFFFFFFF  # mask
-                bits[10 * LANES + k] = 0  # id
-                bits[11 * LANES + k] = 0  # flags
+                _put_ray(ray, bits, k, np.float32(origins[i, 0] - center[0]), np.float32(origins[i, 1] - center[1]),
+                         np.float32(origins[i, 2] - center[2]), np.float32(directions[i, 0]),
+                         np.float32(directions[i, 1]), np.float32(directions[i, 2]), tfar[i])
                 bits[_HIT + 5 * LANES + k] = _INVALID  # primID
                 bits[_HIT + 6 * LANES + k] = _INVALID  # geomID
                 bits[_HIT + 7 * LANES + k] = _INVALID  # instID[0]
