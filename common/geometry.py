@@ -245,16 +245,8 @@ class Geometry:
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, tmax: np.ndarray) -> np.ndarray:
         """True where something blocks the segment origin + t*direction, 0 < t < tmax."""
-        if len(origins) == 0:
-            return np.zeros(0, bool)
-        o = (origins - self.center).astype(np.float32)
-        d = directions.astype(np.float32)
-        dist = np.ascontiguousarray(np.minimum(tmax, 3.0e38), dtype=np.float32)
-        self.counters["occluded_rays"] += len(o)
-        if self.record is not None:
-            self.record.append(("occluded", o, d, dist))
-        r = self.shadow_bvh().run(o, d, query="OCCLUDED", dists=dist)
-        return r != -1
+        return self.occluded_local((origins - self.center).astype(np.float32), directions.astype(np.float32),
+                                   np.minimum(tmax, 3.0e38))
 
     def occluded_local(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray) -> np.ndarray:
         """occluded() for origins already in the centred float32 frame (hot path)."""
@@ -284,11 +276,6 @@ class Geometry:
         dirs = seg / np.maximum(dist, 1e-300)[:, None]
         tmax = dist * (1 - 1e-5) - self.eps
         return ~self.occluded(ox, dirs, np.maximum(tmax, 0.0))
-
-    def offset_scale(self, p: np.ndarray) -> np.ndarray:
-        """Per-point offset length: the scene epsilon plus float32 ulps of the local coordinate."""
-        a = np.abs(p - self.center)  # the columns' maxima: numpy's axis=1 reductions are slow
-        return self.eps + 4 * np.finfo(np.float32).eps * np.maximum(np.maximum(a[:, 0], a[:, 1]), a[:, 2])
 
     def offset_terms(self) -> tuple[np.ndarray, float, float]:
         """``(center, eps, ulps)`` of :meth:`offset` for compiled callers (hit_surface.offset_point)."""

@@ -141,7 +141,7 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
         # pairs lie on the side of the surface the eye sees (cos_x > 0, reflective BSDFs), so
         # one offset origin per end point serves all its shadow rays.
         ng = end.ng[sl].astype(f32)
-        scale = geom.offset_scale(end.position[sl]).astype(f32) * side
+        scale = _offset_scale(geom, end.position[sl]).astype(f32) * side
         o_rows = x + ng * scale[:, None]
         id_ = inv_d[ii, jj]
         wij = dvec[ii, jj] * id_[:, None]
@@ -215,5 +215,12 @@ def shadow_origins_numpy(geom, end, sl):
     ns = np.ascontiguousarray(end.ns[sl], dtype=f32)
     ng = np.ascontiguousarray(end.ng[sl], dtype=f32)
     side = np.where(end.wi[sl, 2] >= 0, f32(1), f32(-1))
-    off = (geom.offset_scale(pos).astype(f32) * side).astype(f32)
+    off = (_offset_scale(geom, pos).astype(f32) * side).astype(f32)
     return x, ns, ng, side, off
+
+
+def _offset_scale(geom, p):
+    """Per-point offset length as numpy computed it (Geometry.offset_scale before
+    vpl_gather.shadow_origins): the scene epsilon plus float32 ulps of the local coordinate."""
+    a = np.abs(p - geom.center)
+    return geom.eps + 4 * np.finfo(np.float32).eps * np.maximum(np.maximum(a[:, 0], a[:, 1]), a[:, 2])

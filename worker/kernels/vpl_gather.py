@@ -89,7 +89,7 @@ def shadow_origins(pos, ns, ng, wi, center, eps, ulps, out_x, out_ns, out_ng, ou
     """The end points as the pair kernels take them, float32 in Embree's centred frame: x,
     ns, ng, the eye's side ±1 (wi's z >= 0: +1) and the offset length along ng toward it
     (the scene epsilon plus ``ulps`` of the largest centred coordinate, as
-    common.geometry.Geometry.offset_scale)."""
+    common.geometry.Geometry.offset_terms)."""
     for i in range(pos.shape[0]):
         a0 = pos[i, 0] - center[0]
         a1 = pos[i, 1] - center[1]
