@@ -282,12 +282,6 @@ def gather(materials: list[Material], mat_ids: np.ndarray, uv: np.ndarray | None
     return SurfacePoints._backed(t, ids, held)
 
 
-def material_points(materials: list[Material], mat_ids: np.ndarray, uv: np.ndarray | None) -> tuple[tuple, np.ndarray]:
-    """``(P, row)`` of the points with material indices ``mat_ids`` (negative: NULL) at ``uv``:
-    :func:`packed_rows` of their :func:`gather`."""
-    return packed_rows(gather(materials, mat_ids, uv))
-
-
 def packed_rows(sp: SurfacePoints) -> tuple[tuple, np.ndarray]:
     """``(P, row)``: the kernels' packed parameters holding point j's at row ``row[j]``.
     Material-backed points that hold no field of their own read their material's row of one P

@@ -56,8 +56,9 @@ def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: E
     env = lights.environment()
     ends: list[tuple] = []
     for _ in range(specular_depth):
-        rows, thr, seg, d, origin = _delta_bounce(scene, geom, rows, thr, seg, d, pos, ns, ng, mat_i, uv, max_depth,
-                                                  rng)
+        src, thr, seg, d, origin = delta_bounce(scene.materials, geom, np.arange(len(rows)), pos, ns, ng, d, thr, seg,
+                                                mat_i, uv, max_depth, rng)
+        rows = rows[src]
         if len(rows) == 0:
             break
         h = geom.intersect(origin, d)
@@ -86,12 +87,3 @@ def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: E
             # each row's chain ends once (here or as a miss above): its rows are unique
             out[r] += bsdf.finite_or_zero(thr[k] * l_y / np.maximum(albedo[r], 1e-6))
     return out
-
-
-def _delta_bounce(scene: Scene, geom: Geometry, rows, thr, seg, d, pos, ns, ng, mat_i, uv, max_depth: int,
-                  rng: np.random.Generator) -> tuple:
-    """The chain vertices' delta samples that carry light, as the next bounce's rays:
-    ``(rows, throughput, segments, directions, offset origins)``."""
-    src, thr, seg, d, origin = delta_bounce(scene.materials, geom, np.arange(len(rows)), pos, ns, ng, d, thr, seg,
-                                            mat_i, uv, max_depth, rng)
-    return rows[src], thr, seg, d, origin

@@ -339,7 +339,7 @@ def delta_bounce(materials: list, geom: Geometry, src: np.ndarray, pos: np.ndarr
     too (chains sample only pure delta kinds, whose samples are all delta or failed)."""
     n = len(src)
     u1, u2 = rng.random(n), rng.random((n, 2))
-    P, prow = bsdf.material_points(materials, mat, uv)
+    P, prow = bsdf.packed_rows(bsdf.gather(materials, mat, uv))
     if seg is None:
         seg = np.zeros(len(pos), np.int64)
     out_src, out_seg = np.empty(n, np.int64), np.empty(n, np.int64)

@@ -78,14 +78,14 @@ def test_empty_bounce_returns_empty_rays():
 
 
 @pytest.mark.parametrize("textured", [False, True])
-def test_material_points_hold_each_points_parameters(textured):
-    """bsdf.material_points: row[j] of P holds point j's parameters, as pack(gather(...))
+def test_packed_rows_of_gathered_points_hold_each_points_parameters(textured):
+    """bsdf.packed_rows of gathered points: row[j] of P holds point j's parameters, as pack(gather(...))
     has them at row j (per material where no texture is read, per point otherwise)."""
     mats = _materials(textured)
     g = np.random.default_rng(3)
     mat = g.integers(-2, len(mats) + 1, 500)  # out of range on both sides: NULL
     uv = g.random((500, 2))
-    P, row = bsdf.material_points(mats, mat, uv)
+    P, row = bsdf.packed_rows(bsdf.gather(mats, mat, uv))
     want = bsdf.pack(bsdf.gather(mats, mat, uv))
     assert len(P) == len(want)
     per_point = (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 14, 15, 16)  # the tables (12, 13) are shared
