@@ -349,6 +349,13 @@ def _fin(x: float) -> float:
 
 
 @njit(**_KERNEL, inline="always")
+def carries(r: float, g: float, b: float) -> bool:
+    """An RGB weight that carries light: positive in some channel, finite in all (one row of
+    common.bsdf.carrying)."""
+    return (r > 0.0 or g > 0.0 or b > 0.0) and math.isfinite(r) and math.isfinite(g) and math.isfinite(b)
+
+
+@njit(**_KERNEL, inline="always")
 def _flipped(P, i: int, wiz: float) -> bool:
     """Twosided point seen from the back (transmissive kinds are two-sided by nature)."""
     k = P[0][i]

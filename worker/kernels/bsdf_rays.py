@@ -7,8 +7,6 @@ are bit-identical to it.
 """
 from __future__ import annotations
 
-import math
-
 from numba import njit
 
 from igi.common.kernels import bsdf as kb
@@ -29,8 +27,7 @@ def sample_rays(P, prow, src, wi, ns, pos, ng, u1, u2, radiance, center, eps, ul
         i = src[j]
         ox, oy, oz, w0, w1, w2, p, delta = kb.sample(P, prow[i], wi[i, 0], wi[i, 1], wi[i, 2], u1[j], u2[j, 0],
                                                      u2[j, 1], radiance)
-        if not ((w0 > 0.0 or w1 > 0.0 or w2 > 0.0) and math.isfinite(w0) and math.isfinite(w1)
-                and math.isfinite(w2)):
+        if not kb.carries(w0, w1, w2):
             continue
         dx, dy, dz = shading_frame.to_world(ox, oy, oz, ns[i, 0], ns[i, 1], ns[i, 2])
         out_src[c] = i

@@ -54,7 +54,7 @@ def continue_paths(P, prow, sel, rows, pos, ns, ng, d, o, flux, u, col, roulette
         d[r, 0], d[r, 1], d[r, 2] = dx, dy, dz
         o[r, 0], o[r, 1], o[r, 2] = offset_point(pos[j, 0], pos[j, 1], pos[j, 2], ng[j, 0], ng[j, 1], ng[j, 2],
                                                  dx, dy, dz, center, eps, ulps)
-        if (f0 > 0.0 or f1 > 0.0 or f2 > 0.0) and math.isfinite(f0) and math.isfinite(f1) and math.isfinite(f2):
+        if kb.carries(f0, f1, f2):
             out_rows[c] = r
             c += 1
     return c

@@ -9,8 +9,6 @@ are bit-identical to it.
 """
 from __future__ import annotations
 
-import math
-
 from numba import njit
 
 from igi.common.kernels import bsdf as kb
@@ -36,8 +34,7 @@ def delta_bounce(P, prow, src, pos, ns, ng, d, thr, seg, u1, u2, max_depth, delt
         ox, oy, oz, wr, wg, wb, _p, delta = kb.sample(P, prow[i], wix, wiy, wiz, u1[j], u2[j, 0], u2[j, 1], True)
         if delta_only and not delta:
             continue
-        if not ((wr > 0.0 or wg > 0.0 or wb > 0.0) and math.isfinite(wr) and math.isfinite(wg)
-                and math.isfinite(wb)):
+        if not kb.carries(wr, wg, wb):
             continue
         s = seg[i] + 1
         if max_depth >= 0 and s > max_depth:
