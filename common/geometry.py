@@ -17,7 +17,7 @@ from embreex import rtcore_scene as rtcs
 from embreex.mesh_construction import TriangleMesh
 
 from .kernels import hit_surface, triangle_sampling
-from .ray_packets import packet_scene
+from .ray_packets import PacketScene, packet_scene
 from .scene import Scene, SceneError
 
 log = logging.getLogger("igi.geometry")
@@ -214,6 +214,15 @@ class Geometry:
                     scene.run(*_ONE_RAY, query="OCCLUDED", dists=np.zeros(1, np.float32))
                     self._shadow = scene
         return self._shadow
+
+    def packet_handle(self) -> int | None:
+        """The shadow BVH's RTCScene handle for compiled code that queries it in packets
+        itself (worker.kernels.vpl_gather.gather_packets), or None where its rays must pass
+        through :meth:`occluded_local`: embreex's scene, or a benchmark timing or recording them."""
+        shadow = self.shadow_bvh()
+        if self.record is not None or not isinstance(shadow, PacketScene):
+            return None
+        return shadow.handle
 
     # -- queries ---------------------------------------------------------------------------
     def intersect(self, origins: np.ndarray, directions: np.ndarray,

@@ -62,6 +62,11 @@ class PacketScene:
         self._buffers = buffers
         self._finalizer = weakref.finalize(self, lib.rtcReleaseScene, handle)
 
+    @property
+    def handle(self) -> int:
+        """The RTCScene, for compiled callers (common.kernels.ray_packets); valid while this lives."""
+        return self._handle
+
     def run(self, o: np.ndarray, d: np.ndarray, query: str = "OCCLUDED", dists=None) -> np.ndarray:
         """embreex's occlusion ``run``: geomID per ray (0 blocked, -1 not); no ``dists``: rays
         of unbounded length. Closest hits: :meth:`closest`."""

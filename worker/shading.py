@@ -442,12 +442,48 @@ def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
     if e == 0 or m == 0:
         return albedo, irr
     cols = vpl_columns(vpls, geom, clamp_d2, force_general, lobe_alpha)
-    receivers = _Receivers(end, albedo)
     roulette = (float(shadow_roulette), int(seed)) if shadow_roulette > 0 else None
-    for sl in _chunks(e, m):
+    rest = _gather_packets(geom, end, cols, max_depth, roulette, irr) if not cols.glossy.any() else None
+    if rest is not None:  # the glossy receivers, whose pairs take a BSDF factor each
+        if len(rest):
+            irr[rest] = _gather_pairs(geom, end.subset(rest), vpls, cols, max_depth, albedo[rest], roulette)
+        return albedo, irr
+    return albedo, _gather_pairs(geom, end, vpls, cols, max_depth, albedo, roulette)
+
+
+def _gather_pairs(geom: Geometry, end: EndPoints, vpls: VPLSet, cols: "_VPLColumns", max_depth: int,
+                  albedo: np.ndarray, roulette: tuple | None) -> np.ndarray:
+    """The gather's irradiance through pair lists (kernels.vpl_gather steps 1-3 apart, with
+    per-pair BSDF factors), PAIR_CHUNK pairs at a time."""
+    e = len(end)
+    irr = np.zeros((e, 3))
+    receivers = _Receivers(end, albedo)
+    for sl in _chunks(e, len(vpls)):
         pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, receivers, roulette)
         vg.accumulate(sl.stop - sl.start, pi, pj, w, blocked, cols.color, factor, irr[sl])
-    return albedo, irr
+    return irr
+
+
+def _gather_packets(geom: Geometry, end: EndPoints, cols: "_VPLColumns", max_depth: int, roulette: tuple | None,
+                    irr: np.ndarray) -> np.ndarray | None:
+    """The gather fused with its shadow rays (kernels.vpl_gather.gather_packets) into ``irr``
+    for every end point but the glossy receivers, whose rows it returns; None where the shadow
+    BVH is not queried in packets from compiled code (no C API, or a benchmark timing or
+    recording the rays): nothing done then."""
+    scene = geom.packet_handle()
+    if scene is None:
+        return None
+    x, ns, ng, side, off, row, tables, row_tab, inv_tavg = _receivers(geom, end, slice(0, len(end)))
+    glossy = np.nonzero(row == vg.ROW_GLOSSY)[0]
+    row[glossy] = vg.ROW_NONE
+    n, m = len(x), len(cols.depth)
+    geom.counters["occluded_rays"] += vg.gather_packets(
+        scene, x, ns, ng, off, side, row, end.vpl_depth_limit(max_depth), cols.pos, cols.normal, cols.directional,
+        cols.min_d2, cols.cos_y_factor, cols.side, cols.spot_cutoff, cols.spot_beam, cols.depth, cols.mis,
+        cols.light_pdf, cols.area, cols.direct_count, np.float32(2 * geom.eps), tables, row_tab, inv_tavg,
+        np.zeros(n, np.int64), np.full(n, m, np.int64), cols.lum, float(roulette[0]) if roulette else 0.0,
+        int(roulette[1]) if roulette else 0, 0, cols.color, irr)
+    return glossy
 
 
 def _chunks(e: int, m: int):
@@ -697,18 +733,12 @@ def _listed_pair_rays(geom: Geometry, end: EndPoints, sl: slice, cols: "_VPLColu
     return o, d, t
 
 
-def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,
-               max_depth: int, col_range: tuple | None = None, roulette: tuple | None = None,
-               rays: bool = True) -> tuple:
-    """The chunk's live (end point, VPL) pairs and their shadow rays, untraced: (row, column,
-    scalar weight, receiver row kind, light pdf, origins, directions, tfar) — the rays in the
-    centred float32 frame for Embree. ``col_range`` (lo, hi) per end point: its VPLs (None:
-    all). ``roulette`` (fraction, seed): the shadow rays' Russian roulette, applied per row as
-    the pairs are written (kernels.vpl_gather.shadow_roulette_row). ``rays`` False: the pairs
-    only (the ray arrays empty; :func:`_listed_pair_rays` makes the rays of a few of them)."""
-    f32 = np.float32
+def _receivers(geom: Geometry, end: EndPoints, sl: slice) -> tuple:
+    """The chunk's end points as the pair kernels take them: :func:`_shadow_origins`, then the
+    receiver kind per row (kernels.vpl_gather.ROW_*) and the plastic layers' coat tables
+    (tables, row's table, 1/t_avg per row)."""
     x, ns, ng, side, off = _shadow_origins(geom, end, sl)
-    n, m = len(x), len(vpls)
+    n = len(x)
     wz = end.wi[sl, 2]
     kind = end.sp.kind[sl]
     front = end.sp.twosided[sl] | (wz > 0)
@@ -729,6 +759,21 @@ def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _V
         t_ratio = lerp_gather(tables, rt, np.clip(ci, 0, 1)) / np.maximum(
             lerp_gather(tables, rt, np.clip(ci, 0.05, 1)), 1e-12)
         inv_tavg[layer] = t_ratio / np.maximum(t_avg, 1e-12)
+    return x, ns, ng, side, off, row, tables, row_tab, inv_tavg
+
+
+def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,
+               max_depth: int, col_range: tuple | None = None, roulette: tuple | None = None,
+               rays: bool = True) -> tuple:
+    """The chunk's live (end point, VPL) pairs and their shadow rays, untraced: (row, column,
+    scalar weight, receiver row kind, light pdf, origins, directions, tfar) — the rays in the
+    centred float32 frame for Embree. ``col_range`` (lo, hi) per end point: its VPLs (None:
+    all). ``roulette`` (fraction, seed): the shadow rays' Russian roulette, applied per row as
+    the pairs are written (kernels.vpl_gather.shadow_roulette_row). ``rays`` False: the pairs
+    only (the ray arrays empty; :func:`_listed_pair_rays` makes the rays of a few of them)."""
+    f32 = np.float32
+    x, ns, ng, side, off, row, tables, row_tab, inv_tavg = _receivers(geom, end, sl)
+    n, m = len(x), len(vpls)
     if col_range is None:
         lo, hi, cap = np.zeros(n, np.int64), np.full(n, m, np.int64), n * m
     else:

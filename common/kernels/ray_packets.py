@@ -89,27 +89,51 @@ def _put_ray(ray, bits, k, ox, oy, oz, dx, dy, dz, tfar) -> None:
     bits[11 * LANES + k] = 0
 
 
+@njit(cache=True, nogil=True, inline="always")
+def packet_lanes():
+    """An occlusion packet (ray, its uint32 view, valid mask) whose fixed fields are set —
+    tnear and time 0, mask all ones, id and flags 0 — for callers that write the origins,
+    directions and tfar of its lanes themselves (Embree's occlusion query changes only tfar)."""
+    ray, bits, valid = _packet(LANES * _FIELDS)
+    for k in range(LANES):
+        ray[3 * LANES + k] = 0.0
+        ray[7 * LANES + k] = 0.0
+        bits[9 * LANES + k] = 0xFFFFFFFF
+        bits[10 * LANES + k] = 0
+        bits[11 * LANES + k] = 0
+    return ray, bits, valid
+
+
+@njit(cache=True, nogil=True, inline="always")
+def occlude_lanes(scene, ray, valid, count):
+    """Embree's occlusion query on the packet's first ``count`` lanes (tfar clamped to 3e38, NaN
+    kept); returns the lanes' tfar, negative (-inf) where something blocks the ray."""
+    for k in range(LANES):
+        if k < count:
+            t = ray[8 * LANES + k]
+            ray[8 * LANES + k] = _TFAR_MAX if t > _TFAR_MAX else t  # (NaN stays NaN)
+            valid[k] = -1
+        else:
+            valid[k] = 0
+    _rtcOccluded16(valid.ctypes.data, scene, ray.ctypes.data, 0)
+    return ray[8 * LANES:9 * LANES]
+
+
 @njit(cache=True, nogil=True)
 def occluded(scene, o, d, tfar, out) -> None:
     """out[i] = whether something blocks ray i (origin o[i], direction d[i], 0 < t <
     min(tfar[i], 3e38), float32) in the Embree ``scene`` (an RTCScene handle), 16 rays per
     Embree call."""
-    ray, bits, valid = _packet(LANES * _FIELDS)
+    ray, bits, valid = packet_lanes()
     n = o.shape[0]
     for s in range(0, n, LANES):
         m = min(LANES, n - s)
-        for k in range(LANES):
-            if k < m:
-                i = s + k
-                t = tfar[i]
-                _put_ray(ray, bits, k, o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2],
-                         _TFAR_MAX if t > _TFAR_MAX else t)  # (NaN stays NaN)
-                valid[k] = -1
-            else:
-                valid[k] = 0
-        _rtcOccluded16(valid.ctypes.data, scene, ray.ctypes.data, 0)
         for k in range(m):
-            out[s + k] = ray[8 * LANES + k] < 0.0
+            i = s + k
+            _put_ray(ray, bits, k, o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2], tfar[i])
+        tf = occlude_lanes(scene, ray, valid, m)
+        for k in range(m):
+            out[s + k] = tf[k] < 0.0
 
 
 

@@ -173,7 +173,7 @@ def test_shadow_roulette_keeps_the_big_pairs_and_counts_a_kept_small_one_at_the_
         total = float(np.sum(w.astype(np.float64) * lum))
         n = vg.shadow_roulette_row(5, 7, total, pj, w.copy(), np.zeros(5, np.float32), stage_d, 0.0, 0.0, 0.0,
                                    directional, np.float32(0.0), lum, 0.5, seed, 0, True, 2,
-                                   out_i, out_j, out_w, out_pl, out_o, out_d, out_t) - 2
+                                   out_i, out_j, out_w, out_pl, out_o, out_d, out_t, None) - 2
         ki, kj, kw, kt = out_i[2:2 + n], out_j[2:2 + n], out_w[2:2 + n], out_t[2:2 + n]
         assert np.all(ki == 7) and kj[0] == 0 and kw[0] == np.float32(10.0)  # the big pair, unchanged
         np.testing.assert_allclose(kw[1:], threshold, rtol=1e-6)
@@ -197,7 +197,7 @@ def test_shadow_roulette_keeps_a_row_of_no_or_negative_light_as_it_is():
         stage_d = np.tile(np.array([1.0, 0.0, 0.0, 1.0], np.float32), (3, 1))
         k = vg.shadow_roulette_row(3, 0, total, np.arange(3, dtype=np.int64), w.copy(), np.zeros(3, np.float32),
                                    stage_d, 0.0, 0.0, 0.0, np.zeros(3, bool), np.float32(0.0), lum, 1.0, 5, 0, True,
-                                   0, *outs)
+                                   0, *outs, None)
         assert k == 3
         np.testing.assert_array_equal(outs[1], [0, 1, 2])
         np.testing.assert_array_equal(outs[2], w)
@@ -304,3 +304,62 @@ def test_shadow_origins_equal_the_numpy_form_with_grazing_far_and_nan_points():
         for got, want in zip(_shadow_origins(r.geom, end, sl), shadow_origins_numpy(r.geom, end, sl)):
             assert got.dtype == want.dtype
             np.testing.assert_array_equal(got, want)
+
+
+def _pair_list_path(geom):
+    """The geometry with the fused packet gather switched off (as under a benchmark's hooks)."""
+    geom.packet_handle = lambda: None
+    return geom
+
+
+@pytest.mark.parametrize("name, indirect", [("cornell-box-sphere", 18), ("cornell-box", 18),
+                                            ("cornell-box-glossy", 0)])
+@pytest.mark.parametrize("roulette", [0.0, 1.0])
+def test_the_packet_gather_equals_the_pair_lists_bit_for_bit(name, indirect, roulette):
+    """gather_packets (pairs straight into Embree packets, summed as they come back) gives the
+    pair-list path's irradiance bit for bit and traces the same number of shadow rays, with and
+    without the shadow roulette; cornell-box-glossy's emitter samples alone (no glossy column)
+    take the fused path for its Lambertian rows and the pair lists for its glossy ones."""
+    from igi.worker import shading
+    from igi.worker.kernels import vpl_gather as vg
+
+    r = Renderer(load_shared(name))
+    if r.geom.packet_handle() is None:
+        pytest.skip("Embree's C API is not at hand: the gather has only the pair-list path")
+    end = eye_end_points(r, 48, 36)
+    vpls = _set(r, 2, indirect=indirect)
+    c2 = CLAMP * r.geom.diagonal ** 2
+    assert not shading.vpl_columns(vpls, r.geom, c2).glossy.any()  # the fused path is taken
+    rows = shading._receivers(r.geom, end, slice(0, len(end)))[5]
+    if name == "cornell-box-glossy":
+        assert np.any(rows == vg.ROW_GLOSSY) and np.any(rows == vg.ROW_LAMBERT)  # both paths at once
+    r.geom.counters["occluded_rays"] = 0
+    a1, i1 = gather_vpls(r.geom, end, vpls, c2, -1, shadow_roulette=roulette, seed=7)
+    fused_rays = r.geom.counters["occluded_rays"]
+    r2 = Renderer(load_shared(name))
+    _pair_list_path(r2.geom)
+    a2, i2 = gather_vpls(r2.geom, end, vpls, c2, -1, shadow_roulette=roulette, seed=7)
+    assert i1.sum() > 0
+    np.testing.assert_array_equal(a1, a2)
+    np.testing.assert_array_equal(i1, i2)
+    assert fused_rays == r2.geom.counters["occluded_rays"] > 0
+
+
+def test_the_packet_gather_lights_nothing_through_non_finite_weights():
+    """NaN and Inf end points reach the packet kernel too: their rows come back 0 (as the
+    pair-list path's accumulate leaves them), every other row equals that path's."""
+    r = Renderer(load_shared("cornell-box"))
+    if r.geom.packet_handle() is None:
+        pytest.skip("Embree's C API is not at hand")
+    end = eye_end_points(r, 24, 24)
+    pos = end.position.copy()
+    pos[::7] = np.nan
+    pos[3::7] = np.inf
+    end = dataclasses.replace(end, position=pos)
+    vpls = _set(r, 4)
+    c2 = CLAMP * r.geom.diagonal ** 2
+    _a1, i1 = gather_vpls(r.geom, end, vpls, c2, -1, shadow_roulette=1.0, seed=3)
+    r2 = Renderer(load_shared("cornell-box"))
+    _a2, i2 = gather_vpls(_pair_list_path(r2.geom), end, vpls, c2, -1, shadow_roulette=1.0, seed=3)
+    assert np.all(np.isfinite(i1)) and np.all(i1[::7] == 0) and np.all(i1[3::7] == 0)
+    np.testing.assert_array_equal(i1, i2)

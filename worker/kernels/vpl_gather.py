@@ -13,6 +13,11 @@ Three steps per chunk of end points, none with an (end points × VPLs) temporary
 3. :func:`accumulate` — the unoccluded pairs' weight × VPL colour (× per-pair BSDF factors
    for glossy receivers or senders, computed by the caller on the compact pair list) summed
    per end point.
+
+Where no pair needs a BSDF factor (Lambertian and plastic-layer rows, no glossy VPL) and the
+shadow BVH is an Embree packet scene, :func:`gather_packets` does all three in one pass: the
+pairs go 16 at a time into an Embree packet traced from inside the kernel (rtcOccluded16) and
+are summed as they come back — the same sums in the same order, with no pair or ray arrays.
 """
 from __future__ import annotations
 
@@ -23,6 +28,7 @@ from numba import njit
 
 from igi.common.kernels import bsdf as kb
 from igi.common.kernels import shading_frame
+from igi.common.kernels.ray_packets import LANES, occlude_lanes, packet_lanes
 
 INV_PI = 1.0 / math.pi
 
@@ -120,29 +126,18 @@ def pair_rays(x, ng, off, vpos, vnormal, directional, eps2, pi, pj, out_o, out_d
                    d0, d1, d2, inv_d, directional[j], eps2, out_o, out_d, out_t)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def pair_weights(x, ns, ng, off, side, row, vmax,
-                 vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam,
-                 vdepth, mis, light_pdf, area, direct_count, eps2,
-                 tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base, rays,
-                 out_i, out_j, out_w, out_pl, out_o, out_d, out_t):
-    """Fill the live pairs of rows x (n, 3) × VPL columns [col_lo[i], col_hi[i]); returns how
-    many were written (the out arrays hold at least Σ (col_hi - col_lo)).
-
-    x, ns, ng: float32 (n, 3) end points in Embree's centred frame; off: float32 (n,) offset
-    length along ng, signed to the eye's side (``side``); row: ROW_* per end point; vmax: the
-    deepest VPL (light-path depth) the row may take — the path-length limit, and 0 for points
-    that take emitter samples only. Per column: vpos/vnormal float32 (m, 3), directional/cos_factor/mis/area bool,
-    min_d2/vside/light_pdf float32, spot_cutoff/spot_beam degrees (cutoff < 0: not a spot),
-    vdepth int. ROW_LAYER rows read their coat-transmittance table ``tables[row_tab[i]]`` and
-    1/t_avg ``inv_tavg[i]``. out_pl: the MIS light pdf of glossy-row pairs (0 elsewhere) — their BSDF pdf
-    is the caller's, so their MIS weight is applied by the caller. ``fraction`` > 0: each row's
-    pairs go through :func:`shadow_roulette_row` (``lum``, ``seed``, ``base``) once the row is
-    computed (0: every live pair is kept). Per-row column ranges let
-    one call score the candidates of several VPL sets, each against its own camera points.
-    ``rays`` False: no shadow ray is written (out_o, out_d, out_t may be empty) — for callers
-    that trace only a few of the pairs (:func:`pair_rays` makes theirs).
-    """
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _pairs(rows, columns, roulette, rays, outs, packet):
+    """The body of :func:`pair_weights` and :func:`gather_packets`, its arguments in tuples
+    (numba inlines no call of this many single arguments). ``packet`` None: pairs are written
+    from 0 on into out arrays large enough for all; else the state of :func:`_flush`: the out
+    arrays are a packet's 16 lanes, traced and accumulated each time they fill (the last,
+    partial packet is the caller's)."""
+    x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi = rows
+    (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf, area,
+     direct_count, eps2) = columns
+    lum, fraction, seed, base = roulette
+    out_i, out_j, out_w, out_pl, out_o, out_d, out_t = outs
     n = x.shape[0]
     n_tab = tables.shape[1]
     k = 0
@@ -232,11 +227,93 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
             if rays:
                 _write_ray(k, o0, o1, o2, d0, d1, d2_, inv_d, directional[j], eps2, out_o, out_d, out_t)
             k += 1
+            if packet is not None and k == LANES:
+                k = _flush(LANES, out_i, out_j, out_w, packet)
         if q > 0:
             k = shadow_roulette_row(q, i, total, stage_j, stage_w, stage_pl, stage_d, o0, o1, o2, directional, eps2,
                                     lum, fraction, seed, base, rays, k, out_i, out_j, out_w, out_pl, out_o, out_d,
-                                    out_t)
+                                    out_t, packet)
     return k
+
+
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def pair_weights(x, ns, ng, off, side, row, vmax,
+                 vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam,
+                 vdepth, mis, light_pdf, area, direct_count, eps2,
+                 tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base, rays,
+                 out_i, out_j, out_w, out_pl, out_o, out_d, out_t):
+    """Fill the live pairs of rows x (n, 3) × VPL columns [col_lo[i], col_hi[i]); returns how
+    many were written (the out arrays hold at least Σ (col_hi - col_lo)).
+
+    x, ns, ng: float32 (n, 3) end points in Embree's centred frame; off: float32 (n,) offset
+    length along ng, signed to the eye's side (``side``); row: ROW_* per end point; vmax: the
+    deepest VPL (light-path depth) the row may take — the path-length limit, and 0 for points
+    that take emitter samples only. Per column: vpos/vnormal float32 (m, 3), directional/cos_factor/mis/area bool,
+    min_d2/vside/light_pdf float32, spot_cutoff/spot_beam degrees (cutoff < 0: not a spot),
+    vdepth int. ROW_LAYER rows read their coat-transmittance table ``tables[row_tab[i]]`` and
+    1/t_avg ``inv_tavg[i]``. out_pl: the MIS light pdf of glossy-row pairs (0 elsewhere) — their BSDF pdf
+    is the caller's, so their MIS weight is applied by the caller. ``fraction`` > 0: each row's
+    pairs go through :func:`shadow_roulette_row` (``lum``, ``seed``, ``base``) once the row is
+    computed (0: every live pair is kept). Per-row column ranges let
+    one call score the candidates of several VPL sets, each against its own camera points.
+    ``rays`` False: no shadow ray is written (out_o, out_d, out_t may be empty) — for callers
+    that trace only a few of the pairs (:func:`pair_rays` makes theirs).
+    """
+    return _pairs((x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi),
+                  (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis,
+                   light_pdf, area, direct_count, eps2),
+                  (lum, fraction, seed, base), rays, (out_i, out_j, out_w, out_pl, out_o, out_d, out_t), None)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def gather_packets(scene, x, ns, ng, off, side, row, vmax,
+                   vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam,
+                   vdepth, mis, light_pdf, area, direct_count, eps2,
+                   tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base, color, out):
+    """Steps 1-3 of the module fused for rows whose pairs need no per-pair BSDF factor (no
+    ROW_GLOSSY row, no glossy column): :func:`pair_weights`' pairs go 16 at a time straight into
+    an Embree packet (``scene``: the shadow BVH's RTCScene handle, see
+    common.kernels.ray_packets) and the unoccluded ones are summed into ``out`` (n, 3) as
+    :func:`accumulate` sums them — the same sums in the same order, with no pair or ray arrays.
+    Returns the number of shadow rays traced."""
+    ray, bits, valid = packet_lanes()
+    out_o = ray[0:3 * LANES].reshape((3, LANES)).T  # (lane, axis) views of the packet's SoA fields
+    out_d = ray[4 * LANES:7 * LANES].reshape((3, LANES)).T
+    out_t = ray[8 * LANES:9 * LANES]
+    out_i = np.empty(LANES, np.int64)
+    out_j = np.empty(LANES, np.int64)
+    out_w = np.empty(LANES, np.float32)
+    out_pl = np.empty(LANES, np.float32)
+    traced = np.zeros(1, np.int64)
+    packet = (scene, ray, bits, valid, color, out, traced)
+    k = _pairs((x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi),
+               (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis,
+                light_pdf, area, direct_count, eps2),
+               (lum, fraction, seed, base), True, (out_i, out_j, out_w, out_pl, out_o, out_d, out_t), packet)
+    if k > 0:
+        _flush(k, out_i, out_j, out_w, packet)
+    _finite_rows(x.shape[0], out)
+    return traced[0]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _flush(count, out_i, out_j, out_w, packet):
+    """Trace the packet's first ``count`` lanes and add each unoccluded pair's weight × VPL
+    colour to its row of ``acc``; returns 0 (the next free lane)."""
+    scene, ray, bits, valid, color, acc, traced = packet
+    tfar = occlude_lanes(scene, ray, valid, count)
+    for k in range(count):
+        if tfar[k] < 0.0:  # blocked
+            continue
+        i = out_i[k]
+        j = out_j[k]
+        wk = np.float64(out_w[k])
+        for c in range(3):
+            acc[i, c] += wk * color[j, c]
+    traced[0] += count
+    return 0
 
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
@@ -256,7 +333,8 @@ def pair_uniform(seed, i, j):
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def shadow_roulette_row(q, i, total, stage_j, stage_w, stage_pl, stage_d, o0, o1, o2, directional, eps2,
-                        lum, fraction, seed, base, rays, k, out_i, out_j, out_w, out_pl, out_o, out_d, out_t):
+                        lum, fraction, seed, base, rays, k, out_i, out_j, out_w, out_pl, out_o, out_d, out_t,
+                        packet):
     """Russian roulette on the shadow rays of row (end point) i's ``q`` staged pairs (column,
     weight, light pdf, direction to the VPL and its 1/length, as :func:`pair_weights` stages
     them; ``total`` = Σ weight · lum[column]); the kept pairs are written from ``k`` on, with
@@ -288,6 +366,8 @@ def shadow_roulette_row(q, i, total, stage_j, stage_w, stage_pl, stage_d, o0, o1
             _write_ray(k, o0, o1, o2, stage_d[a, 0], stage_d[a, 1], stage_d[a, 2], stage_d[a, 3], directional[j],
                        eps2, out_o, out_d, out_t)
         k += np.int64(keep)
+        if packet is not None and k == LANES:
+            k = _flush(LANES, out_i, out_j, out_w, packet)
     return k
 
 
@@ -306,6 +386,12 @@ def accumulate(n, pi, pj, w, blocked, color, factor, out):
             if use_factor:
                 v *= factor[k, c]
             out[i, c] += v
+    _finite_rows(n, out)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _finite_rows(n, out) -> None:
+    """A non-finite sum (an Inf or NaN weight) lights nothing: 0."""
     for i in range(n):
         for c in range(3):
             if not math.isfinite(out[i, c]):

@@ -5,9 +5,10 @@ numba compiles a kernel on its first call, or loads it from its on-disk cache (`
 costs up to seconds. :func:`warm_up` pays that before the node connects, so it does not land
 inside the first frame a user waits for: it renders a tiny built-in scene (every pass on:
 diffuse, glossy and mirror surfaces, an area and a spot light, caustic photons) through the
-real ``Renderer``, so the kernels are loaded for exactly the argument types the product
-passes, then encodes and decodes a tile (common.codec) and finally calls any public kernel
-of ``common.kernels`` / ``worker.kernels`` that still has no compiled signature on tiny inputs.
+real ``Renderer`` (and once more with a diffuse floor, for the gather's fused Lambertian
+path), so the kernels are loaded for exactly the argument types the product passes, then
+encodes and decodes a tile (common.codec) and finally calls any public kernel of
+``common.kernels`` / ``worker.kernels`` that still has no compiled signature on tiny inputs.
 Kernels compiled only into their callers (``inline="always"``) have nothing of their own to
 load and are left out.
 """
@@ -46,7 +47,9 @@ def kernel_dispatchers() -> dict[str, object]:
     return out
 
 
-def _tiny_scene():
+def _tiny_scene(floor: int = 1):
+    """An open box with a mirror, an area light and a spot; ``floor``: the floor's material
+    (1 glossy, 0 diffuse: no glossy VPL, so the gather takes its fused Lambertian path)."""
     from igi.common.camera import look_at
     from igi.common.scene import (AREA, CONDUCTOR, DIFFUSE, ROUGHCONDUCTOR, SPOT, Camera, Emitter, Material, Mesh,
                               Scene, Texture)
@@ -61,7 +64,7 @@ def _tiny_scene():
             Material("light", DIFFUSE, diffuse=Texture.constant(0.0))]
     meshes = []
     # an open box seen from the front: floor (glossy), back wall, ceiling, two side walls
-    for name, (v, f), m in (("floor", quad([0, 0, 0], [0, 0, 2], [2, 0, 0]), 1),
+    for name, (v, f), m in (("floor", quad([0, 0, 0], [0, 0, 2], [2, 0, 0]), floor),
                             ("back", quad([0, 0, 0], [2, 0, 0], [0, 2, 0]), 0),
                             ("ceiling", quad([0, 2, 0], [2, 0, 0], [0, 0, 2]), 0),
                             ("left", quad([0, 0, 0], [0, 2, 0], [0, 0, 2]), 0),
@@ -85,17 +88,17 @@ def _render_tiny() -> None:
     from igi.common.params import make_params, params_to_dict
     from igi.worker.renderer import Renderer
 
-    scene = _tiny_scene()
-    cam, fov_x, w, h = resolve_camera(scene, None, None, None)
     pd = params_to_dict(make_params(photons=2000, interleave=2))
-    r = Renderer(scene)
-    for index, jitter in ((0, (0.5, 0.5)), (1, (0.25, 0.75))):  # the first and an accumulating frame
-        params = dict(pd, consistent=True, accumulate=True)
-        spec = FrameSpec(frame=index, seed=index, camera_to_world=tuple(np.asarray(cam, float).ravel()),
-                         fov_x=float(fov_x), width=w, height=h, params=params, scene_version=0, jitter=jitter)
-        for t in make_tiles(w, h, 2, 3, 3):
-            buf = r.render_tile(spec, t)
-            decode(encode(buf), len(buf))
+    for scene in (_tiny_scene(), _tiny_scene(floor=0)):
+        cam, fov_x, w, h = resolve_camera(scene, None, None, None)
+        r = Renderer(scene)
+        for index, jitter in ((0, (0.5, 0.5)), (1, (0.25, 0.75))):  # the first and an accumulating frame
+            params = dict(pd, consistent=True, accumulate=True)
+            spec = FrameSpec(frame=index, seed=index, camera_to_world=tuple(np.asarray(cam, float).ravel()),
+                             fov_x=float(fov_x), width=w, height=h, params=params, scene_version=0, jitter=jitter)
+            for t in make_tiles(w, h, 2, 3, 3):
+                buf = r.render_tile(spec, t)
+                decode(encode(buf), len(buf))
 
 
 def _empty_args(disp) -> list:
