@@ -421,7 +421,7 @@ def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
     the full BSDF and divided by the BSDF's albedo (a smooth demodulation), so the image-space
     filter blurs lighting, never texture. ``lobe_alpha``: glossy VPLs radiate through lobes at
     least this rough (:func:`regularized_senders`). ``shadow_roulette`` > 0: Russian roulette
-    on the shadow rays of small pairs (kernels.vpl_gather.shadow_roulette_row), drawn from ``seed``.
+    on the shadow rays of small pairs (kernels.vpl_gather.roulette_row), drawn from ``seed``.
     ``lobe_lights``: the emitter samples the direct-only end points take (:func:`lobe_light_count`;
     0: all of the set's; trace_eye's LightMIS must name the same count).
     """
@@ -769,7 +769,7 @@ def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _V
     scalar weight, receiver row kind, light pdf, origins, directions, tfar) — the rays in the
     centred float32 frame for Embree. ``col_range`` (lo, hi) per end point: its VPLs (None:
     all). ``roulette`` (fraction, seed): the shadow rays' Russian roulette, applied per row as
-    the pairs are written (kernels.vpl_gather.shadow_roulette_row). ``rays`` False: the pairs
+    the pairs are written (kernels.vpl_gather.roulette_row). ``rays`` False: the pairs
     only (the ray arrays empty; :func:`_listed_pair_rays` makes the rays of a few of them)."""
     f32 = np.float32
     x, ns, ng, side, off, row, tables, row_tab, inv_tavg = _receivers(geom, end, sl)

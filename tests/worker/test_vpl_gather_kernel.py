@@ -153,33 +153,29 @@ def test_shadow_roulette_is_unbiased_and_traces_fewer_rays(name):
 
 def test_shadow_roulette_keeps_the_big_pairs_and_counts_a_kept_small_one_at_the_threshold():
     """Pairs at or above the fraction of their row's mean always trace, with their weight
-    unchanged; a kept small pair counts the threshold, survives with probability c/threshold
-    and keeps its own ray; the output advances past the kept pairs only."""
+    unchanged; a kept small pair counts the threshold and survives with probability
+    c/threshold; a dropped one traces no ray; pairs that had none stay without."""
     from igi.worker.kernels import vpl_gather as vg
 
-    w = np.array([10.0, 0.1, 0.1, 0.1, 0.1], np.float32)
-    pj = np.arange(5, dtype=np.int64)
-    lum = np.ones(5)
-    directional = np.zeros(5, bool)
-    stage_d = np.zeros((5, 4), np.float32)
-    stage_d[:, 0] = 1.0
-    stage_d[:, 3] = 1.0 / (1.0 + np.arange(5, dtype=np.float32))  # pair a's ray is a + 1 long
-    threshold = 0.5 * float(np.float32(10.0) + 4 * np.float64(np.float32(0.1))) / 5
+    w = np.array([10.0, 0.1, -1.0, 0.1, 0.1, 0.1], np.float32)  # column 2: no pair
+    lum = np.ones(6)
+    live = w >= 0
+    total = float(np.sum(w[live].astype(np.float64) * lum[live]))
+    threshold = 0.5 * total / 5
     kept = []
     for seed in range(200):
-        out_i, out_j = np.full(8, -1, np.int64), np.full(8, -1, np.int64)
-        out_w, out_pl = np.zeros(8, np.float32), np.zeros(8, np.float32)
-        out_o, out_d, out_t = np.zeros((8, 3), np.float32), np.zeros((8, 3), np.float32), np.zeros(8, np.float32)
-        total = float(np.sum(w.astype(np.float64) * lum))
-        n = vg.shadow_roulette_row(5, 7, total, pj, w.copy(), np.zeros(5, np.float32), stage_d, 0.0, 0.0, 0.0,
-                                   directional, np.float32(0.0), lum, 0.5, seed, 0, True, 2,
-                                   out_i, out_j, out_w, out_pl, out_o, out_d, out_t, None) - 2
-        ki, kj, kw, kt = out_i[2:2 + n], out_j[2:2 + n], out_w[2:2 + n], out_t[2:2 + n]
-        assert np.all(ki == 7) and kj[0] == 0 and kw[0] == np.float32(10.0)  # the big pair, unchanged
-        np.testing.assert_allclose(kw[1:], threshold, rtol=1e-6)
-        np.testing.assert_allclose(kt, (kj + 1) * np.float32(1 - 1e-4), rtol=1e-6)  # rays move with their pairs
-        assert np.all(np.diff(kj) > 0)
-        kept.append(n - 1)
+        sw = np.stack([np.full(6, 7.0, np.float32), w])  # row 1 of a staged block
+        vg.roulette_row(sw, 1, 6, 0, 5, total, lum, 0.5, seed, 7)
+        assert np.all(sw[0] == 7.0)  # other rows untouched
+        row = sw[1]
+        assert row[0] == np.float32(10.0) and row[2] == vg._NO_RAY  # the big pair; no pair
+        small = row[[1, 3, 4, 5]]
+        assert np.all((small == vg._NO_RAY) | np.isclose(small, threshold, rtol=1e-6))
+        kept.append(int(np.sum(small >= 0)))
+        # the same draws in any block position: a pair's uniform is its (row, column)'s
+        again = w[None].copy()
+        vg.roulette_row(again, 0, 6, 0, 5, total, lum, 0.5, seed, 7)
+        np.testing.assert_array_equal(again[0], row)
     # each small pair survives with p = 0.1 / threshold
     assert np.mean(kept) / 4 == pytest.approx(0.1 / threshold, abs=0.05)
 
@@ -190,17 +186,11 @@ def test_shadow_roulette_keeps_a_row_of_no_or_negative_light_as_it_is():
     from igi.worker.kernels import vpl_gather as vg
 
     for lum in (np.array([-1.0, -1.0, -2.0]), np.array([1.0, -1.0, -3.0]), np.zeros(3)):
-        w = np.array([0.5, 0.2, 0.1], np.float32)
-        outs = (np.zeros(3, np.int64), np.zeros(3, np.int64), np.zeros(3, np.float32), np.zeros(3, np.float32),
-                np.zeros((3, 3), np.float32), np.zeros((3, 3), np.float32), np.zeros(3, np.float32))
-        total = float(np.sum(w.astype(np.float64) * lum))
-        stage_d = np.tile(np.array([1.0, 0.0, 0.0, 1.0], np.float32), (3, 1))
-        k = vg.shadow_roulette_row(3, 0, total, np.arange(3, dtype=np.int64), w.copy(), np.zeros(3, np.float32),
-                                   stage_d, 0.0, 0.0, 0.0, np.zeros(3, bool), np.float32(0.0), lum, 1.0, 5, 0, True,
-                                   0, *outs, None)
-        assert k == 3
-        np.testing.assert_array_equal(outs[1], [0, 1, 2])
-        np.testing.assert_array_equal(outs[2], w)
+        w = np.array([[0.5, 0.2, 0.1]], np.float32)
+        total = float(np.sum(w[0].astype(np.float64) * lum))
+        sw = w.copy()
+        vg.roulette_row(sw, 0, 3, 0, 3, total, lum, 1.0, 5, 0)
+        np.testing.assert_array_equal(sw, w)
 
 
 @pytest.mark.parametrize("name", ["cornell-box", "cornell-box-glossy"])

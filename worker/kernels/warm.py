@@ -139,12 +139,22 @@ def _direct_calls() -> dict:
                                                                    out1),
         "igi.common.kernels.wire_decode.oct_decode_into": lambda: wire_decode.oct_decode_into(
             np.zeros(1, np.int16), np.zeros(1, np.int16), np.zeros((3, 1), np.float32)),
+        # _stage: pair_weights' arguments (empty arrays of its types) in _stage's order
+        "igi.worker.kernels.vpl_gather._stage": lambda: _stage_call(vpl_gather),
         "igi.worker.kernels.photon_query._cell": lambda: photon_query._cell(0.5, 2.0),
         "igi.worker.kernels.photon_query._find": lambda: photon_query._find(np.zeros(1, np.int64), 0),
         # _visit: query's arguments (empty arrays of its types) plus the output arrays
         "igi.worker.kernels.photon_query._visit": lambda: photon_query._visit(
             *_empty_args(photon_query.query), np.zeros(0, np.int64), np.zeros(0, np.int64), False),
     }
+
+
+def _stage_call(vpl_gather) -> None:
+    """vpl_gather._stage on empty inputs of the types pair_weights passes it."""
+    a = _empty_args(vpl_gather.pair_weights)
+    staging = np.zeros((1, 0), np.float32)
+    vpl_gather._stage(0, 0, *a[0:7], *a[21:26], *a[7:20], *a[26:30], staging, staging.copy(),
+                      np.zeros((1, 3), np.float32))
 
 
 def _bsdf_calls() -> dict:
