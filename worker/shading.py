@@ -139,14 +139,16 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
     hits = geom.intersect(origins, dirs)
     v = hits.valid
     idx, d = np.arange(p), dirs
-    if not v.all():  # (a closed room: every ray hits, the hit arrays serve as they are)
-        unf[~v] += env
-        idx = np.nonzero(v)[0]
-        hits, d = hits.rows(idx), dirs.take(idx, axis=0)
-    t_hit = hits.t
-    depth[idx] = t_hit
+    t_hit = hits.t  # (inf where a ray missed)
+    depth[:] = t_hit
     pos, ns, ng = hits.position, hits.ns, hits.ng
-    normal[idx] = ns
+    normal[:] = ns
+    if not v.all():
+        # Misses keep their rows (material -1: the NULL kind, so no end point or chain starts
+        # there): one copy of the per-hit arrays less than dropping them first.
+        miss = ~v
+        unf[miss] += env
+        normal[miss] = 0.0
     lit = np.flatnonzero(hits.emitter >= 0)  # emission seen directly (the rest would add 0)
     if len(lit):
         cos_front = -np.einsum("ij,ij->i", d[lit], ns[lit])
