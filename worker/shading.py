@@ -445,47 +445,47 @@ def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
         return albedo, irr
     cols = vpl_columns(vpls, geom, clamp_d2, force_general, lobe_alpha)
     roulette = (float(shadow_roulette), int(seed)) if shadow_roulette > 0 else None
-    rest = _gather_packets(geom, end, cols, max_depth, roulette, irr) if not cols.glossy.any() else None
-    if rest is not None:  # the glossy receivers, whose pairs take a BSDF factor each
-        if len(rest):
-            irr[rest] = _gather_pairs(geom, end.subset(rest), vpls, cols, max_depth, albedo[rest], roulette)
-        return albedo, irr
-    return albedo, _gather_pairs(geom, end, vpls, cols, max_depth, albedo, roulette)
+    receivers = _Receivers(end, albedo)
+    if not _gather_packets(geom, end, cols, max_depth, roulette, receivers, irr):
+        _gather_pairs(geom, end, vpls, cols, max_depth, receivers, roulette, irr)
+    return albedo, irr
 
 
 def _gather_pairs(geom: Geometry, end: EndPoints, vpls: VPLSet, cols: "_VPLColumns", max_depth: int,
-                  albedo: np.ndarray, roulette: tuple | None) -> np.ndarray:
-    """The gather's irradiance through pair lists (kernels.vpl_gather steps 1-3 apart, with
-    per-pair BSDF factors), PAIR_CHUNK pairs at a time."""
+                  receivers: "_Receivers", roulette: tuple | None, irr: np.ndarray) -> None:
+    """The gather's irradiance into ``irr`` through pair lists (kernels.vpl_gather steps 1-3
+    apart), PAIR_CHUNK pairs at a time: where the shadow rays must pass through
+    Geometry.occluded_local (see :func:`_gather_packets`)."""
     e = len(end)
-    irr = np.zeros((e, 3))
-    receivers = _Receivers(end, albedo)
     for sl in _chunks(e, len(vpls)):
         pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, receivers, roulette)
         vg.accumulate(sl.stop - sl.start, pi, pj, w, blocked, cols.color, factor, irr[sl])
-    return irr
 
 
 def _gather_packets(geom: Geometry, end: EndPoints, cols: "_VPLColumns", max_depth: int, roulette: tuple | None,
-                    irr: np.ndarray) -> np.ndarray | None:
-    """The gather fused with its shadow rays (kernels.vpl_gather.gather_packets) into ``irr``
-    for every end point but the glossy receivers, whose rows it returns; None where the shadow
-    BVH is not queried in packets from compiled code (no C API, or a benchmark timing or
-    recording the rays): nothing done then."""
+                    receivers: "_Receivers", irr: np.ndarray) -> bool:
+    """The gather fused with its shadow rays (kernels.vpl_gather.gather_packets) into ``irr``,
+    with the per-pair BSDF factors of glossy receivers and senders where there are any; False
+    where the shadow BVH is not queried in packets from compiled code (no C API, or a
+    benchmark timing or recording the rays): nothing done then."""
     scene = geom.packet_handle()
     if scene is None:
-        return None
+        return False
     x, ns, ng, side, off, row, tables, row_tab, inv_tavg = _receivers(geom, end, slice(0, len(end)))
-    glossy = np.nonzero(row == vg.ROW_GLOSSY)[0]
-    row[glossy] = vg.ROW_NONE
+    factors = None
+    if cols.glossy.any() or np.any(row == vg.ROW_GLOSSY):
+        P_end, end_row = receivers.packed
+        P_vpl = cols.P if cols.P is not None else P_end  # (typing only: no glossy column reads it)
+        factors = (P_end, end_row, receivers.wi, receivers.ns, receivers.albedo, cols.glossy, P_vpl, cols.p_row,
+                   cols.vwi, cols.vnormal)
     n, m = len(x), len(cols.depth)
     geom.counters["occluded_rays"] += vg.gather_packets(
         scene, x, ns, ng, off, side, row, end.vpl_depth_limit(max_depth), cols.pos, cols.normal, cols.directional,
         cols.min_d2, cols.cos_y_factor, cols.side, cols.spot_cutoff, cols.spot_beam, cols.depth, cols.mis,
         cols.light_pdf, cols.area, cols.direct_count, np.float32(2 * geom.eps), tables, row_tab, inv_tavg,
         np.zeros(n, np.int64), np.full(n, m, np.int64), cols.lum, float(roulette[0]) if roulette else 0.0,
-        int(roulette[1]) if roulette else 0, 0, cols.color, irr)
-    return glossy
+        int(roulette[1]) if roulette else 0, 0, cols.color, irr, factors)
+    return True
 
 
 def _chunks(e: int, m: int):

@@ -302,14 +302,16 @@ def _pair_list_path(geom):
     return geom
 
 
-@pytest.mark.parametrize("name, indirect", [("cornell-box-sphere", 18), ("cornell-box", 18),
-                                            ("cornell-box-glossy", 0)])
+@pytest.mark.parametrize("name, indirect, general", [("cornell-box-sphere", 18, False), ("cornell-box", 18, False),
+                                                     ("cornell-box-glossy", 0, False), ("cornell-box-glossy", 18, False),
+                                                     ("grey-white-room", 18, True)])
 @pytest.mark.parametrize("roulette", [0.0, 1.0])
-def test_the_packet_gather_equals_the_pair_lists_bit_for_bit(name, indirect, roulette):
+def test_the_packet_gather_equals_the_pair_lists_bit_for_bit(name, indirect, general, roulette):
     """gather_packets (pairs straight into Embree packets, summed as they come back) gives the
     pair-list path's irradiance bit for bit and traces the same number of shadow rays, with and
-    without the shadow roulette; cornell-box-glossy's emitter samples alone (no glossy column)
-    take the fused path for its Lambertian rows and the pair lists for its glossy ones."""
+    without the shadow roulette: Lambertian scenes (no BSDF factor), glossy receivers lit by
+    emitter samples only, glossy receivers and senders, every surface VPL through its full
+    BSDF (force_general)."""
     from igi.worker import shading
     from igi.worker.kernels import vpl_gather as vg
 
@@ -319,16 +321,17 @@ def test_the_packet_gather_equals_the_pair_lists_bit_for_bit(name, indirect, rou
     end = eye_end_points(r, 48, 36)
     vpls = _set(r, 2, indirect=indirect)
     c2 = CLAMP * r.geom.diagonal ** 2
-    assert not shading.vpl_columns(vpls, r.geom, c2).glossy.any()  # the fused path is taken
+    cols = shading.vpl_columns(vpls, r.geom, c2, force_general=general)
     rows = shading._receivers(r.geom, end, slice(0, len(end)))[5]
     if name == "cornell-box-glossy":
-        assert np.any(rows == vg.ROW_GLOSSY) and np.any(rows == vg.ROW_LAMBERT)  # both paths at once
+        assert np.any(rows == vg.ROW_GLOSSY) and np.any(rows == vg.ROW_LAMBERT)  # both kinds of row at once
+        assert cols.glossy.any() == (indirect > 0)
     r.geom.counters["occluded_rays"] = 0
-    a1, i1 = gather_vpls(r.geom, end, vpls, c2, -1, shadow_roulette=roulette, seed=7)
+    a1, i1 = gather_vpls(r.geom, end, vpls, c2, -1, force_general=general, shadow_roulette=roulette, seed=7)
     fused_rays = r.geom.counters["occluded_rays"]
     r2 = Renderer(load_shared(name))
     _pair_list_path(r2.geom)
-    a2, i2 = gather_vpls(r2.geom, end, vpls, c2, -1, shadow_roulette=roulette, seed=7)
+    a2, i2 = gather_vpls(r2.geom, end, vpls, c2, -1, force_general=general, shadow_roulette=roulette, seed=7)
     assert i1.sum() > 0
     np.testing.assert_array_equal(a1, a2)
     np.testing.assert_array_equal(i1, i2)

@@ -14,10 +14,10 @@ Three steps per chunk of end points, none with an (end points × VPLs) temporary
    for glossy receivers or senders, computed by the caller on the compact pair list) summed
    per end point.
 
-Where no pair needs a BSDF factor (Lambertian and plastic-layer rows, no glossy VPL) and the
-shadow BVH is an Embree packet scene, :func:`gather_packets` does all three in one pass: the
-pairs go 16 at a time into an Embree packet traced from inside the kernel (rtcOccluded16) and
-are summed as they come back — the same sums, with no pair or ray arrays.
+Where the shadow BVH is an Embree packet scene, :func:`gather_packets` does all three in one
+pass: the pairs go 16 at a time into an Embree packet traced from inside the kernel
+(rtcOccluded16) and are summed as they come back (pairs that need a BSDF factor once their
+block's factors are known) — the same sums, with no pair or ray arrays.
 
 Both weigh their rows a block of BLOCK rows at a time (:func:`_stage`: the pairs' weights
 staged per row, then thinned by the roulette); pair_weights then writes them row by row,
@@ -284,20 +284,29 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
 def gather_packets(scene, x, ns, ng, off, side, row, vmax,
                    vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam,
                    vdepth, mis, light_pdf, area, direct_count, eps2,
-                   tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base, color, out):
-    """Steps 1-3 of the module fused for rows whose pairs need no per-pair BSDF factor (no
-    ROW_GLOSSY row, no glossy column): :func:`pair_weights`' pairs go 16 at a time straight into
-    an Embree packet (``scene``: the shadow BVH's RTCScene handle, see
+                   tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base, color, out, factors):
+    """Steps 1-3 of the module in one pass: :func:`pair_weights`' pairs go 16 at a time straight
+    into an Embree packet (``scene``: the shadow BVH's RTCScene handle, see
     common.kernels.ray_packets), a block's column by column, and the unoccluded ones are summed
     into ``out`` (n, 3) as :func:`accumulate` sums them: each row's pairs in column order, so the
-    same sums bit for bit, with no pair or ray arrays. Returns the number of shadow rays traced."""
+    same sums bit for bit, with no pair or ray arrays. Returns the number of shadow rays traced.
+
+    ``factors`` None: no pair needs a BSDF factor (no ROW_GLOSSY row, no glossy column);
+    else :func:`pair_factors`' arguments past ``base`` (P_end, end_row, wi, ns, albedo,
+    glossy_col, P_vpl, vpl_row, vwi, vnormal), applied to each block's unoccluded pairs
+    before they are summed."""
     n = x.shape[0]
     rows_per_block, sw, spl, so = _block_arrays(n, col_lo, col_hi)
     ray, _bits, valid = packet_lanes()
     lane_i = np.empty(LANES, np.int64)
     lane_j = np.empty(LANES, np.int64)
     lane_w = np.empty(LANES, np.float32)
+    lane_pl = np.empty(LANES, np.float32)
     width = sw.shape[1]
+    # factors: a block's traced pairs, kept until its factors are known
+    cap = rows_per_block * width if factors is not None else 0
+    held = (np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.float32), np.empty(cap, np.float32),
+            np.empty((cap, 3), np.float32), np.empty(cap, np.bool_), np.empty((cap, 3)))
     traced = 0
     k = 0
     for b0 in range(0, n, rows_per_block):
@@ -305,6 +314,7 @@ def gather_packets(scene, x, ns, ng, off, side, row, vmax,
         _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi, vpos, vnormal,
                directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf, area,
                direct_count, lum, fraction, seed, base, sw, spl, so)
+        count = 0  # pairs held
         for a in range(width):
             for b in range(nb):
                 i = b0 + b
@@ -320,16 +330,62 @@ def gather_packets(scene, x, ns, ng, off, side, row, vmax,
                 lane_i[k] = i
                 lane_j[k] = j
                 lane_w[k] = w
+                lane_pl[k] = spl[b, a] if row[i] == ROW_GLOSSY else np.float32(0.0)
                 k += 1
                 if k == LANES:
-                    _flush(scene, ray, valid, LANES, lane_i, lane_j, lane_w, color, out)
+                    if factors is None:
+                        _flush(scene, ray, valid, LANES, lane_i, lane_j, lane_w, color, out)
+                    else:
+                        count = _hold(scene, ray, valid, LANES, lane_i, lane_j, lane_w, lane_pl, held, count)
                     traced += LANES
                     k = 0
+        if factors is not None:
+            if k > 0:  # a block's pairs are summed with the block: its last packet goes now
+                count = _hold(scene, ray, valid, k, lane_i, lane_j, lane_w, lane_pl, held, count)
+                traced += k
+                k = 0
+            _sum_held(count, held, row, factors, color, out)
     if k > 0:
         _flush(scene, ray, valid, k, lane_i, lane_j, lane_w, color, out)
         traced += k
     _finite_rows(n, out)
     return traced
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _hold(scene, ray, valid, count, lane_i, lane_j, lane_w, lane_pl, held, at):
+    """Trace the packet's first ``count`` lanes and keep each pair (row, column, weight, light
+    pdf, direction, blocked) in ``held`` from position ``at`` on; returns the next position."""
+    hi, hj, hw, hpl, hd, hb, _hf = held
+    tfar = occlude_lanes(scene, ray, valid, count)
+    for q in range(count):
+        hi[at] = lane_i[q]
+        hj[at] = lane_j[q]
+        hw[at] = lane_w[q]
+        hpl[at] = lane_pl[q]
+        for c in range(3):
+            hd[at, c] = ray[(4 + c) * LANES + q]
+        hb[at] = tfar[q] < 0.0
+        at += 1
+    return at
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _sum_held(count, held, row, factors, color, acc) -> None:
+    """Add the held unoccluded pairs' weight × VPL colour × BSDF factor (:func:`pair_factors`)
+    to their rows of ``acc``, in the order held."""
+    hi, hj, hw, hpl, hd, hb, hf = held
+    P_end, end_row, wi, ns, albedo, glossy_col, P_vpl, vpl_row, vwi, vnormal = factors
+    pair_factors(hi[:count], hj[:count], hd[:count], hpl[:count], hb[:count], row, 0, P_end, end_row, wi, ns,
+                 albedo, glossy_col, P_vpl, vpl_row, vwi, vnormal, hf[:count])
+    for q in range(count):
+        if hb[q]:
+            continue
+        i = hi[q]
+        j = hj[q]
+        wq = np.float64(hw[q])
+        for c in range(3):
+            acc[i, c] += wq * color[j, c] * hf[q, c]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
