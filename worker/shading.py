@@ -283,14 +283,10 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis
                 if lv.any():
                     le[lv] = lights.emitted_radiance(lh.emitter[lv], -np.einsum("ij,ij->i", ld[lv], lh.ns[lv]))
                 np.add.at(unf, pix[lit], thr[lit] * le * w_mis[:, None])
-        if not v.all():
-            vi = np.flatnonzero(v)
-            pix, thr, main, dirs, dist = (a.take(vi, axis=0) for a in (pix, thr, main, dirs, dist))
-            hits = hits.rows(vi)
+        # Misses keep their rows (material -1: the NULL kind ends them below), one copy of the
+        # per-ray and per-hit arrays less per bounce than dropping them here.
         dist = dist + hits.t
         hpos, hns, hng = hits.position, hits.ns, hits.ng
-        if len(pix) == 0:
-            break
         sp = bsdf.gather(scene.materials, hits.material, hits.uv)
         wi = to_local(-dirs, hns)
         delta = kind_in(sp.kind, SPECULAR_KINDS)
