@@ -356,3 +356,18 @@ def test_the_packet_gather_lights_nothing_through_non_finite_weights():
     _a2, i2 = gather_vpls(_pair_list_path(r2.geom), end, vpls, c2, -1, shadow_roulette=1.0, seed=3)
     assert np.all(np.isfinite(i1)) and np.all(i1[::7] == 0) and np.all(i1[3::7] == 0)
     np.testing.assert_array_equal(i1, i2)
+
+
+def test_kernel_matches_numpy_with_sky_samples_in_the_simd_rows():
+    """Lambertian rows are weighed in SIMD lanes (vpl_gather._stage) when no column is a spot:
+    directional sky samples with MIS and surface VPLs there still equal the numpy oracle."""
+    from igi.common import bundled
+    from igi.common.lights import VPL_DIRECTIONAL, VPL_SPOT
+    from igi.common.loader import load_scene
+
+    r = Renderer(load_scene(bundled.resolve("window-room")))
+    end = eye_end_points(r, 32, 24)
+    vpls = _set(r, 3, direct=8)
+    assert np.any(vpls.kind == VPL_DIRECTIONAL) and np.any(vpls.kind == 0)  # sky samples and surface VPLs
+    assert not np.any(vpls.kind == VPL_SPOT)  # no spot column: the SIMD rows run
+    assert _agree(r, end, vpls).sum() > 0

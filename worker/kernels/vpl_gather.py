@@ -143,13 +143,20 @@ _NO_RAY = np.float32(-1.0)  # a staged pair that traces no ray (dead, or dropped
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi,
            vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf,
-           area, direct_count, lum, fraction, seed, base, sw, spl, so) -> None:
+           area, direct_count, lum, fraction, seed, base, sw, spl, so, vx, vy, vz, wx, wy, wz) -> None:
     """Weigh the pairs of rows [b0, b0 + nb) (the arguments as :func:`pair_weights` takes
     them): sw[b, a] the weight of row b0 + b with column col_lo + a (_NO_RAY: no pair), spl the
     MIS light pdf of glossy-row pairs, so the row's offset shadow-ray origin. Lambertian and
-    plastic-layer rows then go through :func:`roulette_row` (``fraction`` > 0)."""
+    plastic-layer rows then go through :func:`roulette_row` (``fraction`` > 0). vx … wz: the
+    columns' positions and normals per coordinate (:func:`_columns_soa`; empty: every row
+    weighed pair by pair), for the Lambertian rows' branch-free loop."""
     n_tab = tables.shape[1]
     f1e30 = np.float32(1e-30)
+    f1e7 = np.float32(1e-7)
+    zero = np.float32(0.0)
+    inf32 = np.float32(np.inf)
+    dcount = np.float32(direct_count)
+    vector = vx.shape[0] > 0  # (the columns' SoA coordinates given: no spot column)
     for b in range(nb):
         i = b0 + b
         r = row[i]
@@ -168,7 +175,39 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
         so[b, 2] = xi2 + ng[i, 2] * off[i]
         q = 0
         total = 0.0
-        for a in range(width):
+        if r == ROW_LAMBERT and vector:
+            # The common row, branch-free so the compiler runs it in SIMD lanes: every candidate
+            # weighed in full, the dead ones marked after (the same float32 operations as below
+            # for every live pair; max(a, b) written as Python's: b only where b > a).
+            for a in range(width):
+                j = lo + a
+                dr = directional[j]
+                d0 = -wx[j] if dr else vx[j] - xi0
+                d1 = -wy[j] if dr else vy[j] - xi1
+                d2_ = -wz[j] if dr else vz[j] - xi2
+                dot_x = d0 * n0 + d1 * n1 + d2_ * n2
+                dd = d0 * d0 + d1 * d1 + d2_ * d2_
+                inv_d = np.float32(1.0) / np.float32(math.sqrt(f1e30 if f1e30 > dd else dd))
+                cos_x = dot_x * inv_d * s
+                cos_y = -(d0 * wx[j] + d1 * wy[j] + d2_ * wz[j]) * inv_d
+                em = np.float32(1.0) / (min_d2[j] if min_d2[j] > dd else dd)
+                cv = cos_y * vside[j]
+                em = em * (zero if zero > cv else cv) if cos_factor[j] else em
+                pl = light_pdf[j]
+                pl = pl * dd / (f1e7 if f1e7 > cos_y else cos_y) if area[j] else pl
+                pl = pl * dcount
+                recv = (zero if zero > cos_x else cos_x) * np.float32(INV_PI)
+                v = em * recv
+                q2 = pl * pl + recv * recv
+                v = v * (pl * pl / (f1e30 if f1e30 > q2 else q2)) if mis[j] else v
+                live = (vdepth[j] <= lim) & (dot_x * s > zero) & (em > zero) & (v > zero) & (v < inf32)
+                sw[b, a] = v if live else _NO_RAY
+            for a in range(width):
+                w = sw[b, a]
+                if w >= 0.0:
+                    total += np.float64(w) * lum[lo + a]
+                    q += 1
+        for a in range(width if not (r == ROW_LAMBERT and vector) else 0):
             j = lo + a
             w = _NO_RAY
             if vdepth[j] <= lim:
@@ -217,6 +256,23 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _columns_soa(vpos, vnormal, spot_cutoff):
+    """The columns' positions and normals one coordinate per array, for :func:`_stage`'s SIMD
+    rows; empty where a column is a spot (its falloff is weighed row by row)."""
+    m = vpos.shape[0]
+    for j in range(m):
+        if spot_cutoff[j] >= 0.0:
+            m = 0
+    out = (np.empty(m, np.float32), np.empty(m, np.float32), np.empty(m, np.float32), np.empty(m, np.float32),
+           np.empty(m, np.float32), np.empty(m, np.float32))
+    for j in range(m):
+        for c in range(3):
+            out[c][j] = vpos[j, c]
+            out[3 + c][j] = vnormal[j, c]
+    return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _block_arrays(n, col_lo, col_hi):
     """Staging of :func:`_stage` for blocks of up to BLOCK of the n rows: (rows a block
     holds, weights, light pdfs, origins)."""
@@ -253,12 +309,13 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
     """
     n = x.shape[0]
     rows_per_block, sw, spl, so = _block_arrays(n, col_lo, col_hi)
+    soa = _columns_soa(vpos, vnormal, spot_cutoff)
     k = 0
     for b0 in range(0, n, rows_per_block):
         nb = min(rows_per_block, n - b0)
         _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi, vpos, vnormal,
                directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf, area,
-               direct_count, lum, fraction, seed, base, sw, spl, so)
+               direct_count, lum, fraction, seed, base, sw, spl, so, *soa)
         for b in range(nb):
             i = b0 + b
             lo = max(col_lo[i], 0)  # (as _stage: j >= 0 known, no wraparound per access)
@@ -297,6 +354,7 @@ def gather_packets(scene, x, ns, ng, off, side, row, vmax,
     before they are summed."""
     n = x.shape[0]
     rows_per_block, sw, spl, so = _block_arrays(n, col_lo, col_hi)
+    soa = _columns_soa(vpos, vnormal, spot_cutoff)
     ray, _bits, valid = packet_lanes()
     lane_i = np.empty(LANES, np.int64)
     lane_j = np.empty(LANES, np.int64)
@@ -313,7 +371,7 @@ def gather_packets(scene, x, ns, ng, off, side, row, vmax,
         nb = min(rows_per_block, n - b0)
         _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi, vpos, vnormal,
                directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf, area,
-               direct_count, lum, fraction, seed, base, sw, spl, so)
+               direct_count, lum, fraction, seed, base, sw, spl, so, *soa)
         count = 0  # pairs held
         for a in range(width):
             for b in range(nb):

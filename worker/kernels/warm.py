@@ -154,7 +154,7 @@ def _stage_call(vpl_gather) -> None:
     a = _empty_args(vpl_gather.pair_weights)
     staging = np.zeros((1, 0), np.float32)
     vpl_gather._stage(0, 0, *a[0:7], *a[21:26], *a[7:20], *a[26:30], staging, staging.copy(),
-                      np.zeros((1, 3), np.float32))
+                      np.zeros((1, 3), np.float32), *(np.zeros(0, np.float32) for _ in range(6)))
 
 
 def _bsdf_calls() -> dict:
