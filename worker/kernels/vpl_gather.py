@@ -257,8 +257,8 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _columns_soa(vpos, vnormal, spot_cutoff):
-    """The columns' positions and normals one coordinate per array, for :func:`_stage`'s SIMD
-    rows; empty where a column is a spot (its falloff is weighed row by row)."""
+    """The columns' positions and normals one coordinate per array, for :func:`_stage`'s
+    branch-free rows; empty where a column is a spot (its falloff is weighed pair by pair)."""
     m = vpos.shape[0]
     for j in range(m):
         if spot_cutoff[j] >= 0.0:
@@ -273,15 +273,31 @@ def _columns_soa(vpos, vnormal, spot_cutoff):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _block_arrays(n, col_lo, col_hi):
-    """Staging of :func:`_stage` for blocks of up to BLOCK of the n rows: (rows a block
-    holds, weights, light pdfs, origins)."""
+def _staging(n, col_lo, col_hi, vpos, vnormal, spot_cutoff):
+    """The staging of :func:`_stage` for blocks of up to BLOCK of the n rows: (rows a block
+    holds, (weights, light pdfs, origins, the columns' coordinates))."""
     width = 0
     for i in range(n):
         width = max(width, col_hi[i] - col_lo[i])
     rows = max(1, min(BLOCK, n))
-    return (rows, np.empty((rows, width), np.float32), np.empty((rows, width), np.float32),
-            np.empty((rows, 3), np.float32))
+    vx, vy, vz, wx, wy, wz = _columns_soa(vpos, vnormal, spot_cutoff)
+    return rows, (np.empty((rows, width), np.float32), np.empty((rows, width), np.float32),
+                  np.empty((rows, 3), np.float32), vx, vy, vz, wx, wy, wz)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _weigh(b0, nb, weighed, staging) -> None:
+    """:func:`_stage` of a block, its arguments as the callers hold them: (rows, columns,
+    roulette) tuples and the staging (numba inlines no call of more than 30 single arguments)."""
+    rows, columns, roulette = weighed
+    x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi = rows
+    (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf, area,
+     direct_count) = columns
+    lum, fraction, seed, base = roulette
+    sw, spl, so, vx, vy, vz, wx, wy, wz = staging
+    _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi, vpos, vnormal,
+           directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf, area,
+           direct_count, lum, fraction, seed, base, sw, spl, so, vx, vy, vz, wx, wy, wz)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -308,14 +324,15 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
     that trace only a few of the pairs (:func:`pair_rays` makes theirs).
     """
     n = x.shape[0]
-    rows_per_block, sw, spl, so = _block_arrays(n, col_lo, col_hi)
-    soa = _columns_soa(vpos, vnormal, spot_cutoff)
+    rows_per_block, staging = _staging(n, col_lo, col_hi, vpos, vnormal, spot_cutoff)
+    sw, spl, so = staging[0], staging[1], staging[2]
+    weighed = ((x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi),
+               (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis,
+                light_pdf, area, direct_count), (lum, fraction, seed, base))
     k = 0
     for b0 in range(0, n, rows_per_block):
         nb = min(rows_per_block, n - b0)
-        _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi, vpos, vnormal,
-               directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf, area,
-               direct_count, lum, fraction, seed, base, sw, spl, so, *soa)
+        _weigh(b0, nb, weighed, staging)
         for b in range(nb):
             i = b0 + b
             lo = max(col_lo[i], 0)  # (as _stage: j >= 0 known, no wraparound per access)
@@ -353,8 +370,11 @@ def gather_packets(scene, x, ns, ng, off, side, row, vmax,
     glossy_col, P_vpl, vpl_row, vwi, vnormal), applied to each block's unoccluded pairs
     before they are summed."""
     n = x.shape[0]
-    rows_per_block, sw, spl, so = _block_arrays(n, col_lo, col_hi)
-    soa = _columns_soa(vpos, vnormal, spot_cutoff)
+    rows_per_block, staging = _staging(n, col_lo, col_hi, vpos, vnormal, spot_cutoff)
+    sw, spl, so = staging[0], staging[1], staging[2]
+    weighed = ((x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi),
+               (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis,
+                light_pdf, area, direct_count), (lum, fraction, seed, base))
     ray, _bits, valid = packet_lanes()
     lane_i = np.empty(LANES, np.int64)
     lane_j = np.empty(LANES, np.int64)
@@ -369,9 +389,7 @@ def gather_packets(scene, x, ns, ng, off, side, row, vmax,
     k = 0
     for b0 in range(0, n, rows_per_block):
         nb = min(rows_per_block, n - b0)
-        _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi, vpos, vnormal,
-               directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf, area,
-               direct_count, lum, fraction, seed, base, sw, spl, so, *soa)
+        _weigh(b0, nb, weighed, staging)
         count = 0  # pairs held
         for a in range(width):
             for b in range(nb):
