@@ -737,17 +737,16 @@ def _receivers(geom: Geometry, end: EndPoints, sl: slice) -> tuple:
     (tables, row's table, 1/t_avg per row)."""
     x, ns, ng, side, off = _shadow_origins(geom, end, sl)
     n = len(x)
-    wz = end.wi[sl, 2]
     kind = end.sp.kind[sl]
-    front = end.sp.twosided[sl] | (wz > 0)
-    lam = (kind == DIFFUSE) & front
+    wi = np.ascontiguousarray(end.wi[sl], np.float64)
+    row = np.empty(n, np.int8)
     # Glossy kinds reflect only (no rough dielectric): seen from behind a one-sided one, f = 0.
-    row = np.where(lam, vg.ROW_LAMBERT,
-                   np.where((kind != DIFFUSE) & (kind != NULL) & front, vg.ROW_GLOSSY, vg.ROW_NONE)).astype(np.int8)
+    layers = vg.receiver_rows(np.ascontiguousarray(kind), np.ascontiguousarray(end.sp.twosided[sl]), wi, DIFFUSE,
+                              NULL, ROUGHPLASTIC_DIFFUSE, row)
     tables, row_tab, inv_tavg = np.ones((1, 2)), np.zeros(n, np.int64), np.ones(n)
-    layer = np.nonzero((kind == ROUGHPLASTIC_DIFFUSE) & front)[0]
-    row[kind == ROUGHPLASTIC_DIFFUSE] = vg.ROW_NONE  # one-sided from behind, like Lambert
-    if len(layer):
+    if layers:
+        wz = wi[:, 2]
+        layer = np.nonzero((kind == ROUGHPLASTIC_DIFFUSE) & (end.sp.twosided[sl] | (wz > 0)))[0]
         # The diffuse layer is Lambertian up to a scalar t(cos)/t_avg: no per-pair BSDF call.
         row[layer] = vg.ROW_LAYER
         tables, rt, t_avg = bsdf.coat_transmittance(end.sp.subset(sl.start + layer))

@@ -371,3 +371,30 @@ def test_kernel_matches_numpy_with_sky_samples_in_the_simd_rows():
     assert np.any(vpls.kind == VPL_DIRECTIONAL) and np.any(vpls.kind == 0)  # sky samples and surface VPLs
     assert not np.any(vpls.kind == VPL_SPOT)  # no spot column: the SIMD rows run
     assert _agree(r, end, vpls).sum() > 0
+
+
+def test_receiver_rows_equal_the_numpy_form_for_every_kind_side_and_nan_eye():
+    """vpl_gather.receiver_rows (the gather's row kinds in one pass) gives what the numpy form
+    gave: Lambertian / glossy from the front, nothing from behind a one-sided surface or for the
+    NULL kind, plastic layers left to the caller (counted when seen from the front); eyes exactly
+    in the tangent plane (±0) and NaN eyes see the back of a one-sided surface."""
+    from igi.common.scene import DIFFUSE, NULL, ROUGHPLASTIC_DIFFUSE
+    from igi.worker.kernels import vpl_gather as vg
+
+    g = np.random.default_rng(5)
+    n = 4000
+    kind = g.integers(0, ROUGHPLASTIC_DIFFUSE + 1, n).astype(np.int8)
+    twosided = g.random(n) < 0.3
+    wi = g.normal(size=(n, 3))
+    wi[::7, 2] = 0.0
+    wi[1::7, 2] = -0.0
+    wi[2::11, 2] = np.nan
+    row = np.empty(n, np.int8)
+    layers = vg.receiver_rows(kind, twosided, wi, DIFFUSE, NULL, ROUGHPLASTIC_DIFFUSE, row)
+    front = twosided | (wi[:, 2] > 0)
+    want = np.where((kind == DIFFUSE) & front, vg.ROW_LAMBERT,
+                    np.where((kind != DIFFUSE) & (kind != NULL) & front, vg.ROW_GLOSSY, vg.ROW_NONE)).astype(np.int8)
+    want[kind == ROUGHPLASTIC_DIFFUSE] = vg.ROW_NONE
+    np.testing.assert_array_equal(row, want)
+    assert layers == int(np.sum((kind == ROUGHPLASTIC_DIFFUSE) & front)) > 0
+    assert set(np.unique(row)) == {vg.ROW_NONE, vg.ROW_LAMBERT, vg.ROW_GLOSSY}  # every outcome met

@@ -118,6 +118,30 @@ def shadow_origins(pos, ns, ng, wi, center, eps, ulps, out_x, out_ns, out_ng, ou
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def receiver_rows(kind, twosided, wi, diffuse, null, layer_kind, out) -> int:
+    """out[i] = the ROW_* of end point i (BSDF ``kind``, ``twosided``, eye direction ``wi``
+    local): seen from its front (twosided, or wi's z > 0) a ``diffuse`` point is ROW_LAMBERT and
+    any other kind but ``null`` ROW_GLOSSY (glossy kinds reflect only); a rough plastic's diffuse
+    layer (``layer_kind``) is ROW_NONE here, its rows' plastic layer the caller's; every point
+    seen from behind a one-sided surface is ROW_NONE. Returns how many layer points are seen
+    from the front."""
+    layers = 0
+    for i in range(kind.shape[0]):
+        k = kind[i]
+        front = twosided[i] or wi[i, 2] > 0
+        r = ROW_NONE
+        if front and k == diffuse:
+            r = ROW_LAMBERT
+        elif front and k != diffuse and k != null:
+            r = ROW_GLOSSY
+        if k == layer_kind:
+            r = ROW_NONE
+            layers += front
+        out[i] = r
+    return layers
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def pair_rays(x, ng, off, vpos, vnormal, directional, eps2, pi, pj, out_o, out_d, out_t):
     """The shadow rays of the listed pairs (row pi[k] of x/ng/off, VPL pj[k]): what
     :func:`pair_weights` writes for them, for callers that trace only a few of its pairs

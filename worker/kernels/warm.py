@@ -139,6 +139,10 @@ def _direct_calls() -> dict:
                                                                    out1),
         "igi.common.kernels.wire_decode.oct_decode_into": lambda: wire_decode.oct_decode_into(
             np.zeros(1, np.int16), np.zeros(1, np.int16), np.zeros((3, 1), np.float32)),
+        # the gather's array path (benchmark replays, no Embree C API): the render takes the packets
+        "igi.worker.kernels.vpl_gather.accumulate": lambda: vpl_gather.accumulate(
+            0, np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, bool),
+            np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3))),
         # _stage: pair_weights' arguments (empty arrays of its types) in _stage's order
         "igi.worker.kernels.vpl_gather._stage": lambda: _stage_call(vpl_gather),
         "igi.worker.kernels.photon_query._cell": lambda: photon_query._cell(0.5, 2.0),
