@@ -400,6 +400,11 @@ def gather_packets(scene, x, ns, ng, off, side, row, vmax,
                (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis,
                 light_pdf, area, direct_count), (lum, fraction, seed, base))
     ray, _bits, valid = packet_lanes()
+    # (lane, axis) views of the packet's SoA origin, direction and tfar fields: _write_ray fills
+    # a lane as it fills a row of the array path's rays
+    lane_o = ray[0:3 * LANES].reshape((3, LANES)).T
+    lane_d = ray[4 * LANES:7 * LANES].reshape((3, LANES)).T
+    lane_t = ray[8 * LANES:9 * LANES]
     lane_i = np.empty(LANES, np.int64)
     lane_j = np.empty(LANES, np.int64)
     lane_w = np.empty(LANES, np.float32)
@@ -426,7 +431,8 @@ def gather_packets(scene, x, ns, ng, off, side, row, vmax,
                 j = max(col_lo[i], 0) + a  # (as _stage: j >= 0 known, no wraparound per access)
                 d0, d1, d2_ = _to_vpl(x[i, 0], x[i, 1], x[i, 2], vpos, vnormal, directional, j)
                 _dd, inv_d = _length(d0, d1, d2_)
-                _lane_ray(ray, k, so[b, 0], so[b, 1], so[b, 2], d0, d1, d2_, inv_d, directional[j], eps2)
+                _write_ray(k, so[b, 0], so[b, 1], so[b, 2], d0, d1, d2_, inv_d, directional[j], eps2, lane_o, lane_d,
+                           lane_t)
                 lane_i[k] = i
                 lane_j[k] = j
                 lane_w[k] = w
@@ -486,23 +492,6 @@ def _sum_held(count, held, row, factors, color, acc) -> None:
         wq = np.float64(hw[q])
         for c in range(3):
             acc[i, c] += wq * color[j, c] * hf[q, c]
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _lane_ray(ray, k, o0, o1, o2, d0, d1, d2, inv_d, directional_j, eps2) -> None:
-    """:func:`_write_ray`'s shadow ray into lane k of an RTCRay16 (packet_lanes' fixed fields
-    already set)."""
-    ray[k] = o0
-    ray[LANES + k] = o1
-    ray[2 * LANES + k] = o2
-    ray[4 * LANES + k] = d0 * inv_d
-    ray[5 * LANES + k] = d1 * inv_d
-    ray[6 * LANES + k] = d2 * inv_d
-    if directional_j:
-        ray[8 * LANES + k] = np.float32(3.0e38)
-    else:
-        t = (np.float32(1.0) / inv_d) * np.float32(1 - 1e-4) - eps2
-        ray[8 * LANES + k] = max(t, np.float32(0.0))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
