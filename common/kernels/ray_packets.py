@@ -124,7 +124,7 @@ def occluded(scene, o, d, tfar, out) -> None:
     """out[i] = whether something blocks ray i (origin o[i], direction d[i], 0 < t <
     min(tfar[i], 3e38), float32) in the Embree ``scene`` (an RTCScene handle), 16 rays per
     Embree call."""
-    ray, bits, valid = packet_lanes()
+    ray, bits, valid = _packet(LANES * _FIELDS)  # (_put_ray writes every field of a lane)
     n = o.shape[0]
     for s in range(0, n, LANES):
         m = min(LANES, n - s)
