@@ -545,18 +545,17 @@ def contribution_per_vpl(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2:
                                minlength=m)
             continue
         # Only the drawn pairs are traced: their rays are made once they are drawn.
-        pi, pj, w, row, pl, _o, _d, _t = _pair_rays(geom, end, sl, vpls, cols, max_depth, col_range, rays=False)
-        plain = _pair_luminance(cols, eye_weight, pi, pj, w)
-        draw, share = _systematic_pairs(pj, plain, m, visibility_samples, column_u)
-        if len(draw) == 0:
+        pi, pj, w, pl, plain, draw_j, share, inv, row, (x, ng, off) = _scored_draws(
+            geom, end, sl, vpls, cols, max_depth, col_range, eye_weight, visibility_samples, column_u)
+        if len(draw_j) == 0:
             continue
-        u, inv = _unique_draws(draw)  # a heavy pair drawn twice is traced once
-        o, d, t = _listed_pair_rays(geom, end, sl, cols, pi[u], pj[u])
+        o, d, t = np.empty((len(pi), 3), np.float32), np.empty((len(pi), 3), np.float32), np.empty(len(pi), np.float32)
+        vg.pair_rays(x, ng, off, cols.pos, cols.normal, cols.directional, np.float32(2 * geom.eps), pi, pj, o, d, t)
         blocked = geom.occluded_local(o, d, t)
-        factor = _bsdf_factors(sl, cols, row, pi[u], pj[u], pl[u], d, blocked, receivers)
-        full = _pair_luminance(cols, eye_weight, pi[u], pj[u], w[u], blocked, factor)
-        ratio = np.divide(full, plain[u], out=np.zeros(len(u)), where=plain[u] > 0)
-        out += np.bincount(pj[draw], weights=share * ratio[inv], minlength=m)
+        factor = _bsdf_factors(sl, cols, row, pi, pj, pl, d, blocked, receivers)
+        full = _pair_luminance(cols, eye_weight, pi, pj, w, blocked, factor)
+        ratio = np.divide(full, plain, out=np.zeros(len(pi)), where=plain > 0)
+        out += np.bincount(draw_j, weights=share * ratio[inv], minlength=m)
     return out
 
 
@@ -570,22 +569,29 @@ def _pair_luminance(cols: "_VPLColumns", eye_weight: np.ndarray, pi: np.ndarray,
     return out
 
 
-def _systematic_pairs(pj: np.ndarray, weight: np.ndarray, m: int, samples: int,
-                      column_u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``samples`` pairs per column j drawn ∝ ``weight`` among j's pairs (uniform column_u[j],
-    evenly spaced draws): (pair indices, what each draw stands for: W_j / samples)."""
-    draw = np.empty(m * samples, np.int64)
-    share = np.empty(m * samples)
-    n = vs.systematic_pairs(pj, weight, m, samples, column_u, draw, share)
-    return draw[:n], share[:n]
-
-
-def _unique_draws(draw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(distinct pairs of ``draw``, position of each draw among them): a column's draws stand
-    together and never go back, so a repeat is always its predecessor."""
-    u = np.empty(len(draw), np.int64)
-    inv = np.empty(len(draw), np.int64)
-    return u[:vs.unique_runs(draw, u, inv)], inv
+def _scored_draws(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: "_VPLColumns", max_depth: int,
+                  col_range: tuple, eye_weight: np.ndarray, samples: int, column_u: np.ndarray) -> tuple:
+    """The chunk's draws for the scoring (kernels.vpl_scoring.scored_draws): ``samples`` pairs
+    per VPL drawn in proportion to their unshadowed luminance toward the eye, with no pair
+    list. Returns (row, column, weight, glossy light pdf, unshadowed luminance) of each distinct
+    pair drawn; each draw's column, share W_j/samples and distinct pair; the rows' kinds; and
+    the rows' (x, ng, offset) for the drawn pairs' shadow rays."""
+    x, ns, ng, side, off, row, tables, row_tab, inv_tavg = _receivers(geom, end, sl)
+    m = len(vpls)
+    lo, hi = col_range[0][sl], col_range[1][sl]
+    draws = m * samples
+    u_i, u_j = np.empty(draws, np.int64), np.empty(draws, np.int64)
+    u_w, u_pl, u_plain = np.empty(draws, np.float32), np.empty(draws, np.float32), np.empty(draws)
+    draw_j, share, inv = np.empty(draws, np.int64), np.empty(draws), np.empty(draws, np.int64)
+    nd, nu = vs.scored_draws(x, ns, ng, off, side, row, end.vpl_depth_limit(max_depth)[sl],
+                             cols.pos, cols.normal, cols.directional, cols.min_d2, cols.cos_y_factor,
+                             cols.side, cols.spot_cutoff, cols.spot_beam, cols.depth, cols.mis,
+                             cols.light_pdf, cols.area, cols.direct_count, tables, row_tab, inv_tavg, lo, hi,
+                             cols.lum, cols.color, np.ascontiguousarray(eye_weight, np.float64), samples,
+                             np.ascontiguousarray(column_u, np.float64), draw_j, share, inv, u_i, u_j, u_w, u_pl,
+                             u_plain)
+    return (u_i[:nu], u_j[:nu], u_w[:nu], u_pl[:nu], u_plain[:nu], draw_j[:nd], share[:nd], inv[:nd], row,
+            (x, ng, off))
 
 
 class _Receivers:
@@ -720,17 +726,6 @@ def _shadow_origins(geom: Geometry, end: EndPoints, sl: slice) -> tuple:
     return x, ns, ng, side, off
 
 
-def _listed_pair_rays(geom: Geometry, end: EndPoints, sl: slice, cols: "_VPLColumns", pi: np.ndarray,
-                      pj: np.ndarray) -> tuple:
-    """The shadow rays (origins, directions, tfar) of the listed pairs of the chunk, as
-    :func:`_pair_rays` makes them."""
-    x, _ns, ng, _side, off = _shadow_origins(geom, end, sl)
-    k = len(pi)
-    o, d, t = np.empty((k, 3), np.float32), np.empty((k, 3), np.float32), np.empty(k, np.float32)
-    vg.pair_rays(x, ng, off, cols.pos, cols.normal, cols.directional, np.float32(2 * geom.eps), pi, pj, o, d, t)
-    return o, d, t
-
-
 def _receivers(geom: Geometry, end: EndPoints, sl: slice) -> tuple:
     """The chunk's end points as the pair kernels take them: :func:`_shadow_origins`, then the
     receiver kind per row (kernels.vpl_gather.ROW_*) and the plastic layers' coat tables
@@ -760,14 +755,12 @@ def _receivers(geom: Geometry, end: EndPoints, sl: slice) -> tuple:
 
 
 def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,
-               max_depth: int, col_range: tuple | None = None, roulette: tuple | None = None,
-               rays: bool = True) -> tuple:
+               max_depth: int, col_range: tuple | None = None, roulette: tuple | None = None) -> tuple:
     """The chunk's live (end point, VPL) pairs and their shadow rays, untraced: (row, column,
     scalar weight, receiver row kind, light pdf, origins, directions, tfar) — the rays in the
     centred float32 frame for Embree. ``col_range`` (lo, hi) per end point: its VPLs (None:
     all). ``roulette`` (fraction, seed): the shadow rays' Russian roulette, applied per row as
-    the pairs are written (kernels.vpl_gather.roulette_row). ``rays`` False: the pairs
-    only (the ray arrays empty; :func:`_listed_pair_rays` makes the rays of a few of them)."""
+    the pairs are written (kernels.vpl_gather.roulette_row)."""
     f32 = np.float32
     x, ns, ng, side, off, row, tables, row_tab, inv_tavg = _receivers(geom, end, sl)
     n, m = len(x), len(vpls)
@@ -780,17 +773,16 @@ def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _V
     pj = np.empty(cap, np.int64)
     w = np.empty(cap, f32)
     pl = np.empty(cap, f32)
-    nr = cap if rays else 0
-    o = np.empty((nr, 3), f32)
-    d = np.empty((nr, 3), f32)
-    t = np.empty(nr, f32)
+    o = np.empty((cap, 3), f32)
+    d = np.empty((cap, 3), f32)
+    t = np.empty(cap, f32)
     k = vg.pair_weights(x, ns, ng, off, side, row, end.vpl_depth_limit(max_depth)[sl],
                         cols.pos, cols.normal, cols.directional, cols.min_d2, cols.cos_y_factor,
                         cols.side, cols.spot_cutoff, cols.spot_beam, cols.depth, cols.mis,
                         cols.light_pdf, cols.area, cols.direct_count, f32(2 * geom.eps),
                         tables, row_tab, inv_tavg, lo, hi, cols.lum,
                         float(roulette[0]) if roulette else 0.0, int(roulette[1]) if roulette else 0, sl.start,
-                        bool(rays), pi, pj, w, pl, o, d, t)
+                        pi, pj, w, pl, o, d, t)
     return pi[:k], pj[:k], w[:k], row, pl[:k], o[:k], d[:k], t[:k]
 
 

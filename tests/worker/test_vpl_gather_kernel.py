@@ -217,11 +217,11 @@ def test_roulette_while_writing_the_pairs_equals_the_separate_pass(name):
 
 @pytest.mark.parametrize("name", ["cornell-box", "cornell-box-glossy"])
 def test_the_rays_of_listed_pairs_are_the_rays_the_gather_writes_for_them(name):
-    """The importance scoring traces only a few drawn pairs: it asks pair_weights for the pairs
-    alone (rays=False) and makes the drawn pairs' rays afterwards (kernels.vpl_gather.pair_rays).
-    Those pairs and rays are bit for bit what the gather writes with its rays, spot and
-    directional columns included."""
+    """The importance scoring traces only a few drawn pairs (vpl_scoring.scored_draws) and
+    makes their rays afterwards (kernels.vpl_gather.pair_rays): bit for bit the rays the
+    gather's array path writes for those pairs, spot and directional columns included."""
     from igi.worker import shading
+    from igi.worker.kernels import vpl_gather as vg
 
     r = Renderer(with_extra_lights(load_shared(name)))
     end = eye_end_points(r, 32, 24)
@@ -231,12 +231,11 @@ def test_the_rays_of_listed_pairs_are_the_rays_the_gather_writes_for_them(name):
     cols = shading.vpl_columns(vpls, r.geom, c2)
     sl = slice(3, len(end))
     full = shading._pair_rays(r.geom, end, sl, vpls, cols, -1)
-    bare = shading._pair_rays(r.geom, end, sl, vpls, cols, -1, rays=False)
-    for a, b in zip(full[:5], bare[:5]):
-        np.testing.assert_array_equal(a, b)
-    assert bare[5].shape == (0, 3) and len(bare[7]) == 0
     pick = np.random.default_rng(1).choice(len(full[0]), 500, replace=False)
-    o, d, t = shading._listed_pair_rays(r.geom, end, sl, cols, full[0][pick], full[1][pick])
+    x, _ns, ng, _side, off = shading._shadow_origins(r.geom, end, sl)
+    o, d, t = np.empty((500, 3), np.float32), np.empty((500, 3), np.float32), np.empty(500, np.float32)
+    vg.pair_rays(x, ng, off, cols.pos, cols.normal, cols.directional, np.float32(2 * r.geom.eps),
+                 full[0][pick], full[1][pick], o, d, t)
     np.testing.assert_array_equal(o, full[5][pick])
     np.testing.assert_array_equal(d, full[6][pick])
     np.testing.assert_array_equal(t, full[7][pick])

@@ -1,88 +1,125 @@
-"""worker.kernels.vpl_scoring against its numpy original (tests/support/oracle_vpl_scoring.py)
-on random pair lists: empty columns, zero and non-finite weights, single-pair columns."""
+"""worker.kernels.vpl_scoring against the pair list it replaced (the gather's pair_weights, then
+the numpy originals in tests/support/oracle_vpl_scoring.py) on real scenes' end points: glossy
+rows, spot and point columns, several runs of rows, NaN/Inf end points, empty inputs; and
+pair_luminance on random pairs with non-finite colours and factors."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from igi.common import bsdf
 from igi.worker.kernels import vpl_scoring as vs
 from tests.support import oracle_vpl_scoring as oracle
 
 
-def _draw(pj, weight, m: int, samples: int, u):
-    """The kernel's draws and shares, trimmed to what it wrote."""
-    draw = np.empty(m * samples, np.int64)
-    share = np.empty(m * samples)
-    n = vs.systematic_pairs(pj, weight, m, samples, u, draw, share)
-    return draw[:n], share[:n]
+def _oracle_draws(geom, end, sl, vpls, cols, col_range, eye_weight, samples, column_u):
+    """The scoring's draws the long way: pair_weights' live pairs (the gather's array path),
+    their luminance (pair_luminance), a stable walk along each column (the numpy oracle) and
+    np.unique's distinct pairs in first-drawn order."""
+    from igi.worker import shading
+
+    pi, pj, w, row, pl, _o, _d, _t = shading._pair_rays(geom, end, sl, vpls, cols, -1, col_range)
+    plain = np.empty(len(pi))
+    vs.pair_luminance(pi, pj, w, np.zeros(0, bool), np.zeros((0, 3)), cols.color, eye_weight, plain)
+    draw, share = oracle.systematic_pairs_sorted(pj, plain, len(vpls), samples, column_u)
+    first = np.sort(np.unique(draw, return_index=True)[1])
+    u = draw[first]
+    inv = np.searchsorted(first, np.arange(len(draw)), side="right") - 1
+    return pi[u], pj[u], w[u], pl[u], plain[u], pj[draw], share, inv
 
 
-def _pairs(seed: int, n_pairs: int, m: int):
-    g = np.random.default_rng(seed)
-    pj = np.sort(g.integers(0, m, n_pairs)) if seed % 2 else g.integers(0, m, n_pairs)
-    weight = g.lognormal(0, 2, n_pairs) * (g.random(n_pairs) > 0.3)  # many zero weights
-    return pj.astype(np.int64), weight, g.random(m)
+def _runs(n: int, m: int):
+    """Column ranges per row: a run of 300 rows (more than a staging block) on the first half
+    of the columns, one on the rest, and rows with no columns."""
+    lo, hi = np.zeros(n, np.int64), np.zeros(n, np.int64)
+    a, b = min(300, n // 2), (3 * n) // 4
+    lo[:a], hi[:a] = 0, m // 2
+    lo[a:b], hi[a:b] = m // 2, m
+    lo[b:], hi[b:] = m, m
+    return lo, hi
 
 
-@pytest.mark.parametrize("seed,n_pairs,m", [(0, 5000, 40), (1, 5000, 40), (2, 7, 30), (3, 1, 1), (4, 0, 5)])
-def test_systematic_pairs_draw_what_the_numpy_original_draws(seed, n_pairs, m):
-    pj, weight, u = _pairs(seed, n_pairs, m)
-    draw, share = _draw(pj, weight, m, 8, u)
-    n = len(draw)
-    want_draw, want_share = oracle.systematic_pairs(pj, weight, m, 8, u)
-    assert n == len(want_draw)
-    # the numpy original cumulates across columns: a draw landing on a boundary within
-    # rounding may pick the neighbouring pair; the pairs' weights must then agree
-    same = draw[:n] == want_draw
-    assert n == 0 or same.mean() > 0.999 or n < 1000 and same.all()
-    np.testing.assert_allclose(share[:n], want_share, rtol=1e-12)
-    assert np.all(pj[draw[:n]] == pj[want_draw])  # every draw stays in its column
-    assert np.all(weight[draw[:n]] > 0)  # never a pair that carries nothing
+@pytest.mark.parametrize("name,extra", [("cornell-box-sphere", False), ("cornell-box-glossy", False),
+                                        ("cornell-box", True), ("veach-ajar", False)])
+@pytest.mark.parametrize("samples", [1, 8, 32])
+def test_scored_draws_equal_a_walk_along_each_columns_pair_list_bit_for_bit(name, extra, samples):
+    """No pair list (each run's block weighed, summed and walked down its columns) draws the
+    same pairs, in the same order, with the same shares and luminances, as the pair list: on
+    glossy rows, spot and point columns, runs longer than a block, rows with no columns."""
+    from igi.bench.stress_scenes import eye_end_points, load_shared, with_extra_lights
+    from igi.worker import shading
+    from igi.worker.renderer import Renderer
+    from igi.worker.vpl import build_vpl_set
+
+    scene = load_shared(name)
+    r = Renderer(with_extra_lights(scene) if extra else scene)
+    end = eye_end_points(r, 32, 24)
+    vpls = build_vpl_set(r.scene, r.geom, r.lights, 0, 3, 8 if extra else 4, 40, 4)
+    c2 = 1e-3 * r.geom.diagonal ** 2
+    cols = shading.vpl_columns(vpls, r.geom, c2)
+    m = len(vpls)
+    col_range = _runs(len(end), m)
+    albedo = bsdf.albedo(end.sp, end.wi).astype(np.float64)
+    eye_weight = albedo * end.throughput
+    column_u = np.random.default_rng(samples).random(m)
+    sl = slice(0, len(end))
+    got = shading._scored_draws(r.geom, end, sl, vpls, cols, -1, col_range, eye_weight, samples, column_u)
+    want = _oracle_draws(r.geom, end, sl, vpls, cols, col_range, eye_weight, samples, column_u)
+    assert len(want[5]) > samples * 10  # many columns drawn: not vacuous
+    for g, w in zip(got[:8], want):
+        assert g.dtype == w.dtype and np.array_equal(g, w)
 
 
-@pytest.mark.parametrize("seed,n_pairs,m", [(0, 5000, 40), (1, 5000, 40), (2, 7, 30), (3, 1, 1), (4, 0, 5),
-                                             (6, 3000, 200)])
-def test_systematic_pairs_draw_bit_for_bit_what_a_walk_along_each_sorted_column_draws(seed, n_pairs, m):
-    """Two passes in pair order draw exactly the pairs, in the same order, that a stable sort
-    by column and a walk along each column draw (the same running sums in the same order)."""
-    pj, weight, u = _pairs(seed, n_pairs, m)
-    if n_pairs > 10:
-        weight[::97] = np.nan  # a column with a non-finite weight draws nothing
-        weight[1::89] = 0.0
-    draw, share = _draw(pj, weight, m, 8, u)
-    want_draw, want_share = oracle.systematic_pairs_sorted(pj, weight, m, 8, u)
-    assert np.array_equal(draw, want_draw) and np.array_equal(share, want_share)
+def test_scored_draws_skip_nonfinite_end_points_and_take_no_rows():
+    """NaN/Inf end points weigh nothing (never drawn), as in the pair list; no rows: no draws."""
+    import dataclasses
+
+    from igi.bench.stress_scenes import eye_end_points, load_shared
+    from igi.worker import shading
+    from igi.worker.renderer import Renderer
+    from igi.worker.vpl import build_vpl_set
+
+    r = Renderer(load_shared("cornell-box"))
+    end = eye_end_points(r, 24, 24)
+    pos = end.position.copy()
+    pos[::3] = np.nan
+    pos[1::5] = np.inf
+    end = dataclasses.replace(end, position=pos)
+    vpls = build_vpl_set(r.scene, r.geom, r.lights, 0, 1, 4, 30, 4)
+    cols = shading.vpl_columns(vpls, r.geom, 1e-3 * r.geom.diagonal ** 2)
+    m = len(vpls)
+    rng_range = (np.zeros(len(end), np.int64), np.full(len(end), m, np.int64))
+    eye_weight = bsdf.albedo(end.sp, end.wi).astype(np.float64) * end.throughput
+    u = np.random.default_rng(2).random(m)
+    sl = slice(0, len(end))
+    got = shading._scored_draws(r.geom, end, sl, vpls, cols, -1, rng_range, eye_weight, 16, u)
+    want = _oracle_draws(r.geom, end, sl, vpls, cols, rng_range, eye_weight, 16, u)
+    for g, w in zip(got[:8], want):
+        assert np.array_equal(g, w)
+    assert len(got[0]) and not np.any(np.isin(got[0], np.arange(0, len(end), 3)))
+    none = shading._scored_draws(r.geom, end, slice(0, 0), vpls, cols, -1, rng_range, eye_weight, 16, u)
+    assert all(len(a) == 0 for a in none[:8])
 
 
-def test_unique_runs_equal_numpys_unique_on_draws():
-    pj, weight, u = _pairs(1, 4000, 60)
-    d, _ = _draw(pj, weight, 60, 16, u)
-    n = len(d)
-    uniq = np.empty(n, np.int64)
-    inv = np.empty(n, np.int64)
-    k = vs.unique_runs(d, uniq, inv)
-    assert k < n  # heavy pairs drawn more than once
-    assert np.array_equal(np.sort(uniq[:k]), np.unique(d)) and np.array_equal(uniq[:k][inv], d)
-    assert vs.unique_runs(np.zeros(0, np.int64), uniq, inv) == 0
+def test_scored_draws_refuse_a_column_in_two_runs():
+    """Each run's columns are drawn once its block is summed: a column shared by two runs of
+    rows would be drawn from part of its pairs, so it is refused."""
+    from igi.bench.stress_scenes import eye_end_points, load_shared
+    from igi.worker import shading
+    from igi.worker.renderer import Renderer
+    from igi.worker.vpl import build_vpl_set
 
-
-def test_systematic_pairs_estimate_each_columns_sum_without_bias():
-    """Σ over a column's draws of share · g/weight estimates Σ g over its pairs that carry
-    weight, for g = weight × a visibility in [0, 1] (the scoring's shadowed light from a few
-    shadow rays per VPL)."""
-    pj, weight, _ = _pairs(5, 3000, 12)
-    g = weight * (np.random.default_rng(6).random(len(pj)) > 0.4)
-    want = np.bincount(pj, weights=np.where(weight > 0, g, 0.0), minlength=12)
-    est = np.zeros(12)
-    trials = 2000
-    for t in range(trials):
-        u = np.random.default_rng(100 + t).random(12)
-        draw = np.empty(12 * 4, np.int64)
-        share = np.empty(12 * 4)
-        n = vs.systematic_pairs(pj, weight, 12, 4, u, draw, share)
-        d = draw[:n]
-        np.add.at(est, pj[d], share[:n] * g[d] / weight[d])
-    np.testing.assert_allclose(est / trials, want, rtol=0.03)
+    r = Renderer(load_shared("cornell-box"))
+    end = eye_end_points(r, 8, 8)
+    vpls = build_vpl_set(r.scene, r.geom, r.lights, 0, 1, 4, 30, 4)
+    cols = shading.vpl_columns(vpls, r.geom, 1e-3 * r.geom.diagonal ** 2)
+    m = len(vpls)
+    lo, hi = np.zeros(len(end), np.int64), np.full(len(end), m, np.int64)
+    hi[10:] = m // 2  # rows 10… take a part of the first run's columns
+    eye_weight = np.ones((len(end), 3))
+    with pytest.raises(ValueError, match="two runs"):
+        shading._scored_draws(r.geom, end, slice(0, len(end)), vpls, cols, -1, (lo, hi), eye_weight, 4,
+                              np.full(m, 0.5))
 
 
 def test_pair_luminance_matches_numpy_and_zeroes_non_finite_pairs():

@@ -144,8 +144,8 @@ def receiver_rows(kind, twosided, wi, diffuse, null, layer_kind, out) -> int:
 @njit(cache=True, nogil=True, error_model="numpy")
 def pair_rays(x, ng, off, vpos, vnormal, directional, eps2, pi, pj, out_o, out_d, out_t):
     """The shadow rays of the listed pairs (row pi[k] of x/ng/off, VPL pj[k]): what
-    :func:`pair_weights` writes for them, for callers that trace only a few of its pairs
-    (``rays`` False there)."""
+    :func:`pair_weights` writes for them, for callers that trace only a few pairs (the
+    scoring's draws, vpl_scoring.scored_draws)."""
     for k in range(pi.shape[0]):
         i = pi[k]
         j = pj[k]
@@ -328,7 +328,7 @@ def _weigh(b0, nb, weighed, staging) -> None:
 def pair_weights(x, ns, ng, off, side, row, vmax,
                  vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam,
                  vdepth, mis, light_pdf, area, direct_count, eps2,
-                 tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base, rays,
+                 tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base,
                  out_i, out_j, out_w, out_pl, out_o, out_d, out_t):
     """Fill the live pairs of rows x (n, 3) × VPL columns [col_lo[i], col_hi[i]), row by row
     (row-major); returns how many were written (the out arrays hold at least Σ (col_hi - col_lo)).
@@ -342,10 +342,7 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
     1/t_avg ``inv_tavg[i]``. out_pl: the MIS light pdf of glossy-row pairs (0 elsewhere) — their BSDF pdf
     is the caller's, so their MIS weight is applied by the caller. ``fraction`` > 0: each row's
     pairs go through :func:`roulette_row` (``lum``, ``seed``, ``base``) once the row is
-    weighed (0: every live pair is kept). Per-row column ranges let
-    one call score the candidates of several VPL sets, each against its own camera points.
-    ``rays`` False: no shadow ray is written (out_o, out_d, out_t may be empty) — for callers
-    that trace only a few of the pairs (:func:`pair_rays` makes theirs).
+    weighed (0: every live pair is kept).
     """
     n = x.shape[0]
     rows_per_block, staging = _staging(n, col_lo, col_hi, vpos, vnormal, spot_cutoff)
@@ -369,11 +366,10 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
                 out_j[k] = j
                 out_w[k] = w
                 out_pl[k] = spl[b, a] if row[i] == ROW_GLOSSY else np.float32(0.0)
-                if rays:
-                    d0, d1, d2_ = _to_vpl(x[i, 0], x[i, 1], x[i, 2], vpos, vnormal, directional, j)
-                    _dd, inv_d = _length(d0, d1, d2_)
-                    _write_ray(k, so[b, 0], so[b, 1], so[b, 2], d0, d1, d2_, inv_d, directional[j], eps2, out_o,
-                               out_d, out_t)
+                d0, d1, d2_ = _to_vpl(x[i, 0], x[i, 1], x[i, 2], vpos, vnormal, directional, j)
+                _dd, inv_d = _length(d0, d1, d2_)
+                _write_ray(k, so[b, 0], so[b, 1], so[b, 2], d0, d1, d2_, inv_d, directional[j], eps2, out_o, out_d,
+                           out_t)
                 k += 1
     return k
 

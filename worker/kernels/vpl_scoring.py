@@ -1,12 +1,13 @@
 """Scoring candidate VPLs against camera points (worker.vpl_importance): the per-pair loops of
 shading.contribution_per_vpl, over every (camera point, candidate) pair of a set batch.
 
-:func:`pair_luminance` — each pair's luminance toward the eye (unshadowed, or with its shadow
-ray's answer and BSDF factors);
-:func:`systematic_pairs` — per candidate, ``samples`` pairs drawn in proportion to it (one
-uniform per candidate, evenly spaced), in two passes over the pairs: a batch of sets has ~10⁶
-pairs, where numpy's argsort and temporaries cost more than the scoring;
-:func:`unique_runs` — the distinct pairs drawn (each traced once).
+:func:`scored_draws` — per candidate, ``samples`` of its pairs drawn in proportion to their
+unshadowed luminance toward the eye (one uniform per candidate, evenly spaced), and the distinct
+pairs drawn (each traced once): a batch of sets has ~10⁶ pairs and draws ~10⁵, so no pair list
+is written — each set's (camera points × candidates) block is weighed, summed and walked down
+its columns while it is in cache (a pair list through three passes cost twice as much);
+:func:`pair_luminance` — the drawn pairs' luminance with their shadow ray's answer and BSDF
+factors.
 """
 from __future__ import annotations
 
@@ -16,6 +17,8 @@ import numpy as np
 from numba import njit
 
 from igi.common.lights import LUMINANCE_WEIGHTS
+
+from . import vpl_gather as vg
 
 _WR, _WG, _WB = LUMINANCE_WEIGHTS
 
@@ -45,72 +48,160 @@ def pair_luminance(pi, pj, w, blocked, factor, color, eye_weight, out):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def systematic_pairs(pj, weight, m, samples, column_u, out_draw, out_share):
-    """Per column j with Σ weight > 0: ``samples`` draws among its pairs ∝ ``weight``, at the
-    points (column_u[j] + s)/samples of its cumulative weight (s = 0..samples-1), the pairs of a
-    column taken in their order. Writes each draw's pair index and what it stands for
-    (W_j / samples), column by column; returns how many were written (out arrays: m · samples).
+def scored_draws(x, ns, ng, off, side, row, vmax,
+                 vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam,
+                 vdepth, mis, light_pdf, area, direct_count, tables, row_tab, inv_tavg, col_lo, col_hi, lum,
+                 color, eye_weight, samples, column_u, out_draw_j, out_share, out_inverse,
+                 out_i, out_j, out_w, out_pl, out_plain):
+    """The scoring's draws among every (row, column) pair of rows x × columns [col_lo[i],
+    col_hi[i]) (rows and columns as vpl_gather.pair_weights takes them), with no pair list.
+    Rows come in runs of one range (the scoring's sets, each its camera points against its
+    candidates); no column may lie in the ranges of two runs. Per run:
 
-    Two passes in pair order with a running sum per column (no sort: a counting sort's scatter
-    and gather over ~10⁶ pairs missed the cache on every pair)."""
-    n = pj.shape[0]
+    1. its rows weighed (vpl_gather._stage) and each live pair's unshadowed luminance toward the
+       eye — :func:`pair_luminance`'s w · Y(colour_j ⊙ eye_weight_i) — kept in the run's (rows ×
+       columns) scratch, each column's total summed in row order (branch-free: dead pairs weigh
+       0, and only each column's last live row is remembered);
+    2. per column with a positive total, ``samples`` draws among its live pairs ∝ luminance, at
+       the points (column_u[j] + s)/samples of its running sum down the rows, the last live pair
+       taking the targets left (a pair of weight 0 is never passed by the sum, so the dead ones
+       are never drawn). Each draw's row, weight, light pdf and luminance are noted while the
+       run's scratch is in cache.
+
+    Then, column by column: each draw's column and share W_j/samples in out_draw_j/out_share,
+    the distinct pairs drawn (a column's draws never go back: a repeat is its predecessor) in
+    out_i … out_plain, each draw's distinct pair in ``out_inverse`` (all m · samples long).
+    Returns (draws, distinct pairs): bit for bit the draws of pair_weights' live pairs through
+    :func:`pair_luminance` and a walk along each column in pair order."""
+    n = x.shape[0]
+    m = vpos.shape[0]
+    # One staging for a whole run (its weights are read again when its columns are drawn).
+    rows, width_max = 1, 1
+    r0 = 0
+    while r0 < n:
+        r1 = _run_end(r0, n, col_lo, col_hi)
+        rows = max(rows, r1 - r0)
+        width_max = max(width_max, col_hi[r0] - col_lo[r0])
+        r0 = r1
+    vx, vy, vz, wx, wy, wz = vg._columns_soa(vpos, vnormal, spot_cutoff)
+    sw = np.empty((rows, width_max), np.float32)
+    spl = np.empty((rows, width_max), np.float32)
+    staging = (sw, spl, np.empty((rows, 3), np.float32), vx, vy, vz, wx, wy, wz)
+    weighed = ((x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi),
+               (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis,
+                light_pdf, area, direct_count), (lum, 0.0, 0, 0))
+    cr = np.empty(m)
+    cg = np.empty(m)
+    cb = np.empty(m)
+    for j in range(m):
+        cr[j], cg[j], cb[j] = color[j, 0], color[j, 1], color[j, 2]
+    plain = np.empty((rows, width_max))
     total = np.zeros(m)
-    last = np.full(m, -1, np.int64)
-    for k in range(n):
-        total[pj[k]] += weight[k]
-        last[pj[k]] = k
-    slot = np.empty(m, np.int64)  # first output position of each drawn column
+    last = np.full(m, -1, np.int64)  # each column's last live row
+    claimed = np.zeros(m, np.bool_)  # columns of a run seen already
+    # draw s of column j at j · samples + s: its row, weight, light pdf, luminance
+    d_row = np.empty(m * samples, np.int64)
+    d_w = np.empty(m * samples, np.float32)
+    d_pl = np.empty(m * samples, np.float32)
+    d_plain = np.empty(m * samples)
+    r0 = 0
+    while r0 < n:
+        r1 = _run_end(r0, n, col_lo, col_hi)
+        lo = max(col_lo[r0], 0)
+        width = col_hi[r0] - lo
+        if width > 0:
+            for j in range(lo, lo + width):
+                if claimed[j]:
+                    raise ValueError("scored_draws: a column lies in the ranges of two runs of rows")
+                claimed[j] = True
+            vg._weigh(r0, r1 - r0, weighed, staging)
+            for b in range(r1 - r0):
+                i = r0 + b
+                e0, e1, e2 = eye_weight[i, 0], eye_weight[i, 1], eye_weight[i, 2]
+                for a in range(width):  # branch-free (SIMD lanes)
+                    j = lo + a
+                    w = sw[b, a]
+                    live = w >= 0.0
+                    v = (cr[j] * e0 * _WR + cg[j] * e1 * _WG + cb[j] * e2 * _WB) * np.float64(w)
+                    v = v if (live and math.isfinite(v) and v > 0.0) else 0.0
+                    plain[b, a] = v
+                    total[j] += v
+                    last[j] = i if live else last[j]
+            _draw_columns(r0, r1, lo, width, samples, column_u, total, last, plain, sw, spl, row,
+                          d_row, d_w, d_pl, d_plain)
+        r0 = r1
     out = 0
+    u = 0
     for j in range(m):
-        slot[j] = out
-        if total[j] > 0.0:
-            out += samples
-    c = np.zeros(m)
-    s = np.zeros(m, np.int64)
-    target = np.empty(m)  # each column's next target, kept: no division per pair
-    for j in range(m):
-        target[j] = column_u[j] / samples * total[j]
-    for k in range(n):
-        j = pj[k]
         if not total[j] > 0.0:
             continue
-        sj = s[j]
-        if sj == samples:
+        share = total[j] / samples
+        prev = -1
+        for q in range(j * samples, (j + 1) * samples):
+            out_draw_j[out] = j
+            out_share[out] = share
+            if d_row[q] != prev:
+                prev = d_row[q]
+                out_i[u] = prev
+                out_j[u] = j
+                out_w[u] = d_w[q]
+                out_pl[u] = d_pl[q]
+                out_plain[u] = d_plain[q]
+                u += 1
+            out_inverse[out] = u - 1
+            out += 1
+    return out, u
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _run_end(r0, n, col_lo, col_hi):
+    """The end of the run of rows from r0 with r0's column range."""
+    r1 = r0 + 1
+    while r1 < n and col_lo[r1] == col_lo[r0] and col_hi[r1] == col_hi[r0]:
+        r1 += 1
+    return r1
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _draw_columns(r0, r1, lo, width, samples, column_u, total, last, plain, sw, spl, row,
+                  d_row, d_w, d_pl, d_plain) -> None:
+    """Step 2 of :func:`scored_draws` for the columns of run [r0, r1) (weights from the
+    staging ``sw``/``spl``, rows from r0)."""
+    for a in range(width):
+        j = lo + a
+        tj = total[j]
+        if not tj > 0.0:
             continue
-        if k == last[j]:  # the column's last pair takes every target left
-            while sj < samples:
-                out_draw[slot[j] + sj] = k
-                sj += 1
-        else:
-            w = weight[k]
-            if not (c[j] + w <= target[j]):
+        sj = 0
+        cj = 0.0
+        target = column_u[j] / samples * tj
+        q0 = j * samples
+        for i in range(r0, r1):
+            v = plain[i - r0, a]
+            if i == last[j]:  # the column's last live pair takes every target left
+                while sj < samples:
+                    _note(q0 + sj, i, r0, a, v, sw, spl, row, d_row, d_w, d_pl, d_plain)
+                    sj += 1
+                break
+            if not (cj + v <= target):
                 while True:
-                    out_draw[slot[j] + sj] = k
+                    _note(q0 + sj, i, r0, a, v, sw, spl, row, d_row, d_w, d_pl, d_plain)
                     sj += 1
                     if sj == samples:
                         break
-                    target[j] = (column_u[j] + sj) / samples * total[j]
-                    if c[j] + w <= target[j]:
+                    target = (column_u[j] + sj) / samples * tj
+                    if cj + v <= target:
                         break
-            c[j] += w
-        s[j] = sj
-    for j in range(m):
-        if total[j] > 0.0:
-            share = total[j] / samples
-            for q in range(samples):
-                out_share[slot[j] + q] = share
-    return out
+                if sj == samples:
+                    break
+            cj += v
 
 
-@njit(cache=True, nogil=True)
-def unique_runs(draw, out_unique, out_inverse):
-    """The distinct values of ``draw`` where equal values only ever stand next to each other
-    (systematic_pairs' draws: a column's draws never go back): out_unique[:u] in first-seen
-    order, draw[q] == out_unique[out_inverse[q]]; returns u. np.unique without its sort."""
-    u = 0
-    for q in range(draw.shape[0]):
-        if u == 0 or draw[q] != out_unique[u - 1]:
-            out_unique[u] = draw[q]
-            u += 1
-        out_inverse[q] = u - 1
-    return u
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _note(q, i, r0, a, v, sw, spl, row, d_row, d_w, d_pl, d_plain) -> None:
+    d_row[q] = i
+    d_plain[q] = v
+    d_w[q] = sw[i - r0, a]
+    d_pl[q] = spl[i - r0, a] if row[i] == vg.ROW_GLOSSY else np.float32(0.0)
+
+

@@ -143,8 +143,10 @@ def _direct_calls() -> dict:
         "igi.worker.kernels.vpl_gather.accumulate": lambda: vpl_gather.accumulate(
             0, np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, bool),
             np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3))),
-        # _stage: pair_weights' arguments (empty arrays of its types) in _stage's order
+        # _stage and the array path's pair_weights: the scoring's rows and columns (empty
+        # arrays of the types scored_draws takes) in their order
         "igi.worker.kernels.vpl_gather._stage": lambda: _stage_call(vpl_gather),
+        "igi.worker.kernels.vpl_gather.pair_weights": lambda: _pair_weights_call(vpl_gather),
         "igi.worker.kernels.photon_query._cell": lambda: photon_query._cell(0.5, 2.0),
         "igi.worker.kernels.photon_query._find": lambda: photon_query._find(np.zeros(1, np.int64), 0),
         # _visit: query's arguments (empty arrays of its types) plus the output arrays
@@ -154,11 +156,25 @@ def _direct_calls() -> dict:
 
 
 def _stage_call(vpl_gather) -> None:
-    """vpl_gather._stage on empty inputs of the types pair_weights passes it."""
-    a = _empty_args(vpl_gather.pair_weights)
+    """vpl_gather._stage on empty inputs of the types its callers pass it."""
+    from igi.worker.kernels import vpl_scoring
+
+    a = _empty_args(vpl_scoring.scored_draws)
     staging = np.zeros((1, 0), np.float32)
-    vpl_gather._stage(0, 0, *a[0:7], *a[21:26], *a[7:20], *a[26:30], staging, staging.copy(),
+    vpl_gather._stage(0, 0, *a[0:7], *a[20:25], *a[7:20], a[25], 0.0, 0, 0, staging, staging.copy(),
                       np.zeros((1, 3), np.float32), *(np.zeros(0, np.float32) for _ in range(6)))
+
+
+def _pair_weights_call(vpl_gather) -> None:
+    """vpl_gather.pair_weights (the gather's array path) on empty inputs of the types
+    shading._pair_rays passes it."""
+    from igi.worker.kernels import vpl_scoring
+
+    a = _empty_args(vpl_scoring.scored_draws)
+    i64, f32 = np.zeros(0, np.int64), np.zeros(0, np.float32)
+    f32x3 = np.zeros((0, 3), np.float32)
+    vpl_gather.pair_weights(*a[0:20], np.float32(0.0), *a[20:26], 0.0, 0, 0, i64, i64.copy(), f32, f32.copy(),
+                            f32x3, f32x3.copy(), f32.copy())
 
 
 def _bsdf_calls() -> dict:
