@@ -203,17 +203,66 @@ class SobolStream:
         _check_block(k, count, block_size)
         if total_dims < 1 or group_dims < 1:
             raise ValueError(f"total_dims and group_dims must be >= 1, got {total_dims}, {group_dims}")
-        out = np.empty((count, total_dims), dtype=np.float64)
-        shuffle = None  # one generator per block for all its groups' shuffles (they are cheap to draw, not to seed)
         seed, start = self._lap(k, block_size)
-        for g, d0 in enumerate(range(0, total_dims, group_dims)):
-            d = min(group_dims, total_dims - d0)
-            pts = _draw(_scrambling(d, seed, _TAG_GROUP, g), start, count)
+        groups = [(g, d0, min(group_dims, total_dims - d0)) for g, d0 in enumerate(range(0, total_dims, group_dims))]
+        # One generator per block for all its groups' shuffles (they are cheap to draw, not to seed).
+        shuffle = rng(self.seed, _TAG_PERM, k, count) if len(groups) > 1 else None
+        if _direct_works():
+            padding = _padding(seed, total_dims, group_dims)
+            perms = np.zeros((len(groups), count), np.int64)
+            for g in range(1, len(groups)):
+                perms[g] = shuffle.permutation(count)
+            out = np.empty((count, total_dims), dtype=np.float64)
+            sobol_points.draw_padded(padding.sv, padding.shift, padding.dims, padding.scale, start, count, perms, out)
+            return out
+        out = np.empty((count, total_dims), dtype=np.float64)
+        for g, d0, d in groups:
+            pts = _engine_draw(_scrambling(d, seed, _TAG_GROUP, g).engine, start, count)
             if g:
-                shuffle = shuffle or rng(self.seed, _TAG_PERM, k, count)
                 pts = pts[shuffle.permutation(count)]
             out[:, d0:d0 + d] = pts
         return out
+
+
+@dataclass(frozen=True)
+class _Padding:
+    """The scramblings of a padded draw's groups stacked for sobol_points.draw_padded: group g's
+    direction numbers sv[g, :dims[g]] and shift[g, :dims[g]] (read-only)."""
+
+    sv: np.ndarray  # (groups, group_dims, bits)
+    shift: np.ndarray  # (groups, group_dims)
+    dims: np.ndarray  # (groups,)
+    scale: float
+
+
+_PADDINGS: "OrderedDict[tuple, _Padding]" = OrderedDict()
+
+
+def _padding(seed: int, total_dims: int, group_dims: int) -> _Padding:
+    """The stacked group scramblings of (seed, total_dims, group_dims), built once per process."""
+    key = (seed, total_dims, group_dims)
+    with _LOCK:
+        hit = _PADDINGS.get(key)
+        if hit is not None:
+            _PADDINGS.move_to_end(key)
+            return hit
+    scrs = [_scrambling(min(group_dims, total_dims - d0), seed, _TAG_GROUP, g)
+            for g, d0 in enumerate(range(0, total_dims, group_dims))]
+    bits = scrs[0].sv.shape[1]
+    sv = np.zeros((len(scrs), group_dims, bits), scrs[0].sv.dtype)
+    shift = np.zeros((len(scrs), group_dims), scrs[0].shift.dtype)
+    for g, scr in enumerate(scrs):
+        sv[g, :len(scr.shift)] = scr.sv
+        shift[g, :len(scr.shift)] = scr.shift
+    dims = np.array([len(scr.shift) for scr in scrs], np.int64)
+    for a in (sv, shift, dims):
+        a.flags.writeable = False
+    out = _Padding(sv, shift, dims, scrs[0].scale)
+    with _LOCK:
+        _PADDINGS[key] = out
+        while len(_PADDINGS) > _SCRAMBLINGS_MAX // 4:
+            _PADDINGS.popitem(last=False)
+    return out
 
 
 def _check_block(k: int, count: int, block_size: int) -> None:
