@@ -178,6 +178,25 @@ def test_direct_evaluation_draws_what_scipys_engine_draws(start):
     np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("k,count,total_dims,group_dims", [(0, 500, 29, 4), (3, 240, 14, 4), (7, 5, 5, 4),
+                                                          (2, 1, 3, 4), (4, 0, 9, 4), (1, 100, 8, 3)])
+def test_padded_in_one_call_equals_scipys_engines_group_by_group(k, count, total_dims, group_dims):
+    """padded() draws every group in one compiled call (sobol_points.draw_padded): the same
+    values as each group's own scipy engine over the block's rows, shuffled by the block's
+    successive permutations (the engine path it replaced, kept as the fallback)."""
+    from igi.common import sobol_stream as ss
+
+    s = SobolStream(4242)
+    got = s.padded(k, count, 512, total_dims, group_dims)
+    shuffle = rng(4242, ss._TAG_PERM, k, count)
+    for g, d0 in enumerate(range(0, total_dims, group_dims)):
+        d = min(group_dims, total_dims - d0)
+        want = ss._engine_draw(ss._scrambling(d, 4242, ss._TAG_GROUP, g).engine, k * 512, count)
+        if g:
+            want = want[shuffle.permutation(count)]
+        np.testing.assert_array_equal(got[:, d0:d0 + d], want)
+
+
 def test_threads_drawing_from_one_stream_get_the_serial_points():
     """One stream shared by threads (a worker's render threads) draws what a serial caller does."""
     from concurrent.futures import ThreadPoolExecutor
