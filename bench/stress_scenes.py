@@ -450,6 +450,17 @@ def eye_end_points(renderer, width: int = 24, height: int = 24, max_depth: int =
     return trace_eye(renderer.scene, renderer.geom, renderer.lights, o, d, max_depth, 8, rng(0, 1)).end
 
 
+def with_nonfinite_positions(end, nan_every: int, inf_every: int):
+    """End points with every ``nan_every``-th position NaN and every ``inf_every``-th from
+    row 1 infinite (the kernels' hostile rows)."""
+    import dataclasses
+
+    pos = end.position.copy()
+    pos[::nan_every] = np.nan
+    pos[1::inf_every] = np.inf
+    return dataclasses.replace(end, position=pos)
+
+
 def vpls_at(end, rows: np.ndarray, kinds=("surface", "area", "point", "spot")):
     """A VPL set with VPLs of the given kinds placed exactly on the end points ``rows`` (same
     position bit for bit, the end point's own normals and BSDF for surface VPLs). Area VPLs

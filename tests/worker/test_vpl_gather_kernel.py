@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from tests.support.oracle_vpl_gather import gather_vpls_numpy, shadow_roulette
-from igi.bench.stress_scenes import eye_end_points, grazing_camera, load_shared, merge_vpl_sets, vpls_at, with_extra_lights
+from igi.bench.stress_scenes import (eye_end_points, grazing_camera, load_shared, merge_vpl_sets, vpls_at,
+                                     with_extra_lights, with_nonfinite_positions)
 from igi.worker.renderer import Renderer
 from igi.worker.shading import gather_vpls
 from igi.worker.vpl import build_vpl_set
@@ -81,11 +82,7 @@ def test_kernel_matches_numpy_for_a_grazing_eye():
 
 def test_nonfinite_end_points_give_zero_not_nan():
     r = Renderer(load_shared("cornell-box"))
-    end = eye_end_points(r, 12, 12)
-    pos = end.position.copy()
-    pos[::5] = np.nan
-    pos[1::7] = np.inf
-    bad = dataclasses.replace(end, position=pos)
+    bad = with_nonfinite_positions(eye_end_points(r, 12, 12), 5, 7)
     out = _agree(r, bad, _set(r, 6))
     assert np.all(out[::5] == 0)
 

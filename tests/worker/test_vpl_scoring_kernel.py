@@ -72,19 +72,13 @@ def test_scored_draws_equal_a_walk_along_each_columns_pair_list_bit_for_bit(name
 
 def test_scored_draws_skip_nonfinite_end_points_and_take_no_rows():
     """NaN/Inf end points weigh nothing (never drawn), as in the pair list; no rows: no draws."""
-    import dataclasses
-
-    from igi.bench.stress_scenes import eye_end_points, load_shared
+    from igi.bench.stress_scenes import eye_end_points, load_shared, with_nonfinite_positions
     from igi.worker import shading
     from igi.worker.renderer import Renderer
     from igi.worker.vpl import build_vpl_set
 
     r = Renderer(load_shared("cornell-box"))
-    end = eye_end_points(r, 24, 24)
-    pos = end.position.copy()
-    pos[::3] = np.nan
-    pos[1::5] = np.inf
-    end = dataclasses.replace(end, position=pos)
+    end = with_nonfinite_positions(eye_end_points(r, 24, 24), 3, 5)
     vpls = build_vpl_set(r.scene, r.geom, r.lights, 0, 1, 4, 30, 4)
     cols = shading.vpl_columns(vpls, r.geom, 1e-3 * r.geom.diagonal ** 2)
     m = len(vpls)
