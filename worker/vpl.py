@@ -105,13 +105,16 @@ def build_vpl_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: int
     if not lights.has_light:
         return [_empty_set() for _ in ks]
     nsets = len(ks)
-    parts: list[list[VPLSet]] = [[] for _ in ks]
+    # Each set's rows of the emitter samples and of the walks' vertices, taken from the two
+    # joined in one copy per set (subsets of each, then a join per set, copied everything twice).
+    parts: list[VPLSet] = []
+    rows: list[list[np.ndarray]] = [[] for _ in ks]
     if direct_vpls > 0:
         stream = SobolStream(seed)
         u = np.concatenate([stream.padded(k, direct_vpls, direct_vpls, DIRECT_DIMS) for k in ks])
-        both = emitter_vpls(scene, lights.sample_points(u, emitter_pmf), direct_vpls, emitter_pmf)
+        parts.append(emitter_vpls(scene, lights.sample_points(u, emitter_pmf), direct_vpls, emitter_pmf))
         for i in range(nsets):
-            parts[i].append(subset_vpls(both, np.arange(i * direct_vpls, (i + 1) * direct_vpls)))
+            rows[i].append(np.arange(i * direct_vpls, (i + 1) * direct_vpls))
     walks = walk_count(indirect_vpls, max_length)
     if walks > 0 and max_length > 0:
         length = MAX_WALK if roulette else max_length
@@ -128,9 +131,18 @@ def build_vpl_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: int
             survival = np.concatenate([b[:, -length:] for b in extra])
         walked, owner = _light_walks(scene, geom, lights, np.concatenate(u), walks, length,
                                      max_length if roulette else None, survival, portals)
-        for i, rows in enumerate(_split(owner // walks, nsets)):
-            parts[i].append(subset_vpls(walked, rows))
-    return [concat_vpls(p) for p in parts]
+        base = sum(len(p) for p in parts)
+        parts.append(walked)
+        for i, r in enumerate(_split(owner // walks, nsets)):
+            rows[i].append(base + r)
+    if not parts or not any(len(p) for p in parts):
+        return [_empty_set() for _ in ks]
+    joined = concat_vpls(parts)
+    out = []
+    for r in rows:
+        r = np.concatenate(r) if r else np.zeros(0, np.int64)
+        out.append(subset_vpls(joined, r) if len(r) else _empty_set())
+    return out
 
 
 def _split(label: np.ndarray, n: int) -> list[np.ndarray]:
