@@ -22,7 +22,7 @@ from igi.common.sobol_stream import SobolStream, stream_seed
 from igi.common.specular import specular_targets
 
 from .hash_grid import HashGrid
-from .kernels import photon_estimate
+from .kernels import photon_aim, photon_estimate
 from .light_paths import continue_paths
 
 PHOTON_STREAM = "caustic photons"
@@ -52,19 +52,6 @@ def default_radius(diagonal: float, fraction: float) -> float:
 def _empty(radius: float) -> PhotonSet:
     z = np.zeros((0, 3))
     return PhotonSet(z, z, z, z, np.zeros(0, np.int32), radius, None)
-
-
-def _cone_mixture_pdf(origin, dirs, centres, radii):
-    """Pdf (solid angle) of choosing a direction uniformly in one of the target cones."""
-    to_c = centres[None, :, :] - origin[:, None, :]
-    dist = np.linalg.norm(to_c, axis=2)
-    inside = dist <= radii[None, :]
-    sin2 = np.clip((radii[None, :] / np.maximum(dist, 1e-300)) ** 2, 0, 1)
-    cos_max = np.where(inside, -1.0, np.sqrt(1 - sin2))
-    solid = 2 * np.pi * (1 - cos_max)
-    cos_d = np.einsum("nk,ntk->nt", dirs, to_c) / np.maximum(dist, 1e-300)
-    in_cone = inside | (cos_d >= cos_max)
-    return (in_cone / solid).sum(axis=1) / len(radii), cos_max, to_c / np.maximum(dist, 1e-300)[:, :, None]
 
 
 MIN_PHOTON_SHARE = 0.01  # a light's photons at least this share of photons_per_light (>= 1)
@@ -136,15 +123,17 @@ def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: 
             pos[rows_of[i]] = e.position
             nrm[rows_of[i]] = e.direction / np.linalg.norm(e.direction)
     if aim:
-        t = np.minimum((u[:, 2] * len(radii)).astype(np.int64), len(radii) - 1)
-        _, cos_max, axes = _cone_mixture_pdf(pos, np.zeros((shot, 3)), centres, radii)
-        cm = cos_max[np.arange(shot), t]
+        c = np.ascontiguousarray
+        centres, radii = c(centres, np.float64), c(radii, np.float64)
+        cm, axis = np.empty(shot), np.empty((shot, 3))
+        photon_aim.chosen_cones(pos, c(u[:, 2]), centres, radii, cm, axis)
         cz = 1 - u[:, 3] * (1 - cm)
         r = np.sqrt(np.maximum(0, 1 - cz * cz))
         phi = 2 * np.pi * u[:, 4]
         local = np.stack([r * np.cos(phi), r * np.sin(phi), cz], axis=1)
-        d = to_world(local, axes[np.arange(shot), t])
-        pdf, _, _ = _cone_mixture_pdf(pos, d, centres, radii)
+        d = to_world(local, axis)
+        pdf = np.empty(shot)
+        photon_aim.cone_mixture_pdf(pos, d, centres, radii, pdf)
     else:
         d = uniform_sphere(u[:, 3:5])
         pdf = np.full(shot, 1 / (4 * np.pi))

@@ -1,0 +1,70 @@
+"""worker.kernels.photon_aim against its numpy original (tests/support/oracle_photon_aim.py):
+one and many targets, emission points inside a sphere, directions on a cone's rim and
+outside every cone."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from igi.common.lights import to_world
+from igi.worker.kernels import photon_aim
+from tests.support import oracle_photon_aim as oracle
+
+
+def _scene(seed: int, targets: int, n: int):
+    g = np.random.default_rng(seed)
+    centres = g.normal(size=(targets, 3)) * 3
+    radii = g.uniform(0.05, 1.0, targets)
+    pos = g.normal(size=(n, 3)) * 4
+    pos[: n // 10] = centres[0] + g.normal(size=(n // 10, 3)) * radii[0] * 0.3  # inside target 0
+    return g, centres, radii, pos
+
+
+@pytest.mark.parametrize("seed,targets", [(0, 1), (1, 3), (2, 12)])
+def test_chosen_cones_and_mixture_pdf_equal_numpy(seed, targets):
+    g, centres, radii, pos = _scene(seed, targets, 2000)
+    n = len(pos)
+    choice = g.random(n)
+    cos_max, axis = np.empty(n), np.empty((n, 3))
+    photon_aim.chosen_cones(pos, choice, centres, radii, cos_max, axis)
+    _, want_cos, want_axes = oracle.cone_mixture_pdf(pos, np.zeros((n, 3)), centres, radii)
+    t = np.minimum((choice * targets).astype(np.int64), targets - 1)
+    np.testing.assert_array_equal(cos_max, want_cos[np.arange(n), t])
+    np.testing.assert_array_equal(axis, want_axes[np.arange(n), t])
+    assert np.any(cos_max == -1.0) and np.any(cos_max > 0)  # inside and outside: not vacuous
+    # directions inside the chosen cone (as the emission draws them), on its rim, and anywhere
+    cz = 1 - g.random(n) * (1 - cos_max)
+    cz[::7] = cos_max[::7]
+    r = np.sqrt(np.maximum(0, 1 - cz * cz))
+    phi = 2 * np.pi * g.random(n)
+    d = to_world(np.stack([r * np.cos(phi), r * np.sin(phi), cz], axis=1), axis)
+    d[::5] = g.normal(size=(len(d[::5]), 3))
+    d[::5] /= np.linalg.norm(d[::5], axis=1)[:, None]
+    pdf = np.empty(n)
+    photon_aim.cone_mixture_pdf(pos, d, centres, radii, pdf)
+    want, _, _ = oracle.cone_mixture_pdf(pos, d, centres, radii)
+    # the same cones contain each direction, so the pdfs agree to rounding — except that a
+    # direction exactly on a rim (every 7th) may fall on either side of it, its cosine being
+    # summed in another order than numpy's einsum sums it
+    same = np.isclose(pdf, want, rtol=1e-12, atol=0)
+    rim = np.zeros(n, bool)
+    rim[::7] = True
+    assert same[~rim].all() and same[rim].mean() > 0.5
+    drawn = ~rim
+    drawn[::5] = False
+    assert np.all(pdf[drawn] > 0) and np.all(np.isfinite(pdf))  # a drawn direction lies in its own cone
+    assert np.any(pdf[::5] == 0)  # some random directions miss every cone
+
+
+def test_mixture_pdf_integrates_to_one_over_the_sphere():
+    """The mixture is a density: its integral over all directions is 1 (Monte Carlo, uniform
+    directions), for overlapping and nested targets."""
+    centres = np.array([[2.0, 0, 0], [2.5, 0.3, 0], [0, -3, 1]])
+    radii = np.array([0.8, 0.5, 1.2])
+    g = np.random.default_rng(5)
+    n = 400_000
+    d = g.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    pdf = np.empty(n)
+    photon_aim.cone_mixture_pdf(np.zeros((n, 3)), d, centres, radii, pdf)
+    assert abs(4 * np.pi * pdf.mean() - 1.0) < 0.01

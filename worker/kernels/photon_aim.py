@@ -1,0 +1,65 @@
+"""Aiming caustic photons at the mirror and glass objects (worker.caustics), compiled: the
+cone each photon's target sphere subtends from its emission point, and the pdf of the
+direction it took under the mixture of all targets' cones (Jarosz 2002 §3) — per photon, with
+no (photons × targets × 3) temporaries.
+
+Sums of three products run left to right and the mixture over targets in target order (numpy's
+einsum and pairwise sums round some of them differently in the last bit).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+_TINY = 1e-300  # distances below this are clamped (a point at a sphere's centre)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _cone(px, py, pz, cx, cy, cz, radius):
+    """(x, y, z to the centre, its length clamped, cosine of the cone's half-angle: -1 from
+    inside the sphere)."""
+    x = cx - px
+    y = cy - py
+    z = cz - pz
+    dist = math.sqrt(x * x + y * y + z * z)
+    far = max(dist, _TINY)
+    s = radius / far
+    sin2 = min(max(s * s, 0.0), 1.0)
+    cos_max = -1.0 if dist <= radius else math.sqrt(1.0 - sin2)
+    return x, y, z, far, cos_max
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def chosen_cones(pos, choice, centres, radii, out_cos, out_axis) -> None:
+    """Photon n aims at target t = min(⌊choice[n]·T⌋, T - 1): out_cos[n] the cosine of the
+    half-angle of the cone that sphere subtends from pos[n] (-1 from inside it), out_axis[n]
+    the unit direction to its centre."""
+    targets = radii.shape[0]
+    for n in range(pos.shape[0]):
+        t = min(int(choice[n] * targets), targets - 1)
+        x, y, z, far, cos_max = _cone(pos[n, 0], pos[n, 1], pos[n, 2], centres[t, 0], centres[t, 1],
+                                      centres[t, 2], radii[t])
+        out_cos[n] = cos_max
+        out_axis[n, 0] = x / far
+        out_axis[n, 1] = y / far
+        out_axis[n, 2] = z / far
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def cone_mixture_pdf(pos, d, centres, radii, out) -> None:
+    """out[n]: the solid-angle pdf of direction d[n] from pos[n] when a target is chosen
+    uniformly and the direction uniformly in its cone (the cones that contain d[n] count; from
+    inside a sphere its cone is the whole sphere)."""
+    targets = radii.shape[0]
+    two_pi = 2 * np.pi
+    for n in range(pos.shape[0]):
+        acc = 0.0
+        for t in range(targets):
+            x, y, z, far, cos_max = _cone(pos[n, 0], pos[n, 1], pos[n, 2], centres[t, 0], centres[t, 1],
+                                          centres[t, 2], radii[t])
+            cos_d = (d[n, 0] * x + d[n, 1] * y + d[n, 2] * z) / far
+            if cos_max == -1.0 or cos_d >= cos_max:
+                acc += 1.0 / (two_pi * (1.0 - cos_max))
+        out[n] = acc / targets
