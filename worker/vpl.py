@@ -102,8 +102,23 @@ def build_vpl_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: int
     """The sets P_k of every block k of ``ks``, as :func:`build_vpl_set` builds each alone (bit
     for bit: every random number is the set's own), with one emitter draw and one Embree batch
     per bounce for all of them — a set's build was mostly per-call overhead."""
+    return sets_of(*build_vpl_rows(scene, geom, lights, seed, ks, direct_vpls, indirect_vpls, max_length, roulette,
+                                   portals, emitter_pmf))
+
+
+def sets_of(joined: VPLSet, rows: list[np.ndarray]) -> list[VPLSet]:
+    """The sets of :func:`build_vpl_rows`: rows[i] of ``joined`` each."""
+    return [subset_vpls(joined, r) if len(r) else _empty_set() for r in rows]
+
+
+def build_vpl_rows(scene: Scene, geom: Geometry, lights: LightSampler, seed: int, ks: Sequence[int],
+                   direct_vpls: int, indirect_vpls: int, max_length: int, roulette: bool = False, portals=None,
+                   emitter_pmf: np.ndarray | None = None) -> tuple[VPLSet, list[np.ndarray]]:
+    """:func:`build_vpl_sets` as (all sets' VPLs in one set, each set's rows of it, ascending):
+    set i is ``subset_vpls(joined, rows[i])``, and callers that want several sets' VPLs
+    together take them in one copy."""
     if not lights.has_light:
-        return [_empty_set() for _ in ks]
+        return _empty_set(), [np.zeros(0, np.int64) for _ in ks]
     nsets = len(ks)
     # Each set's rows of the emitter samples and of the walks' vertices, taken from the two
     # joined in one copy per set (subsets of each, then a join per set, copied everything twice).
@@ -135,14 +150,8 @@ def build_vpl_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: int
         parts.append(walked)
         for i, r in enumerate(_split(owner // walks, nsets)):
             rows[i].append(base + r)
-    if not parts or not any(len(p) for p in parts):
-        return [_empty_set() for _ in ks]
     joined = concat_vpls(parts)
-    out = []
-    for r in rows:
-        r = np.concatenate(r) if r else np.zeros(0, np.int64)
-        out.append(subset_vpls(joined, r) if len(r) else _empty_set())
-    return out
+    return joined, [np.concatenate(r) if r and len(joined) else np.zeros(0, np.int64) for r in rows]
 
 
 def _split(label: np.ndarray, n: int) -> list[np.ndarray]:

@@ -28,10 +28,11 @@ from igi.common.lights import VPL_SURFACE, LightSampler
 from igi.common.scene import AREA, POINT, SPOT, Scene
 from igi.common.sobol_stream import rng as make_rng
 
+from .kernels import vpl_scoring as vs
 from .env_guide import ENV_SAMPLES, build_guide, guide_environment_samples, only_environment, single_environment
 from .portals import Portals, find_portals
 from .shading import EndPoints, contribution_per_vpl, trace_eye
-from .vpl import VPLSet, build_vpl_sets, concat_vpls, emitter_vpls, subset_vpls
+from .vpl import VPLSet, build_vpl_rows, emitter_vpls, sets_of, subset_vpls
 
 CAMERA_POINTS = 256  # eye paths per set that score the candidates
 # Shadow rays per candidate VPL for its score: its visibility from the camera points is
@@ -228,21 +229,11 @@ def acceptance(phi: np.ndarray, target: float, mix: float = 1.0, epsilon: float 
     phi = np.where(np.isfinite(phi) & (phi > 0), phi, 0.0)
     if not np.any(phi > 0) or mix <= 0:
         return np.full(n, target / n)
-    # Σ_j min(1, floor + a_j/τ) = target, a = mix·Φ, solved exactly: with the c largest a_j
-    # saturated, τ = Σ_{j>c} a_j / (target - c - (n - c)·floor); the right c is the one whose τ
-    # saturates exactly those c (a sort and a cumulative sum instead of a bisection).
-    a = np.sort(mix * phi)[::-1]
-    rest = np.cumsum(a[::-1])[::-1]  # rest[c] = Σ_{j>=c} a_j (0-based: c saturated before j = c)
-    c = np.arange(n)
-    free = target - c - (n - c) * floor
-    with np.errstate(divide="ignore", invalid="ignore"):
-        tau = np.where(free > 0, rest / free, np.inf)
-    below = np.concatenate([[np.inf], a[:-1]])  # a_{c-1}: must saturate (>= (1 - floor)·τ)
-    ok = (a < (1 - floor) * tau) & (below >= (1 - floor) * tau) & (rest > 0) & np.isfinite(tau)
-    if not ok.any():  # too few lit candidates to reach the target: keep every lit one
-        return np.where(phi > 0, 1.0, floor)
-    t = tau[np.argmax(ok)]
-    return np.clip(floor + mix * phi / t, 0.0, 1.0)
+    # Σ_j min(1, floor + a_j/τ) = target, a = mix·Φ, solved exactly (kernels.vpl_scoring.acceptance).
+    out = np.empty(n)
+    if not vs.acceptance(phi, float(target), float(mix), float(floor), out):
+        return np.where(phi > 0, 1.0, floor)  # too few lit candidates to reach the target: keep every lit one
+    return out
 
 
 def systematic_keep(p: np.ndarray, u: float) -> np.ndarray:
@@ -273,7 +264,7 @@ def build_importance_vpl_sets(scene: Scene, geom: Geometry, lights: LightSampler
                               ) -> list[tuple[VPLSet, ImportanceStats]]:
     """P_k of every block k of ``ks`` with its indirect VPLs importance-sampled for ``view``
     (see the module docstring), each set as it is alone, built together: one candidate build
-    (vpl.build_vpl_sets) and one scoring call in which each set's candidates meet only its own
+    (vpl.build_vpl_rows) and one scoring call in which each set's candidates meet only its own
     camera points. ``portals`` (:func:`view_portals`): walks from the sky start where it enters
     the view; ``emitter_pmf`` (:func:`view_emitter_pmf`): the emitter samples' choice of
     emitter; ``pool`` (:func:`camera_pool`): the view's camera points (None: traced per set)."""
@@ -284,8 +275,9 @@ def build_importance_vpl_sets(scene: Scene, geom: Geometry, lights: LightSampler
     else:
         drawn, ends = None, [camera_pool(scene, geom, lights, view, max_depth, specular_depth, glossy_split_alpha,
                                          camera_points, seed, k).draw(seed, k, camera_points) for k in ks]
-    cands = build_vpl_sets(scene, geom, lights, seed, ks, direct_vpls, indirect_vpls * oversample, max_length,
-                           roulette=roulette, portals=portals, emitter_pmf=emitter_pmf)
+    joined, set_rows = build_vpl_rows(scene, geom, lights, seed, ks, direct_vpls, indirect_vpls * oversample,
+                                      max_length, roulette=roulette, portals=portals, emitter_pmf=emitter_pmf)
+    cands = sets_of(joined, set_rows)
     for k, end, cand in zip(ks, ends, cands):
         # The sky seen through openings: environment samples drawn where camera points see it
         # (and light walks from the sky started where it enters: the portals).
@@ -294,8 +286,9 @@ def build_importance_vpl_sets(scene: Scene, geom: Geometry, lights: LightSampler
             guide_environment_samples(cand, lights, guide, direct_vpls, make_rng(seed, k, "env guide samples"))
             cand.env_guide = guide
     surfs = [np.nonzero(c.kind == VPL_SURFACE)[0] for c in cands]
-    phis = _score(geom, ks, seed, ends, [subset_vpls(c, s) for c, s in zip(cands, surfs)], clamp_d2, max_depth,
-                  lobe_alpha, drawn)
+    # Every set's surface candidates in one copy (the guide redraws environment samples only).
+    scored = subset_vpls(joined, np.concatenate([r[s] for r, s in zip(set_rows, surfs)]))
+    phis = _score(geom, ks, seed, ends, [len(s) for s in surfs], scored, clamp_d2, max_depth, lobe_alpha, drawn)
     out = []
     for k, cand, surf, phi in zip(ks, cands, surfs, phis):
         if len(surf) == 0:
@@ -312,20 +305,21 @@ def build_importance_vpl_sets(scene: Scene, geom: Geometry, lights: LightSampler
     return out
 
 
-def _score(geom: Geometry, ks: Sequence[int], seed: int, ends: list[EndPoints], cands: list[VPLSet],
+def _score(geom: Geometry, ks: Sequence[int], seed: int, ends: list[EndPoints], counts: list[int], cands: VPLSet,
            clamp_d2: float, max_depth: int, lobe_alpha: float, drawn: EndPoints | None = None) -> list[np.ndarray]:
     """Each set's candidate contributions Φ to its own camera points, all sets in one
-    contribution_per_vpl call (end points of set i score only the columns of set i).
+    contribution_per_vpl call (end points of set i score only the columns of set i): ``cands``
+    holds every set's candidates in order, ``counts[i]`` of set i.
     ``drawn``: all of ``ends`` in one (CameraPool.draw_sets), used as is when every set scores."""
-    sizes = np.array([len(c) for c in cands], np.int64)
+    sizes = np.array(counts, np.int64)
     stops = np.cumsum(sizes)
-    live = [i for i in range(len(cands)) if sizes[i] and len(ends[i])]
+    live = [i for i in range(len(sizes)) if sizes[i] and len(ends[i])]
     phi = np.zeros(int(stops[-1]) if len(stops) else 0)
     if live:
         lo = np.concatenate([np.full(len(ends[i]), stops[i] - sizes[i], np.int64) for i in live])
         hi = np.concatenate([np.full(len(ends[i]), stops[i], np.int64) for i in live])
-        column_u = np.concatenate([make_rng(seed, k, "visibility samples").random(len(c)) for k, c in zip(ks, cands)])
-        end = drawn if drawn is not None and len(live) == len(cands) else EndPoints.concat([ends[i] for i in live])
-        phi = contribution_per_vpl(geom, end, concat_vpls(cands), clamp_d2,
-                                   max_depth, lobe_alpha, None, VISIBILITY_SAMPLES, (lo, hi), column_u)
+        column_u = np.concatenate([make_rng(seed, k, "visibility samples").random(c) for k, c in zip(ks, counts)])
+        end = drawn if drawn is not None and len(live) == len(sizes) else EndPoints.concat([ends[i] for i in live])
+        phi = contribution_per_vpl(geom, end, cands, clamp_d2, max_depth, lobe_alpha, None, VISIBILITY_SAMPLES,
+                                   (lo, hi), column_u)
     return np.split(phi, stops[:-1])

@@ -37,3 +37,19 @@ def systematic_pairs_sorted(pj, weight, m, samples, column_u):
             draw.append(order[p])
             share.append(total[j] / samples)
     return np.array(draw, np.int64), np.array(share)
+
+
+def acceptance(phi, target, mix, floor):
+    """vpl_importance.acceptance's solve in numpy (phi finite, >= 0, some > 0; target < n)."""
+    n = len(phi)
+    a = np.sort(mix * phi)[::-1]
+    rest = np.cumsum(a[::-1])[::-1]
+    c = np.arange(n)
+    free = target - c - (n - c) * floor
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tau = np.where(free > 0, rest / free, np.inf)
+    below = np.concatenate([[np.inf], a[:-1]])
+    ok = (a < (1 - floor) * tau) & (below >= (1 - floor) * tau) & (rest > 0) & np.isfinite(tau)
+    if not ok.any():
+        return None
+    return np.clip(floor + mix * phi / tau[np.argmax(ok)], 0.0, 1.0)

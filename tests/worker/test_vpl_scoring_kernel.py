@@ -140,3 +140,27 @@ def test_pair_luminance_matches_numpy_and_zeroes_non_finite_pairs():
     np.testing.assert_allclose(got, oracle.pair_luminance(pi, pj, w, blocked, factor, color, eye), rtol=1e-12)
     assert np.all(got[blocked] == 0) and got[~blocked].max() > 0 and got[7] == 0
     vs.pair_luminance(pi[:0], pj[:0], w[:0], none_blocked, no_factor, color, eye, out[:0])  # empty: no error
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_acceptance_solves_for_tau_bit_for_bit_as_numpy(seed):
+    """The compiled solve for τ (one sort, a running sum, a scan) gives the numpy form's
+    probabilities bit for bit: heavy-tailed scores, ties, zeros, a few lit candidates."""
+    g = np.random.default_rng(seed)
+    n = int(g.integers(2, 400))
+    phi = g.lognormal(0, 3, n) * (g.random(n) > 0.3)
+    phi[: n // 10] = phi[0]  # ties
+    if seed == 7:
+        phi[:] = 0.0
+        phi[:2] = 1.0  # fewer lit than the target: no τ
+    phi[0] = max(phi[0], 1e-3)
+    target = n / 8 if seed % 2 else n / 3
+    for mix in (0.5, 1.0):
+        floor = max(min(0.02, 0.5 * target / n), (1.0 - mix) * target / n)
+        want = oracle.acceptance(phi, target, mix, floor)
+        out = np.full(n, -1.0)
+        found = vs.acceptance(phi, float(target), mix, floor, out)
+        assert found == (want is not None)
+        if found:
+            assert np.array_equal(out, want)
+            assert abs(out.sum() - target) < 1e-6 * n or out.max() == 1.0

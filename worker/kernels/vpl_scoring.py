@@ -7,7 +7,9 @@ pairs drawn (each traced once): a batch of sets has ~10⁶ pairs and draws ~10�
 is written — each set's (camera points × candidates) block is weighed, summed and walked down
 its columns while it is in cache (a pair list through three passes cost twice as much);
 :func:`pair_luminance` — the drawn pairs' luminance with their shadow ray's answer and BSDF
-factors.
+factors;
+:func:`acceptance` — the candidates' acceptance probabilities from their scores (one sort, a
+running sum and a scan: a dozen numpy calls on ~240 numbers cost ~0.1 ms a set).
 """
 from __future__ import annotations
 
@@ -205,3 +207,29 @@ def _note(q, i, r0, a, v, sw, spl, row, d_row, d_w, d_pl, d_plain) -> None:
     d_pl[q] = spl[i - r0, a] if row[i] == vg.ROW_GLOSSY else np.float32(0.0)
 
 
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def acceptance(phi, target, mix, floor, out) -> bool:
+    """out[j] = min(1, floor + mix·phi[j]/τ) (at least 0), with τ such that Σ out ≈ target,
+    for scores ``phi`` (finite, >= 0, some > 0; fewer than ``target`` is the caller's case):
+    with the c largest mix·phi saturated, τ = Σ_{j>c} a_j / (target - c - (n - c)·floor), the c
+    taken the first whose τ saturates exactly those c. False (``out`` untouched) when no c
+    does: too few lit candidates to reach the target."""
+    n = phi.shape[0]
+    a = np.sort(mix * phi)[::-1]  # descending
+    rest = np.empty(n)  # rest[c] = Σ_{j>=c} a_j, summed from the smallest
+    acc = 0.0
+    for c in range(n - 1, -1, -1):
+        acc = acc + a[c] if c < n - 1 else a[c]
+        rest[c] = acc
+    for c in range(n):
+        free = target - c - (n - c) * floor
+        tau = rest[c] / free if free > 0 else np.inf
+        below = a[c - 1] if c > 0 else np.inf
+        edge = (1 - floor) * tau
+        if a[c] < edge and below >= edge and rest[c] > 0 and math.isfinite(tau):
+            for j in range(n):
+                out[j] = min(max(floor + mix * phi[j] / tau, 0.0), 1.0)
+            return True
+    return False
