@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -43,6 +44,12 @@ class PhotonSet:
 
     def __len__(self) -> int:
         return len(self.position)
+
+    @cached_property
+    def reach(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi): the photons' bounding box grown by the radius — only end points inside it
+        can find a photon (worked out once per set: a set serves every tile of its k)."""
+        return self.position.min(axis=0) - self.radius, self.position.max(axis=0) + self.radius
 
 
 def default_radius(diagonal: float, fraction: float) -> float:
@@ -221,8 +228,7 @@ def gather_photons(end, photons: PhotonSet, albedo: np.ndarray, max_depth: int) 
         return out
     # Caustics are usually small: only end points inside the photons' bounding box (grown by
     # r) can find any, so the others skip the grid lookups.
-    lo = photons.position.min(axis=0) - photons.radius
-    hi = photons.position.max(axis=0) + photons.radius
+    lo, hi = photons.reach
     p = end.position  # column by column: numpy's axis=1 all() costs several times more
     inside = (p[:, 0] >= lo[0]) & (p[:, 0] <= hi[0]) & (p[:, 1] >= lo[1]) & (p[:, 1] <= hi[1]) & (
         p[:, 2] >= lo[2]) & (p[:, 2] <= hi[2])
