@@ -577,9 +577,9 @@ def _scored_draws(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols:
     pair drawn; each draw's column, share W_j/samples and distinct pair; the rows' kinds; and
     the rows' (x, ng, offset) for the drawn pairs' shadow rays."""
     x, ns, ng, side, off, row, tables, row_tab, inv_tavg = _receivers(geom, end, sl)
-    m = len(vpls)
     lo, hi = col_range[0][sl], col_range[1][sl]
-    draws = m * samples
+    c0, c1 = vs.column_window(lo, hi, len(vpls))
+    draws = (c1 - c0) * samples  # (the chunk's columns only: a batch of sets has thousands)
     u_i, u_j = np.empty(draws, np.int64), np.empty(draws, np.int64)
     u_w, u_pl, u_plain = np.empty(draws, np.float32), np.empty(draws, np.float32), np.empty(draws)
     draw_j, share, inv = np.empty(draws, np.int64), np.empty(draws), np.empty(draws, np.int64)
