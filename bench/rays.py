@@ -326,7 +326,7 @@ def markdown(doc: dict) -> list[str]:
                  "traces them.")
     lines.append("")
     lines.append("Accumulating (camera still, every set rebuilt): " + "; ".join(
-        f"{n} {r['accumulating_frame_seconds']:.2f} s a frame, sets {r['set_share_accumulating']:.0%}"
+        f"{n} {r['accumulating_frame_seconds']:.2f} s a frame, sets {r['set_share_accumulating']:.1%}"
         for n, r in doc["scenes"].items() if "accumulating_frame_seconds" in r) + ".")
     lines.append("")
     names = list(doc["scenes"])
