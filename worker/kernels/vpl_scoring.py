@@ -215,12 +215,12 @@ def _draw_columns(r0, r1, lo, width, samples, column_u, total, last, plain, sw, 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _note(q, i, r0, a, v, sw, spl, row, d_row, d_w, d_pl, d_plain) -> None:
+    """Draw q is the pair (row i, staged column a) of luminance v: its row, weight and glossy
+    light pdf read while the run is staged."""
     d_row[q] = i
     d_plain[q] = v
     d_w[q] = sw[i - r0, a]
     d_pl[q] = spl[i - r0, a] if row[i] == vg.ROW_GLOSSY else np.float32(0.0)
-
-
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
