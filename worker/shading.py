@@ -579,18 +579,19 @@ def _scored_draws(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols:
     x, ns, ng, side, off, row, tables, row_tab, inv_tavg = _receivers(geom, end, sl)
     lo, hi = col_range[0][sl], col_range[1][sl]
     c0, c1 = vs.column_window(lo, hi, len(vpls))
-    draws = (c1 - c0) * samples  # (the chunk's columns only: a batch of sets has thousands)
+    w = slice(c0, c1)  # the chunk's columns only: a batch of sets has thousands
+    draws = (c1 - c0) * samples
     u_i, u_j = np.empty(draws, np.int64), np.empty(draws, np.int64)
     u_w, u_pl, u_plain = np.empty(draws, np.float32), np.empty(draws, np.float32), np.empty(draws)
     draw_j, share, inv = np.empty(draws, np.int64), np.empty(draws), np.empty(draws, np.int64)
     nd, nu = vs.scored_draws(x, ns, ng, off, side, row, end.vpl_depth_limit(max_depth)[sl],
-                             cols.pos, cols.normal, cols.directional, cols.min_d2, cols.cos_y_factor,
-                             cols.side, cols.spot_cutoff, cols.spot_beam, cols.depth, cols.mis,
-                             cols.light_pdf, cols.area, cols.direct_count, tables, row_tab, inv_tavg, lo, hi,
-                             cols.lum, cols.color, np.ascontiguousarray(eye_weight, np.float64), samples,
-                             np.ascontiguousarray(column_u, np.float64), draw_j, share, inv, u_i, u_j, u_w, u_pl,
-                             u_plain)
-    return (u_i[:nu], u_j[:nu], u_w[:nu], u_pl[:nu], u_plain[:nu], draw_j[:nd], share[:nd], inv[:nd], row,
+                             cols.pos[w], cols.normal[w], cols.directional[w], cols.min_d2[w], cols.cos_y_factor[w],
+                             cols.side[w], cols.spot_cutoff[w], cols.spot_beam[w], cols.depth[w], cols.mis[w],
+                             cols.light_pdf[w], cols.area[w], cols.direct_count, tables, row_tab, inv_tavg,
+                             lo - c0, hi - c0, cols.lum[w], cols.color[w], np.ascontiguousarray(eye_weight, np.float64),
+                             samples, np.ascontiguousarray(column_u[w], np.float64), draw_j, share, inv, u_i, u_j,
+                             u_w, u_pl, u_plain)
+    return (u_i[:nu], u_j[:nu] + c0, u_w[:nu], u_pl[:nu], u_plain[:nu], draw_j[:nd] + c0, share[:nd], inv[:nd], row,
             (x, ng, off))
 
 

@@ -28,8 +28,8 @@ from igi.common.lights import VPL_SURFACE, LightSampler
 from igi.common.scene import AREA, POINT, SPOT, Scene
 from igi.common.sobol_stream import rng as make_rng
 
-from .kernels import vpl_scoring as vs
 from .env_guide import ENV_SAMPLES, build_guide, guide_environment_samples, only_environment, single_environment
+from .kernels import vpl_scoring as vs
 from .portals import Portals, find_portals
 from .shading import EndPoints, contribution_per_vpl, trace_eye
 from .vpl import VPLSet, build_vpl_rows, emitter_vpls, sets_of, subset_vpls

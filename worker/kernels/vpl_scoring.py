@@ -72,8 +72,8 @@ def scored_draws(x, ns, ng, off, side, row, vmax,
 
     Then, column by column: each draw's column and share W_j/samples in out_draw_j/out_share,
     the distinct pairs drawn (a column's draws never go back: a repeat is its predecessor) in
-    out_i … out_plain, each draw's distinct pair in ``out_inverse`` (all (c1 - c0) · samples
-    long for the columns [c0, c1) the rows' ranges hold: :func:`column_window`).
+    out_i … out_plain, each draw's distinct pair in ``out_inverse`` (all m · samples long: give
+    it only the columns the rows' ranges hold, :func:`column_window`).
     Returns (draws, distinct pairs): bit for bit the draws of pair_weights' live pairs through
     :func:`pair_luminance` and a walk along each column in pair order."""
     n = x.shape[0]
@@ -102,12 +102,11 @@ def scored_draws(x, ns, ng, off, side, row, vmax,
     total = np.zeros(m)
     last = np.full(m, -1, np.int64)  # each column's last live row
     claimed = np.zeros(m, np.bool_)  # columns of a run seen already
-    c0, c1 = column_window(col_lo, col_hi, m)
-    # draw s of column j at (j - c0) · samples + s: its row, weight, light pdf, luminance
-    d_row = np.empty((c1 - c0) * samples, np.int64)
-    d_w = np.empty((c1 - c0) * samples, np.float32)
-    d_pl = np.empty((c1 - c0) * samples, np.float32)
-    d_plain = np.empty((c1 - c0) * samples)
+    # draw s of column j at j · samples + s: its row, weight, light pdf, luminance
+    d_row = np.empty(m * samples, np.int64)
+    d_w = np.empty(m * samples, np.float32)
+    d_pl = np.empty(m * samples, np.float32)
+    d_plain = np.empty(m * samples)
     r0 = 0
     while r0 < n:
         r1 = _run_end(r0, n, col_lo, col_hi)
@@ -131,17 +130,17 @@ def scored_draws(x, ns, ng, off, side, row, vmax,
                     plain[b, a] = v
                     total[j] += v
                     last[j] = i if live else last[j]
-            _draw_columns(r0, r1, lo, width, samples, column_u, total, last, plain, sw, spl, row, c0,
+            _draw_columns(r0, r1, lo, width, samples, column_u, total, last, plain, sw, spl, row,
                           d_row, d_w, d_pl, d_plain)
         r0 = r1
     out = 0
     u = 0
-    for j in range(c0, c1):
+    for j in range(m):
         if not total[j] > 0.0:
             continue
         share = total[j] / samples
         prev = -1
-        for q in range((j - c0) * samples, (j - c0 + 1) * samples):
+        for q in range(j * samples, (j + 1) * samples):
             out_draw_j[out] = j
             out_share[out] = share
             if d_row[q] != prev:
@@ -159,7 +158,9 @@ def scored_draws(x, ns, ng, off, side, row, vmax,
 
 @njit(cache=True, nogil=True)
 def column_window(col_lo, col_hi, m):
-    """[c0, c1): the columns that some row's range holds (c0 = c1 = 0 when none does)."""
+    """[c0, c1): the columns that some row's range holds (c0 = c1 = 0 when none does). A chunk
+    of the scoring's rows holds ~240 of the ~5000 candidates of a batch: its draws take those
+    columns alone (their buffers, and the kernels' per-column copies, sized to them)."""
     c0, c1 = m, 0
     for i in range(col_lo.shape[0]):
         lo = max(col_lo[i], 0)
@@ -179,7 +180,7 @@ def _run_end(r0, n, col_lo, col_hi):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _draw_columns(r0, r1, lo, width, samples, column_u, total, last, plain, sw, spl, row, c0,
+def _draw_columns(r0, r1, lo, width, samples, column_u, total, last, plain, sw, spl, row,
                   d_row, d_w, d_pl, d_plain) -> None:
     """Step 2 of :func:`scored_draws` for the columns of run [r0, r1) (weights from the
     staging ``sw``/``spl``, rows from r0)."""
@@ -191,7 +192,7 @@ def _draw_columns(r0, r1, lo, width, samples, column_u, total, last, plain, sw, 
         sj = 0
         cj = 0.0
         target = column_u[j] / samples * tj
-        q0 = (j - c0) * samples
+        q0 = j * samples
         for i in range(r0, r1):
             v = plain[i - r0, a]
             if i == last[j]:  # the column's last live pair takes every target left
