@@ -298,6 +298,16 @@ def packed_rows(sp: SurfacePoints) -> tuple[tuple, np.ndarray]:
     return pack(sp), np.arange(len(sp), dtype=np.int64)
 
 
+def material_packed(materials: list[Material]) -> tuple[tuple, np.ndarray]:
+    """``(P, textured)``: the kernels' packed parameters with material i's at row i (the NULL
+    kind at row len(materials)) — what :func:`packed_rows` hands out for material-backed points
+    — and per row whether the material looks a texture up per point (its points' row of P
+    would not hold their values)."""
+    t = _material_tables(materials)
+    P, _rows = packed_rows(SurfacePoints._backed(t, np.zeros(0, np.int64), {}))
+    return P, t["textured_mask"]
+
+
 def carrying(weight: np.ndarray) -> np.ndarray:
     """(N,) bool: rows of the (N, 3) ``weight`` that carry light — positive in some channel,
     finite in all (column by column: numpy's axis=1 any/all cost ~9x more)."""

@@ -224,6 +224,17 @@ class Geometry:
             return None
         return shadow.handle
 
+    def closest_terms(self) -> tuple | None:
+        """What compiled callers that follow rays themselves (worker.kernels.specular_chain) take
+        to find closest hits as :meth:`intersect` does — ``(RTCScene handle, centre, then
+        hit_surface.reconstruct's triangle arrays)`` — or None where the rays must pass through
+        :meth:`intersect`: no packet scene, or a benchmark timing or recording them."""
+        if self.record is not None or not isinstance(self._packets, PacketScene):
+            return None
+        return (self._packets.handle, self.center, self._v0c, self._e1c, self._e2c, self._fn32, self.smooth,
+                self._tri_normals, self.faces, self.vertex_uvs, bool(self.need_uv), self.material_of,
+                self.emitter_of, self.mesh_of)
+
     # -- queries ---------------------------------------------------------------------------
     def intersect(self, origins: np.ndarray, directions: np.ndarray,
                   tmax: float | np.ndarray | None = None) -> Hits:

@@ -22,6 +22,7 @@ from igi.common.lights import LightSampler
 from igi.common.scene import SPECULAR_KINDS, Scene, kind_in
 
 from .caustics import PhotonSet
+from .kernels import specular_chain as sc
 from .shading import BSDFRays, EndPoints, delta_bounce, reflected_radiance
 from .vpl import VPLSet
 
@@ -54,8 +55,10 @@ def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: E
     mat_i, uv = hits.material[first], hits.uv[first]
     seg = end.segments[rows].astype(np.int64) + 1  # segments once the ray reached the surface
     env = lights.environment()
-    ends: list[tuple] = []
-    for _ in range(specular_depth):
+    chain = _compiled_chains(scene, geom, kinds, rows, thr, d, pos, ns, ng, mat_i, seg, specular_depth, max_depth,
+                             rng, env, albedo, out)
+    ends: list[tuple] = [] if chain is None or len(chain[0]) == 0 else [chain]
+    for _ in range(specular_depth if chain is None else 0):
         src, thr, seg, d, origin = delta_bounce(scene.materials, geom, np.arange(len(rows)), pos, ns, ng, d, thr, seg,
                                                 mat_i, uv, max_depth, rng)
         rows = rows[src]
@@ -87,3 +90,32 @@ def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: E
             # each row's chain ends once (here or as a miss above): its rows are unique
             out[r] += bsdf.finite_or_zero(thr[k] * l_y / np.maximum(albedo[r], 1e-6))
     return out
+
+
+def _compiled_chains(scene, geom, kinds, rows, thr, d, pos, ns, ng, mat_i, seg, specular_depth, max_depth, rng,
+                     env, albedo, out) -> tuple | None:
+    """The chains of :func:`lensed_reflection` followed in one compiled call
+    (kernels.specular_chain.follow_chains: the same draws, rays and ends as its numpy loop),
+    their ends as that loop lists them; None where the loop must run instead: rays that must
+    pass through Geometry.intersect (a benchmark timing or recording them), or a mirror/glass
+    material with a texture (its points' parameters are looked up per point)."""
+    terms = geom.closest_terms()
+    if terms is None:
+        return None
+    P, textured = bsdf.material_packed(scene.materials)
+    specular = kind_in(kinds, SPECULAR_KINDS)
+    if (textured & specular).any():
+        return None
+    n = len(rows)
+    m = len(scene.materials)
+    prow = np.where((mat_i >= 0) & (mat_i < m), mat_i, m).astype(np.int64)
+    ends = (np.empty(n, np.int64), np.empty((n, 3)), np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)),
+            np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.int32), np.empty((n, 2)), np.empty(n))
+    c = np.ascontiguousarray
+    _center, eps, ulps = geom.offset_terms()
+    done, traced = sc.follow_chains(P, specular, rng, terms, c(rows, np.int64), c(pos, np.float64), c(ns, np.float64),
+                                    c(ng, np.float64), c(d, np.float64), c(thr, np.float64), c(seg, np.int64), prow,
+                                    int(specular_depth), int(max_depth), eps, ulps, c(env, np.float64),
+                                    c(albedo, np.float64), out, ends)
+    geom.counters["intersect_rays"] += traced
+    return tuple(a[:done] for a in ends)

@@ -92,3 +92,52 @@ def test_packed_rows_of_gathered_points_hold_each_points_parameters(textured):
     for f in per_point:
         np.testing.assert_array_equal(P[f][row], want[f], err_msg=f"P[{f}]")
     assert (len(P[0]) == len(mat)) == textured  # textured points: per point; else one row per material
+
+
+def _lensed(monkeypatch, compiled: bool, max_depth: int, sky: bool):
+    """worker.indirect_caustics.lensed_reflection on cornell-box-sphere's end points (96×72, one
+    set): its output, the next draw of its generator and the rays it traced, with its chains
+    followed by the compiled kernel (``compiled``) or by its numpy loop."""
+    from igi.common.camera import camera_rays, resolve_camera
+    from igi.common.params import make_params
+    from igi.worker.indirect_caustics import lensed_reflection
+    from igi.worker.renderer import Renderer, clamp_distance2
+    from igi.worker.shading import trace_bsdf_rays, trace_eye
+
+    scene = load_shared("cornell-box-sphere")
+    r = Renderer(scene)
+    if not compiled:
+        monkeypatch.setattr(r.geom, "closest_terms", lambda: None)
+    if sky:  # a lit sky seen through the glass: the misses' branch
+        monkeypatch.setattr(r.lights, "environment", lambda: np.array([0.5, 0.4, 0.3]))
+    cam, fov, w, h = resolve_camera(scene, None, 96, 72)
+    ys, xs = np.divmod(np.arange(w * h), w)
+    o, d = camera_rays(cam, fov, w, h, xs, ys)
+    g = np.random.default_rng(3)
+    eye = trace_eye(scene, r.geom, r.lights, o, d, max_depth, 8, g, 0.3)
+    d2 = clamp_distance2(make_params(), r.geom.diagonal)
+    rays = trace_bsdf_rays(r.geom, r.lights, eye.end, max_depth, g, np.sqrt(d2), r._specular_targets)
+    albedo = np.full((len(eye.end), 3), 0.5)
+    before = r.geom.counters["intersect_rays"]
+    out = lensed_reflection(scene, r.geom, r.lights, eye.end, albedo, r.vpl_set(0, 0, make_params()), rays, d2,
+                            max_depth, 8, g, 0.5)
+    return out, g.random(), r.geom.counters["intersect_rays"] - before
+
+
+@pytest.mark.parametrize("max_depth", [-1, 4])
+@pytest.mark.parametrize("sky", [False, True])
+def test_compiled_chains_equal_the_numpy_chains(monkeypatch, max_depth, sky):
+    """kernels.specular_chain.follow_chains, whole chains in one call, gives lensed_reflection
+    what its numpy loop gave bit for bit: the light, the generator's draws, the rays traced."""
+    got = _lensed(monkeypatch, True, max_depth, sky)
+    monkeypatch.undo()
+    want = _lensed(monkeypatch, False, max_depth, sky)
+    np.testing.assert_array_equal(got[0], want[0])
+    assert got[1:] == want[1:]
+    assert (got[0] > 0).any(axis=1).sum() > 100  # light did come through the ball
+
+
+def test_a_lit_sky_seen_through_the_chains_adds_light(monkeypatch):
+    dark = _lensed(monkeypatch, True, -1, False)[0]
+    lit = _lensed(monkeypatch, True, -1, True)[0]
+    assert (lit.sum(axis=1) > dark.sum(axis=1) + 1e-9).sum() > 50

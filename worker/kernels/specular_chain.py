@@ -9,11 +9,13 @@ are bit-identical to it.
 """
 from __future__ import annotations
 
+import numpy as np
 from numba import njit
 
 from igi.common.kernels import bsdf as kb
 from igi.common.kernels import shading_frame
-from igi.common.kernels.hit_surface import offset_point
+from igi.common.kernels.hit_surface import offset_point, reconstruct
+from igi.common.kernels.ray_packets import closest_hits
 
 
 # No reference counting (as common.kernels.bsdf): P's 17 arrays would be counted per point.
@@ -52,3 +54,87 @@ def delta_bounce(P, prow, src, pos, ns, ng, d, thr, seg, u1, u2, max_depth, delt
                                                               ng[i, 2], dx, dy, dz, center, eps, ulps)
         c += 1
     return c
+
+
+_UNBOUNDED = np.float32(1e37)  # the tfar of an unbounded ray (as common.ray_packets.PacketScene.closest)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def follow_chains(P, specular, rng, closest, rows, pos, ns, ng, d, thr, seg, prow, specular_depth, max_depth,
+                  eps, ulps, env, albedo, out, ends):
+    """Whole mirror/glass chains (worker.indirect_caustics), bounce after bounce in one call:
+    each vertex samples its delta BSDF (:func:`delta_bounce`, u1 then u2 drawn from ``rng``
+    per bounce, as the numpy loop draws them), the rays go to Embree in packets and their hits
+    are reconstructed (``closest``: common.geometry.Geometry.closest_terms); a miss adds
+    throughput × ``env`` / albedo to its row of ``out`` (under a lit sky), a hit on a surface
+    whose material row is not ``specular`` ends the chain and is written to ``ends`` (rows,
+    throughput, segments, direction, position, ns, ng, material, uv, t: per bounce, in ray
+    order), a specular one goes on. The chain state (``rows`` … ``prow``: the vertices of
+    material rows ``prow`` of ``P``) is overwritten. Returns (chain ends written, rays traced)."""
+    handle, center = closest[0], closest[1]
+    n = rows.shape[0]
+    src, bthr, bseg = np.empty(n, np.int64), np.empty((n, 3)), np.empty(n, np.int64)
+    bd, bo = np.empty((n, 3)), np.empty((n, 3))
+    prim, hu, hv, ht = np.empty(n, np.int64), np.empty(n), np.empty(n), np.empty(n)
+    valid = np.empty(n, np.bool_)
+    hpos, hng, hns, huv, htt = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2)), np.empty(n)
+    hmat, hem, hmesh = np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.int32)
+    tfar = np.full(n, _UNBOUNDED, np.float32)
+    order = np.arange(n)
+    e_rows, e_thr, e_seg, e_d, e_pos, e_ns, e_ng, e_mat, e_uv, e_t = ends
+    sky = env[0] > 0.0 or env[1] > 0.0 or env[2] > 0.0
+    null_row = specular.shape[0] - 1
+    live, done, traced = n, 0, 0
+    for _ in range(specular_depth):
+        u1 = rng.random(live)
+        u2 = rng.random((live, 2))
+        c = delta_bounce(P, prow, order[:live], pos, ns, ng, d, thr, seg, u1, u2, max_depth, True, center, eps,
+                         ulps, src, bthr, bseg, bd, bo)
+        if c == 0:
+            break
+        closest_hits(handle, bo[:c], bd[:c], tfar[:c], center, prim[:c], hu[:c], hv[:c], ht[:c])
+        traced += c
+        for i in range(c):
+            valid[i] = prim[i] >= 0
+        reconstruct(valid[:c], prim[:c], hu[:c], hv[:c], ht[:c], center, closest[2], closest[3], closest[4],
+                    closest[5], closest[6], closest[7], closest[8], closest[9], closest[10], closest[11],
+                    closest[12], closest[13], hpos, hng, hns, huv, htt, hmat, hem, hmesh)
+        q = 0
+        for i in range(c):
+            r = rows[src[i]]
+            if not valid[i]:
+                if sky:
+                    for a in range(3):
+                        out[r, a] += bthr[i, a] * env[a] / np.maximum(albedo[r, a], 1e-6)
+                continue
+            m = hmat[i]
+            if not specular[m if m >= 0 else specular.shape[0] + m]:
+                e_rows[done] = r
+                e_seg[done] = bseg[i]
+                e_mat[done] = m
+                e_t[done] = htt[i]
+                for a in range(3):
+                    e_thr[done, a] = bthr[i, a]
+                    e_d[done, a] = bd[i, a]
+                    e_pos[done, a] = hpos[i, a]
+                    e_ns[done, a] = hns[i, a]
+                    e_ng[done, a] = hng[i, a]
+                e_uv[done, 0] = huv[i, 0]
+                e_uv[done, 1] = huv[i, 1]
+                done += 1
+                continue
+            # still on the chain: vertex q of the next bounce (q <= i: rows read ahead of the writes)
+            rows[q] = r
+            seg[q] = bseg[i]
+            prow[q] = m if 0 <= m < null_row else null_row
+            for a in range(3):
+                thr[q, a] = bthr[i, a]
+                d[q, a] = bd[i, a]
+                pos[q, a] = hpos[i, a]
+                ns[q, a] = hns[i, a]
+                ng[q, a] = hng[i, a]
+            q += 1
+        live = q
+        if live == 0:
+            break
+    return done, traced

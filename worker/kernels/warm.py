@@ -147,12 +147,28 @@ def _direct_calls() -> dict:
         # arrays of the types scored_draws takes) in their order
         "igi.worker.kernels.vpl_gather._stage": lambda: _stage_call(vpl_gather),
         "igi.worker.kernels.vpl_gather.pair_weights": lambda: _pair_weights_call(vpl_gather),
+        # one bounce alone: what chains of mirrors and glass the numpy loops still follow
+        "igi.worker.kernels.specular_chain.delta_bounce": _delta_bounce_call,
         "igi.worker.kernels.photon_query._cell": lambda: photon_query._cell(0.5, 2.0),
         "igi.worker.kernels.photon_query._find": lambda: photon_query._find(np.zeros(1, np.int64), 0),
         # _visit: query's arguments (empty arrays of its types) plus the output arrays
         "igi.worker.kernels.photon_query._visit": lambda: photon_query._visit(
             *_empty_args(photon_query.query), np.zeros(0, np.int64), np.zeros(0, np.int64), False),
     }
+
+
+def _delta_bounce_call() -> None:
+    """specular_chain.delta_bounce on empty inputs of the types worker.shading.delta_bounce
+    passes it (a materials list's packed rows)."""
+    from igi.common import bsdf
+    from igi.common.scene import CONDUCTOR, Material
+    from igi.worker.kernels import specular_chain
+
+    P, _textured = bsdf.material_packed([Material("warm-up", CONDUCTOR)])
+    i64, f64 = np.zeros(0, np.int64), np.zeros((0, 3))
+    specular_chain.delta_bounce(P, i64, i64.copy(), f64, f64.copy(), f64.copy(), f64.copy(), f64.copy(), i64.copy(),
+                                np.zeros(0), np.zeros((0, 2)), -1, True, np.zeros(3), 0.0, 0.0, i64.copy(),
+                                f64.copy(), i64.copy(), f64.copy(), f64.copy())
 
 
 def _stage_call(vpl_gather) -> None:
