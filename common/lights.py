@@ -337,16 +337,16 @@ class LightSampler:
 
     def emitted_radiance(self, emitter: np.ndarray, cos_front: np.ndarray) -> np.ndarray:
         """Radiance seen on area emitters (front side only)."""
-        table = self._area_radiance
+        table = self.area_radiance
         ids = np.asarray(emitter)
         out = table.take(np.where((ids >= 0) & (ids < len(table) - 1), ids, len(table) - 1), axis=0)
         out[np.asarray(cos_front) <= 0] = 0
         return out
 
     @cached_property
-    def _area_radiance(self) -> np.ndarray:
+    def area_radiance(self) -> np.ndarray:
         """(emitters + 1, 3): each area emitter's radiance, 0 for the others and the last row
-        (no emitter)."""
+        (no emitter): what :meth:`emitted_radiance` looks up (compiled callers read it)."""
         table = np.zeros((len(self.scene.emitters) + 1, 3))
         for i, e in enumerate(self.scene.emitters):
             if e.kind == AREA:

@@ -23,7 +23,7 @@ from igi.common.scene import SPECULAR_KINDS, Scene, kind_in
 
 from .caustics import PhotonSet
 from .kernels import specular_chain as sc
-from .shading import BSDFRays, EndPoints, delta_bounce, reflected_radiance
+from .shading import BSDFRays, EndPoints, chain_materials, delta_bounce, reflected_radiance
 from .vpl import VPLSet
 
 
@@ -55,7 +55,7 @@ def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: E
     mat_i, uv = hits.material[first], hits.uv[first]
     seg = end.segments[rows].astype(np.int64) + 1  # segments once the ray reached the surface
     env = lights.environment()
-    chain = _compiled_chains(scene, geom, kinds, rows, thr, d, pos, ns, ng, mat_i, seg, specular_depth, max_depth,
+    chain = _compiled_chains(scene, geom, rows, thr, d, pos, ns, ng, mat_i, seg, specular_depth, max_depth,
                              rng, env, albedo, out)
     ends: list[tuple] = [] if chain is None or len(chain[0]) == 0 else [chain]
     for _ in range(specular_depth if chain is None else 0):
@@ -92,7 +92,7 @@ def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: E
     return out
 
 
-def _compiled_chains(scene, geom, kinds, rows, thr, d, pos, ns, ng, mat_i, seg, specular_depth, max_depth, rng,
+def _compiled_chains(scene, geom, rows, thr, d, pos, ns, ng, mat_i, seg, specular_depth, max_depth, rng,
                      env, albedo, out) -> tuple | None:
     """The chains of :func:`lensed_reflection` followed in one compiled call
     (kernels.specular_chain.follow_chains: the same draws, rays and ends as its numpy loop),
@@ -100,12 +100,10 @@ def _compiled_chains(scene, geom, kinds, rows, thr, d, pos, ns, ng, mat_i, seg, 
     pass through Geometry.intersect (a benchmark timing or recording them), or a mirror/glass
     material with a texture (its points' parameters are looked up per point)."""
     terms = geom.closest_terms()
-    if terms is None:
+    tables = chain_materials(scene.materials) if terms is not None else None
+    if tables is None:
         return None
-    P, textured = bsdf.material_packed(scene.materials)
-    specular = kind_in(kinds, SPECULAR_KINDS)
-    if (textured & specular).any():
-        return None
+    P, _kind, specular = tables
     n = len(rows)
     m = len(scene.materials)
     prow = np.where((mat_i >= 0) & (mat_i < m), mat_i, m).astype(np.int64)

@@ -256,9 +256,60 @@ def emitter_pdf(lights: LightSampler, hits, valid: np.ndarray, dirs: np.ndarray,
     return pl * light_mis.direct_count
 
 
+def chain_materials(materials: list, glossy_split_alpha: float = 0.0) -> tuple | None:
+    """``(P, kind, specular)`` — the materials' packed parameters, kind and whether it is
+    mirror/glass per material row (the NULL kind at row len(materials)) — for the compiled
+    chains (kernels.specular_chain), or None where chains must be followed by the numpy loops:
+    a mirror/glass material looks a texture up per point, or a material is a smooth glossy
+    one split off along the chains (``glossy_split_alpha``, :func:`_split_smooth`)."""
+    P, textured = bsdf.material_packed(materials)
+    sp = bsdf.gather(materials, np.arange(len(materials) + 1), None)
+    specular = kind_in(sp.kind, SPECULAR_KINDS)
+    if (textured & specular).any():
+        return None
+    smooth = kind_in(sp.kind, (ROUGHCONDUCTOR, ROUGHPLASTIC)) & (sp.alpha < glossy_split_alpha)
+    if glossy_split_alpha > 0 and smooth.any():
+        return None
+    return P, np.ascontiguousarray(sp.kind), specular
+
+
+def _compiled_eye_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis_pdf, unf, env, max_depth,
+                         specular_depth, rng, glossy_split_alpha) -> list[EndPoints] | None:
+    """:func:`_follow_chains` in one compiled call (kernels.specular_chain.eye_chains: the same
+    draws, rays, emission and end points as its loop), or None where the loop must run (see
+    :func:`chain_materials`; rays that must pass through Geometry.intersect; a split lobe's ray
+    among the chains, whose emission takes an MIS weight)."""
+    terms = geom.closest_terms()
+    tables = chain_materials(scene.materials, glossy_split_alpha) if terms is not None else None
+    if tables is None or np.any(mis_pdf > 0):
+        return None
+    P, kind, specular = tables
+    n = len(pix)
+    ends = (np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
+            np.empty(n, np.int32), np.empty((n, 2)), np.empty((n, 3)), np.empty(n, np.int32), np.empty(n, bool),
+            np.empty(n))
+    c = np.ascontiguousarray
+    _center, eps, ulps = geom.offset_terms()
+    # (copies: the kernel overwrites the rays as they bounce)
+    done, traced = sc.eye_chains(P, kind, specular, NULL, rng, terms, np.array(pix, np.int64),
+                                 geom.offset(pos, ng, dirs), np.array(dirs, np.float64), np.array(thr, np.float64),
+                                 np.array(main, bool), np.array(dist, np.float64), int(specular_depth), int(max_depth),
+                                 eps, ulps, c(env, np.float64), lights.area_radiance, unf, ends)
+    geom.counters["intersect_rays"] += traced
+    if done == 0:
+        return []
+    e_pix, e_pos, e_ns, e_ng, e_wi, e_mat, e_uv, e_thr, e_seg, e_main, e_dist = (a[:done] for a in ends)
+    return [EndPoints(e_pix, e_pos, e_ns, e_ng, e_wi, bsdf.gather(scene.materials, e_mat, e_uv), e_thr, e_seg, e_main,
+                      e_dist)]
+
+
 def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis_pdf, unf, env,
                    max_depth, specular_depth, rng, glossy_split_alpha=0.0,
                    light_mis: LightMIS | None = None) -> list[EndPoints]:
+    compiled = _compiled_eye_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis_pdf, unf, env,
+                                    max_depth, specular_depth, rng, glossy_split_alpha)
+    if compiled is not None:
+        return compiled
     out = []
     sky = bool(np.any(env != 0))  # (asked once: np.any costs ~8 µs, and this loop runs per bounce and tile)
     for bounce in range(1, specular_depth + 1):

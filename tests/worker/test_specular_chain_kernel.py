@@ -141,3 +141,47 @@ def test_a_lit_sky_seen_through_the_chains_adds_light(monkeypatch):
     dark = _lensed(monkeypatch, True, -1, False)[0]
     lit = _lensed(monkeypatch, True, -1, True)[0]
     assert (lit.sum(axis=1) > dark.sum(axis=1) + 1e-9).sum() > 50
+
+
+def _eye(monkeypatch, compiled: bool, max_depth: int, sky: bool):
+    """worker.shading.trace_eye through cornell-box-sphere (96×72, the light seen in the glass
+    ball): its result and the next draw of its generator, the chains past the first hit
+    followed by kernels.specular_chain.eye_chains (``compiled``) or by the numpy loop."""
+    from igi.common.camera import camera_rays, resolve_camera
+    from igi.common.lights import LightSampler
+    from igi.worker.shading import trace_eye
+
+    scene = load_shared("cornell-box-sphere")
+    geom = Geometry(scene)
+    lights = LightSampler(scene, geom)
+    if not compiled:
+        monkeypatch.setattr(geom, "closest_terms", lambda: None)
+    if sky:
+        monkeypatch.setattr(lights, "environment", lambda: np.array([0.5, 0.4, 0.3]))
+    cam, fov, w, h = resolve_camera(scene, None, 96, 72)
+    ys, xs = np.divmod(np.arange(w * h), w)
+    o, d = camera_rays(cam, fov, w, h, xs, ys)
+    g = np.random.default_rng(4)
+    eye = trace_eye(scene, geom, lights, o, d, max_depth, 8, g, 0.3)
+    return eye, g.random(), geom.counters["intersect_rays"]
+
+
+@pytest.mark.parametrize("max_depth", [-1, 3])
+@pytest.mark.parametrize("sky", [False, True])
+def test_compiled_eye_chains_equal_the_numpy_chains(monkeypatch, max_depth, sky):
+    """kernels.specular_chain.eye_chains gives trace_eye what its numpy loop gave, bit for bit:
+    the end points (and their surfaces), the unfiltered light, depth and normals, the draws."""
+    got, got_next, got_rays = _eye(monkeypatch, True, max_depth, sky)
+    monkeypatch.undo()
+    want, want_next, want_rays = _eye(monkeypatch, False, max_depth, sky)
+    assert (got_next, got_rays) == (want_next, want_rays)
+    for name in ("unfiltered", "depth", "normal"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+    for name in ("pixel", "position", "ns", "ng", "wi", "throughput", "segments", "main", "distance"):
+        np.testing.assert_array_equal(getattr(got.end, name), getattr(want.end, name), err_msg=name)
+    for name in ("kind", "diffuse", "alpha"):
+        np.testing.assert_array_equal(getattr(got.end.sp, name), getattr(want.end.sp, name), err_msg=name)
+    chained = got.end.segments > 1
+    assert chained.sum() > 100  # end points seen through the ball
+    if max_depth < 0:  # the light seen in the ball
+        assert got.unfiltered[np.unique(got.end.pixel[chained])].max() > 1.0

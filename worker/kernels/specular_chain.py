@@ -59,6 +59,29 @@ def delta_bounce(P, prow, src, pos, ns, ng, d, thr, seg, u1, u2, max_depth, delt
 _UNBOUNDED = np.float32(1e37)  # the tfar of an unbounded ray (as common.ray_packets.PacketScene.closest)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _hit_buffers(n):
+    """Room for the closest hits of up to n rays (:func:`_closest`)."""
+    return (np.empty(n, np.int64), np.empty(n), np.empty(n), np.empty(n), np.empty(n, np.bool_), np.empty((n, 3)),
+            np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2)), np.empty(n), np.empty(n, np.int32),
+            np.empty(n, np.int32), np.empty(n, np.int32), np.full(n, _UNBOUNDED, np.float32))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _closest(closest, o, d, c, hits) -> None:
+    """The closest hits of rays o[:c], d[:c] (unbounded) into ``hits`` (:func:`_hit_buffers`:
+    prim, u, v, t, then valid, position, ng, ns, uv, t, material, emitter, mesh as
+    common.geometry.Geometry.intersect reconstructs them), through ``closest``
+    (Geometry.closest_terms)."""
+    prim, hu, hv, ht, valid, hpos, hng, hns, huv, htt, hmat, hem, hmesh, tfar = hits
+    closest_hits(closest[0], o[:c], d[:c], tfar[:c], closest[1], prim[:c], hu[:c], hv[:c], ht[:c])
+    for i in range(c):
+        valid[i] = prim[i] >= 0
+    reconstruct(valid[:c], prim[:c], hu[:c], hv[:c], ht[:c], closest[1], closest[2], closest[3], closest[4],
+                closest[5], closest[6], closest[7], closest[8], closest[9], closest[10], closest[11], closest[12],
+                closest[13], hpos, hng, hns, huv, htt, hmat, hem, hmesh)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def follow_chains(P, specular, rng, closest, rows, pos, ns, ng, d, thr, seg, prow, specular_depth, max_depth,
                   eps, ulps, env, albedo, out, ends):
@@ -71,15 +94,12 @@ def follow_chains(P, specular, rng, closest, rows, pos, ns, ng, d, thr, seg, pro
     throughput, segments, direction, position, ns, ng, material, uv, t: per bounce, in ray
     order), a specular one goes on. The chain state (``rows`` … ``prow``: the vertices of
     material rows ``prow`` of ``P``) is overwritten. Returns (chain ends written, rays traced)."""
-    handle, center = closest[0], closest[1]
+    center = closest[1]
     n = rows.shape[0]
     src, bthr, bseg = np.empty(n, np.int64), np.empty((n, 3)), np.empty(n, np.int64)
     bd, bo = np.empty((n, 3)), np.empty((n, 3))
-    prim, hu, hv, ht = np.empty(n, np.int64), np.empty(n), np.empty(n), np.empty(n)
-    valid = np.empty(n, np.bool_)
-    hpos, hng, hns, huv, htt = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2)), np.empty(n)
-    hmat, hem, hmesh = np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.int32)
-    tfar = np.full(n, _UNBOUNDED, np.float32)
+    hits = _hit_buffers(n)
+    valid, hpos, hng, hns, huv, htt, hmat = hits[4], hits[5], hits[6], hits[7], hits[8], hits[9], hits[10]
     order = np.arange(n)
     e_rows, e_thr, e_seg, e_d, e_pos, e_ns, e_ng, e_mat, e_uv, e_t = ends
     sky = env[0] > 0.0 or env[1] > 0.0 or env[2] > 0.0
@@ -92,13 +112,8 @@ def follow_chains(P, specular, rng, closest, rows, pos, ns, ng, d, thr, seg, pro
                          ulps, src, bthr, bseg, bd, bo)
         if c == 0:
             break
-        closest_hits(handle, bo[:c], bd[:c], tfar[:c], center, prim[:c], hu[:c], hv[:c], ht[:c])
+        _closest(closest, bo, bd, c, hits)
         traced += c
-        for i in range(c):
-            valid[i] = prim[i] >= 0
-        reconstruct(valid[:c], prim[:c], hu[:c], hv[:c], ht[:c], center, closest[2], closest[3], closest[4],
-                    closest[5], closest[6], closest[7], closest[8], closest[9], closest[10], closest[11],
-                    closest[12], closest[13], hpos, hng, hns, huv, htt, hmat, hem, hmesh)
         q = 0
         for i in range(c):
             r = rows[src[i]]
@@ -123,7 +138,7 @@ def follow_chains(P, specular, rng, closest, rows, pos, ns, ng, d, thr, seg, pro
                 e_uv[done, 1] = huv[i, 1]
                 done += 1
                 continue
-            # still on the chain: vertex q of the next bounce (q <= i: rows read ahead of the writes)
+            # still on the chain: vertex q of the next bounce (q <= i <= src[i]: rows read ahead of the writes)
             rows[q] = r
             seg[q] = bseg[i]
             prow[q] = m if 0 <= m < null_row else null_row
@@ -137,4 +152,95 @@ def follow_chains(P, specular, rng, closest, rows, pos, ns, ng, d, thr, seg, pro
         live = q
         if live == 0:
             break
+    return done, traced
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def eye_chains(P, kind, specular, null_kind, rng, closest, pix, o, d, thr, main, dist, specular_depth, max_depth,
+               eps, ulps, env, radiance, unf, ends):
+    """The eye paths' mirror/glass chains past their first hit (worker.shading._follow_chains
+    where no smooth glossy lobe is split off along them), in one call. Rays (pixel ``pix``,
+    offset origin ``o``, direction ``d``, throughput, main flag, distance so far) reach their
+    closest hits; emission on area emitters (``radiance`` per emitter, a last row of 0, front
+    side only) and, under a sky, ``env`` along misses are added to their pixel's ``unf`` (misses
+    first, then hits, as the numpy loop adds them); a non-specular, non-NULL hit (material row
+    ``kind``/``specular`` tables) is an end point, written to ``ends`` (pixel, position, ns, ng,
+    wi, material, uv, throughput, segments, main, distance: per bounce, in ray order); a
+    specular one samples its BSDF (:func:`delta_bounce`, any sample that carries light, u1 then
+    u2 drawn from ``rng``) and goes on. The ray arrays are overwritten. Returns (end points
+    written, rays traced)."""
+    center = closest[1]
+    n = pix.shape[0]
+    src, bthr, bseg = np.empty(n, np.int64), np.empty((n, 3)), np.empty(n, np.int64)
+    bd, bo = np.empty((n, 3)), np.empty((n, 3))
+    hits = _hit_buffers(n)
+    valid, hpos, hng, hns, huv, htt, hmat, hem = (hits[4], hits[5], hits[6], hits[7], hits[8], hits[9], hits[10],
+                                                  hits[11])
+    no_seg, prow, di = np.zeros(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
+    e_pix, e_pos, e_ns, e_ng, e_wi, e_mat, e_uv, e_thr, e_seg, e_main, e_dist = ends
+    sky = env[0] != 0.0 or env[1] != 0.0 or env[2] != 0.0
+    null_row = specular.shape[0] - 1
+    no_emitter = radiance.shape[0] - 1
+    live, done, traced = n, 0, 0
+    for bounce in range(1, specular_depth + 1):
+        if live == 0:
+            break
+        seg = bounce + 1  # segments of the path once this ray hits
+        _closest(closest, o, d, live, hits)
+        traced += live
+        if max_depth < 0 or seg <= max_depth:
+            if sky:
+                for i in range(live):
+                    if not valid[i]:
+                        for a in range(3):
+                            unf[pix[i], a] += thr[i, a] * env[a]
+            for i in range(live):
+                e = hem[i]
+                if valid[i] and e >= 0:
+                    cos_front = -(d[i, 0] * hns[i, 0] + d[i, 1] * hns[i, 1] + d[i, 2] * hns[i, 2])
+                    row = e if e < no_emitter else no_emitter
+                    for a in range(3):
+                        le = 0.0 if cos_front <= 0 else radiance[row, a]
+                        unf[pix[i], a] += thr[i, a] * le
+        cnt = 0
+        for i in range(live):
+            dist[i] = dist[i] + htt[i]
+            m = hmat[i]
+            r = m if 0 <= m < null_row else null_row
+            if specular[r]:
+                di[cnt] = i
+                prow[i] = r
+                cnt += 1
+            elif kind[r] != null_kind:
+                e_pix[done] = pix[i]
+                e_mat[done] = m
+                e_seg[done] = seg
+                e_main[done] = main[i]
+                e_dist[done] = dist[i]
+                e_wi[done, 0], e_wi[done, 1], e_wi[done, 2] = shading_frame.to_local(
+                    -d[i, 0], -d[i, 1], -d[i, 2], hns[i, 0], hns[i, 1], hns[i, 2])
+                for a in range(3):
+                    e_pos[done, a] = hpos[i, a]
+                    e_ns[done, a] = hns[i, a]
+                    e_ng[done, a] = hng[i, a]
+                    e_thr[done, a] = thr[i, a]
+                e_uv[done, 0] = huv[i, 0]
+                e_uv[done, 1] = huv[i, 1]
+                done += 1
+        if cnt == 0 or not (max_depth < 0 or seg + 1 <= max_depth):
+            break
+        u1 = rng.random(cnt)
+        u2 = rng.random((cnt, 2))
+        c = delta_bounce(P, prow, di[:cnt], hpos, hns, hng, d, thr, no_seg, u1, u2, -1, False, center, eps, ulps,
+                         src, bthr, bseg, bd, bo)
+        for j in range(c):  # (src[j] >= j: each ray read before its row is written)
+            i = src[j]
+            pix[j] = pix[i]
+            main[j] = main[i]
+            dist[j] = dist[i]
+            for a in range(3):
+                thr[j, a] = bthr[j, a]
+                d[j, a] = bd[j, a]
+                o[j, a] = bo[j, a]
+        live = c
     return done, traced
