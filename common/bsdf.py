@@ -29,9 +29,11 @@ from igi.common.scene import (
     DIELECTRIC,
     NULL,
     PLASTIC,
+    ROUGHCONDUCTOR,
     ROUGHPLASTIC,
     ROUGHPLASTIC_DIFFUSE,
     ROUGHPLASTIC_LOBE,
+    SPECULAR_KINDS,
     THINDIELECTRIC,
     Material,
     kind_in,
@@ -306,6 +308,23 @@ def material_packed(materials: list[Material]) -> tuple[tuple, np.ndarray]:
     t = _material_tables(materials)
     P, _rows = packed_rows(SurfacePoints._backed(t, np.zeros(0, np.int64), {}))
     return P, t["textured_mask"]
+
+
+def chain_materials(materials: list, glossy_split_alpha: float = 0.0) -> tuple | None:
+    """``(P, kind, specular)`` — the materials' packed parameters, kind and whether it is
+    mirror/glass per material row (the NULL kind at row len(materials)) — for the compiled
+    chains (worker.kernels.specular_chain, light_paths), or None where the numpy loops must
+    follow them: a mirror/glass material looks a texture up per point, or a smooth glossy
+    material is split off along them (``glossy_split_alpha``, worker.shading._split_smooth)."""
+    P, textured = material_packed(materials)
+    sp = gather(materials, np.arange(len(materials) + 1), None)
+    specular = kind_in(sp.kind, SPECULAR_KINDS)
+    if (textured & specular).any():
+        return None
+    smooth = kind_in(sp.kind, (ROUGHCONDUCTOR, ROUGHPLASTIC)) & (sp.alpha < glossy_split_alpha)
+    if glossy_split_alpha > 0 and smooth.any():
+        return None
+    return P, np.ascontiguousarray(sp.kind), specular
 
 
 def carrying(weight: np.ndarray) -> np.ndarray:

@@ -23,7 +23,7 @@ from igi.common.sobol_stream import SobolStream, stream_seed
 from igi.common.specular import specular_targets
 
 from .hash_grid import HashGrid
-from .kernels import photon_aim, photon_estimate
+from .kernels import light_paths, photon_aim, photon_estimate
 from .light_paths import continue_paths
 
 PHOTON_STREAM = "caustic photons"
@@ -182,6 +182,9 @@ def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: 
 
 
 def _trace_photons(scene, geom, o, d, flux, u, max_bounces):
+    compiled = _compiled_photons(scene, geom, o, d, flux, u, max_bounces)
+    if compiled is not False:
+        return compiled
     alive = np.nonzero(np.any(flux > 0, axis=1))[0]
     bounced = np.zeros(len(o), bool)
     out_p, out_w, out_d, out_n, out_dp, out_src = [], [], [], [], [], []
@@ -250,3 +253,29 @@ def gather_photons(end, photons: PhotonSet, albedo: np.ndarray, max_depth: int) 
                              a(end.segments, np.int64), int(max_depth), P, prow, a(albedo, np.float64),
                              float(np.pi * photons.radius ** 2), out)
     return out
+
+
+def _compiled_photons(scene, geom, o, d, flux, u, max_bounces):
+    """:func:`_trace_photons` in one compiled call (kernels.light_paths.trace_photons: the same
+    rays, bounces and stored photons as its loop), or False where the loop must run: rays that
+    must pass through Geometry.intersect (a benchmark timing or recording them), or a
+    mirror/glass material with a texture (common.bsdf.chain_materials)."""
+    terms = geom.closest_terms()
+    tables = bsdf.chain_materials(scene.materials) if terms is not None else None
+    if tables is None:
+        return False
+    P, kind, specular = tables
+    n = len(o)
+    out = (np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.int32),
+           np.empty(n, np.int64))
+    _center, eps, ulps = geom.offset_terms()
+    # (copies: the kernel moves the photons along in place)
+    stored, traced = light_paths.trace_photons(P, kind, specular, NULL, terms, np.array(o, np.float64, order="C"),
+                                               np.array(d, np.float64, order="C"),
+                                               np.array(flux, np.float64, order="C"),
+                                               np.ascontiguousarray(u, np.float64), int(max_bounces), EMIT_DIMS,
+                                               BOUNCE_DIMS, eps, ulps, out)
+    geom.counters["intersect_rays"] += traced
+    if stored == 0:
+        return None
+    return tuple(a[:stored] for a in out)

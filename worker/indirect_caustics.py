@@ -23,7 +23,7 @@ from igi.common.scene import SPECULAR_KINDS, Scene, kind_in
 
 from .caustics import PhotonSet
 from .kernels import specular_chain as sc
-from .shading import BSDFRays, EndPoints, chain_materials, delta_bounce, reflected_radiance
+from .shading import BSDFRays, EndPoints, delta_bounce, reflected_radiance
 from .vpl import VPLSet
 
 
@@ -100,7 +100,7 @@ def _compiled_chains(scene, geom, rows, thr, d, pos, ns, ng, mat_i, seg, specula
     pass through Geometry.intersect (a benchmark timing or recording them), or a mirror/glass
     material with a texture (its points' parameters are looked up per point)."""
     terms = geom.closest_terms()
-    tables = chain_materials(scene.materials) if terms is not None else None
+    tables = bsdf.chain_materials(scene.materials) if terms is not None else None
     if tables is None:
         return None
     P, _kind, specular = tables

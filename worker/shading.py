@@ -256,31 +256,14 @@ def emitter_pdf(lights: LightSampler, hits, valid: np.ndarray, dirs: np.ndarray,
     return pl * light_mis.direct_count
 
 
-def chain_materials(materials: list, glossy_split_alpha: float = 0.0) -> tuple | None:
-    """``(P, kind, specular)`` — the materials' packed parameters, kind and whether it is
-    mirror/glass per material row (the NULL kind at row len(materials)) — for the compiled
-    chains (kernels.specular_chain), or None where chains must be followed by the numpy loops:
-    a mirror/glass material looks a texture up per point, or a material is a smooth glossy
-    one split off along the chains (``glossy_split_alpha``, :func:`_split_smooth`)."""
-    P, textured = bsdf.material_packed(materials)
-    sp = bsdf.gather(materials, np.arange(len(materials) + 1), None)
-    specular = kind_in(sp.kind, SPECULAR_KINDS)
-    if (textured & specular).any():
-        return None
-    smooth = kind_in(sp.kind, (ROUGHCONDUCTOR, ROUGHPLASTIC)) & (sp.alpha < glossy_split_alpha)
-    if glossy_split_alpha > 0 and smooth.any():
-        return None
-    return P, np.ascontiguousarray(sp.kind), specular
-
-
 def _compiled_eye_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis_pdf, unf, env, max_depth,
                          specular_depth, rng, glossy_split_alpha) -> list[EndPoints] | None:
     """:func:`_follow_chains` in one compiled call (kernels.specular_chain.eye_chains: the same
     draws, rays, emission and end points as its loop), or None where the loop must run (see
-    :func:`chain_materials`; rays that must pass through Geometry.intersect; a split lobe's ray
+    common.bsdf.chain_materials; rays that must pass through Geometry.intersect; a split lobe's ray
     among the chains, whose emission takes an MIS weight)."""
     terms = geom.closest_terms()
-    tables = chain_materials(scene.materials, glossy_split_alpha) if terms is not None else None
+    tables = bsdf.chain_materials(scene.materials, glossy_split_alpha) if terms is not None else None
     if tables is None or np.any(mis_pdf > 0):
         return None
     P, kind, specular = tables

@@ -19,6 +19,8 @@ import os
 import numpy as np
 from numba import njit, types
 
+from .hit_surface import reconstruct
+
 
 def embree_library() -> str | None:
     """The path of the Embree 4 library embreex links (bundled beside it), or None."""
@@ -175,3 +177,29 @@ def closest_hits(scene, origins, directions, tfar, center, out_prim, out_u, out_
             out_u[i] = ray[_HIT + 3 * LANES + k] if hit else 0.0
             out_v[i] = ray[_HIT + 4 * LANES + k] if hit else 0.0
             out_t[i] = ray[8 * LANES + k]
+
+
+_UNBOUNDED = np.float32(1e37)  # the tfar of an unbounded ray (as common.ray_packets.PacketScene.closest)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def hit_buffers(n):
+    """Room for the closest hits of up to n rays (:func:`closest_surfaces`)."""
+    return (np.empty(n, np.int64), np.empty(n), np.empty(n), np.empty(n), np.empty(n, np.bool_), np.empty((n, 3)),
+            np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2)), np.empty(n), np.empty(n, np.int32),
+            np.empty(n, np.int32), np.empty(n, np.int32), np.full(n, _UNBOUNDED, np.float32))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def closest_surfaces(closest, o, d, c, hits) -> None:
+    """The closest hits of rays o[:c], d[:c] (unbounded) into ``hits`` (:func:`hit_buffers`:
+    prim, u, v, t, then valid, position, ng, ns, uv, t, material, emitter, mesh as
+    common.geometry.Geometry.intersect reconstructs them), through ``closest``
+    (Geometry.closest_terms)."""
+    prim, hu, hv, ht, valid, hpos, hng, hns, huv, htt, hmat, hem, hmesh, tfar = hits
+    closest_hits(closest[0], o[:c], d[:c], tfar[:c], closest[1], prim[:c], hu[:c], hv[:c], ht[:c])
+    for i in range(c):
+        valid[i] = prim[i] >= 0
+    reconstruct(valid[:c], prim[:c], hu[:c], hv[:c], ht[:c], closest[1], closest[2], closest[3], closest[4],
+                closest[5], closest[6], closest[7], closest[8], closest[9], closest[10], closest[11], closest[12],
+                closest[13], hpos, hng, hns, huv, htt, hmat, hem, hmesh)

@@ -17,6 +17,7 @@ from numba import njit
 from igi.common.kernels import bsdf as kb
 from igi.common.kernels import shading_frame
 from igi.common.kernels.hit_surface import offset_point
+from igi.common.kernels.ray_packets import closest_surfaces, hit_buffers
 
 
 # No reference counting (as common.kernels.bsdf): P's 17 arrays would be counted per path.
@@ -58,3 +59,83 @@ def continue_paths(P, prow, sel, rows, pos, ns, ng, d, o, flux, u, col, roulette
             out_rows[c] = r
             c += 1
     return c
+
+
+_NO_SURVIVAL = np.zeros((0, 0))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def trace_photons(P, kind, specular, null_kind, closest, o, d, flux, u, max_bounces, emit_dims, bounce_dims, eps,
+                  ulps, out) -> tuple:
+    """Caustic photons (worker.caustics) from their emission to where they are stored, in one
+    call: the photons whose flux carries light go to Embree in packets (``closest``:
+    common.geometry.Geometry.closest_terms), bounce by bounce; a photon that has bounced off a
+    mirror or glass (material rows ``specular``) and hits another surface (kind not
+    ``null_kind``) is stored — position, flux, direction toward where it came from, ns, depth
+    b + 1, its row — in ``out`` (in bounce order, then row order); one on a mirror or glass
+    surface bounces on (:func:`continue_paths` with u[row, emit_dims + bounce_dims·b …]); any
+    other ends. ``o``, ``d``, ``flux`` (float64, C order) are overwritten. Returns (photons
+    stored, rays traced)."""
+    center = closest[1]
+    n = o.shape[0]
+    out_p, out_w, out_d, out_n, out_dp, out_src = out
+    alive, rows, sel, prow = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
+    bounced = np.zeros(n, np.bool_)
+    bo, bd = np.empty((n, 3)), np.empty((n, 3))
+    hits = hit_buffers(n)
+    valid, hpos, hng, hns, hmat = hits[4], hits[5], hits[6], hits[7], hits[10]
+    null_row = specular.shape[0] - 1
+    live = 0
+    for r in range(n):
+        if flux[r, 0] > 0.0 or flux[r, 1] > 0.0 or flux[r, 2] > 0.0:
+            alive[live] = r
+            live += 1
+    stored, traced = 0, 0
+    for b in range(max_bounces + 1):
+        if live == 0:
+            break
+        for t in range(live):
+            r = alive[t]
+            for a in range(3):
+                bo[t, a] = o[r, a]
+                bd[t, a] = d[r, a]
+        closest_surfaces(closest, bo, bd, live, hits)
+        traced += live
+        c = 0  # the hits, compacted in place (c <= t)
+        for t in range(live):
+            if valid[t]:
+                rows[c] = alive[t]
+                hmat[c] = hmat[t]
+                for a in range(3):
+                    hpos[c, a] = hpos[t, a]
+                    hns[c, a] = hns[t, a]
+                    hng[c, a] = hng[t, a]
+                c += 1
+        if c == 0:
+            break
+        spec = 0
+        for j in range(c):
+            m = hmat[j]
+            row = m if 0 <= m < null_row else null_row
+            r = rows[j]
+            if specular[row]:
+                sel[spec] = j
+                prow[j] = row
+                spec += 1
+            elif bounced[r] and kind[row] != null_kind:
+                for a in range(3):
+                    out_p[stored, a] = hpos[j, a]
+                    out_w[stored, a] = flux[r, a]
+                    out_d[stored, a] = -d[r, a]
+                    out_n[stored, a] = hns[j, a]
+                out_dp[stored] = b + 1
+                out_src[stored] = r
+                stored += 1
+        # Only mirror/glass bounces continue: anything else is a caustic's end or not a caustic.
+        if b == max_bounces or spec == 0:
+            break
+        for q in range(spec):
+            bounced[rows[sel[q]]] = True
+        live = continue_paths(P, prow, sel[:spec], rows, hpos, hns, hng, d, o, flux, u, emit_dims + bounce_dims * b,
+                              False, _NO_SURVIVAL, 0, center, eps, ulps, alive)
+    return stored, traced

@@ -14,8 +14,8 @@ from numba import njit
 
 from igi.common.kernels import bsdf as kb
 from igi.common.kernels import shading_frame
-from igi.common.kernels.hit_surface import offset_point, reconstruct
-from igi.common.kernels.ray_packets import closest_hits
+from igi.common.kernels.hit_surface import offset_point
+from igi.common.kernels.ray_packets import closest_surfaces, hit_buffers
 
 
 # No reference counting (as common.kernels.bsdf): P's 17 arrays would be counted per point.
@@ -56,32 +56,6 @@ def delta_bounce(P, prow, src, pos, ns, ng, d, thr, seg, u1, u2, max_depth, delt
     return c
 
 
-_UNBOUNDED = np.float32(1e37)  # the tfar of an unbounded ray (as common.ray_packets.PacketScene.closest)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _hit_buffers(n):
-    """Room for the closest hits of up to n rays (:func:`_closest`)."""
-    return (np.empty(n, np.int64), np.empty(n), np.empty(n), np.empty(n), np.empty(n, np.bool_), np.empty((n, 3)),
-            np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2)), np.empty(n), np.empty(n, np.int32),
-            np.empty(n, np.int32), np.empty(n, np.int32), np.full(n, _UNBOUNDED, np.float32))
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _closest(closest, o, d, c, hits) -> None:
-    """The closest hits of rays o[:c], d[:c] (unbounded) into ``hits`` (:func:`_hit_buffers`:
-    prim, u, v, t, then valid, position, ng, ns, uv, t, material, emitter, mesh as
-    common.geometry.Geometry.intersect reconstructs them), through ``closest``
-    (Geometry.closest_terms)."""
-    prim, hu, hv, ht, valid, hpos, hng, hns, huv, htt, hmat, hem, hmesh, tfar = hits
-    closest_hits(closest[0], o[:c], d[:c], tfar[:c], closest[1], prim[:c], hu[:c], hv[:c], ht[:c])
-    for i in range(c):
-        valid[i] = prim[i] >= 0
-    reconstruct(valid[:c], prim[:c], hu[:c], hv[:c], ht[:c], closest[1], closest[2], closest[3], closest[4],
-                closest[5], closest[6], closest[7], closest[8], closest[9], closest[10], closest[11], closest[12],
-                closest[13], hpos, hng, hns, huv, htt, hmat, hem, hmesh)
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
 def follow_chains(P, specular, rng, closest, rows, pos, ns, ng, d, thr, seg, prow, specular_depth, max_depth,
                   eps, ulps, env, albedo, out, ends):
@@ -98,7 +72,7 @@ def follow_chains(P, specular, rng, closest, rows, pos, ns, ng, d, thr, seg, pro
     n = rows.shape[0]
     src, bthr, bseg = np.empty(n, np.int64), np.empty((n, 3)), np.empty(n, np.int64)
     bd, bo = np.empty((n, 3)), np.empty((n, 3))
-    hits = _hit_buffers(n)
+    hits = hit_buffers(n)
     valid, hpos, hng, hns, huv, htt, hmat = hits[4], hits[5], hits[6], hits[7], hits[8], hits[9], hits[10]
     order = np.arange(n)
     e_rows, e_thr, e_seg, e_d, e_pos, e_ns, e_ng, e_mat, e_uv, e_t = ends
@@ -112,7 +86,7 @@ def follow_chains(P, specular, rng, closest, rows, pos, ns, ng, d, thr, seg, pro
                          ulps, src, bthr, bseg, bd, bo)
         if c == 0:
             break
-        _closest(closest, bo, bd, c, hits)
+        closest_surfaces(closest, bo, bd, c, hits)
         traced += c
         q = 0
         for i in range(c):
@@ -173,7 +147,7 @@ def eye_chains(P, kind, specular, null_kind, rng, closest, pix, o, d, thr, main,
     n = pix.shape[0]
     src, bthr, bseg = np.empty(n, np.int64), np.empty((n, 3)), np.empty(n, np.int64)
     bd, bo = np.empty((n, 3)), np.empty((n, 3))
-    hits = _hit_buffers(n)
+    hits = hit_buffers(n)
     valid, hpos, hng, hns, huv, htt, hmat, hem = (hits[4], hits[5], hits[6], hits[7], hits[8], hits[9], hits[10],
                                                   hits[11])
     no_seg, prow, di = np.zeros(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
@@ -186,7 +160,7 @@ def eye_chains(P, kind, specular, null_kind, rng, closest, pix, o, d, thr, main,
         if live == 0:
             break
         seg = bounce + 1  # segments of the path once this ray hits
-        _closest(closest, o, d, live, hits)
+        closest_surfaces(closest, o, d, live, hits)
         traced += live
         if max_depth < 0 or seg <= max_depth:
             if sky:
