@@ -316,15 +316,16 @@ def chain_materials(materials: list, glossy_split_alpha: float = 0.0) -> tuple |
     chains (worker.kernels.specular_chain, light_paths), or None where the numpy loops must
     follow them: a mirror/glass material looks a texture up per point, or a smooth glossy
     material is split off along them (``glossy_split_alpha``, worker.shading._split_smooth)."""
-    P, textured = material_packed(materials)
-    sp = gather(materials, np.arange(len(materials) + 1), None)
-    specular = kind_in(sp.kind, SPECULAR_KINDS)
-    if (textured & specular).any():
-        return None
-    smooth = kind_in(sp.kind, (ROUGHCONDUCTOR, ROUGHPLASTIC)) & (sp.alpha < glossy_split_alpha)
-    if glossy_split_alpha > 0 and smooth.any():
-        return None
-    return P, np.ascontiguousarray(sp.kind), specular
+    t = _material_tables(materials)
+    key = ("chains", float(glossy_split_alpha))
+    if key not in t:  # (asked per tile and chain: worked out once per materials list and alpha)
+        P, textured = material_packed(materials)
+        sp = gather(materials, np.arange(len(materials) + 1), None)
+        specular = kind_in(sp.kind, SPECULAR_KINDS)
+        smooth = kind_in(sp.kind, (ROUGHCONDUCTOR, ROUGHPLASTIC)) & (sp.alpha < glossy_split_alpha)
+        split = glossy_split_alpha > 0 and smooth.any()
+        t[key] = None if (textured & specular).any() or split else (P, np.ascontiguousarray(sp.kind), specular)
+    return t[key]
 
 
 def carrying(weight: np.ndarray) -> np.ndarray:
