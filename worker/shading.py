@@ -28,6 +28,7 @@ from igi.common.scene import (DIFFUSE, NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGH
 
 from .caustics import PhotonSet, gather_photons
 from .kernels import bsdf_rays as br
+from .kernels import eye_paths as ek
 from .kernels import specular_chain as sc
 from .kernels import vpl_gather as vg
 from .kernels import vpl_scoring as vs
@@ -136,6 +137,9 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
     if max_depth == 0:
         empty = _end_points_empty()
         return EyeResult(empty, unf, depth, normal)
+    compiled = _compiled_eye(scene, geom, lights, origins, dirs, max_depth, specular_depth, rng, glossy_split_alpha)
+    if compiled is not None:
+        return compiled
     hits = geom.intersect(origins, dirs)
     v = hits.valid
     idx, d = np.arange(p), dirs
@@ -210,6 +214,34 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
     return EyeResult(end, unf, depth, normal)
 
 
+def _compiled_eye(scene, geom, lights, origins, dirs, max_depth, specular_depth, rng,
+                  glossy_split_alpha) -> EyeResult | None:
+    """:func:`trace_eye` in one compiled call (kernels.eye_paths.trace_eye: the same rays, draws,
+    end points and per-pixel buffers as its numpy form), or None where that form must run: no
+    smooth glossy lobe is split off, the rays go through Geometry.closest_terms, and no
+    mirror/glass material is textured (common.bsdf.chain_materials)."""
+    terms = geom.closest_terms()
+    tables = bsdf.chain_materials(scene.materials, glossy_split_alpha) if terms is not None else None
+    if tables is None:
+        return None
+    P, kind, specular = tables
+    p = len(origins)
+    unf, depth, normal = np.zeros((p, 3)), np.empty(p), np.empty((p, 3))
+    n = 2 * p  # a first hit ends once, or splits into two chains that end once each
+    ends = (np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
+            np.empty(n, np.int32), np.empty((n, 2)), np.empty((n, 3)), np.empty(n, np.int32), np.empty(n, bool),
+            np.empty(n))
+    _center, eps, ulps = geom.offset_terms()
+    c = np.ascontiguousarray
+    done, traced = ek.trace_eye(P, kind, specular, NULL, rng, terms, c(origins, np.float64), c(dirs, np.float64),
+                                int(specular_depth), int(max_depth), eps, ulps, c(lights.environment(), np.float64),
+                                lights.area_radiance, unf, depth, normal, ends)
+    geom.counters["intersect_rays"] += traced
+    pix, pos, ns, ng, wi, mat, uv, thr, seg, main, dist = (a[:done] for a in ends)
+    end = EndPoints(pix, pos, ns, ng, wi, bsdf.gather(scene.materials, mat, uv), thr, seg, main, dist)
+    return EyeResult(end, unf, depth, normal)
+
+
 def _sample_lobe(lobe_sp, wi, rng, light_mis):
     """One sampled ray of each smooth lobe: ``(wo, weight, pdf for MIS (0: none), the lobe's
     direct-only end-point BSDFs or None)``."""
@@ -256,43 +288,9 @@ def emitter_pdf(lights: LightSampler, hits, valid: np.ndarray, dirs: np.ndarray,
     return pl * light_mis.direct_count
 
 
-def _compiled_eye_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis_pdf, unf, env, max_depth,
-                         specular_depth, rng, glossy_split_alpha) -> list[EndPoints] | None:
-    """:func:`_follow_chains` in one compiled call (kernels.specular_chain.eye_chains: the same
-    draws, rays, emission and end points as its loop), or None where the loop must run (see
-    common.bsdf.chain_materials; rays that must pass through Geometry.intersect; a split lobe's ray
-    among the chains, whose emission takes an MIS weight)."""
-    terms = geom.closest_terms()
-    tables = bsdf.chain_materials(scene.materials, glossy_split_alpha) if terms is not None else None
-    if tables is None or np.any(mis_pdf > 0):
-        return None
-    P, kind, specular = tables
-    n = len(pix)
-    ends = (np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
-            np.empty(n, np.int32), np.empty((n, 2)), np.empty((n, 3)), np.empty(n, np.int32), np.empty(n, bool),
-            np.empty(n))
-    c = np.ascontiguousarray
-    _center, eps, ulps = geom.offset_terms()
-    # (copies: the kernel overwrites the rays as they bounce)
-    done, traced = sc.eye_chains(P, kind, specular, NULL, rng, terms, np.array(pix, np.int64),
-                                 geom.offset(pos, ng, dirs), np.array(dirs, np.float64), np.array(thr, np.float64),
-                                 np.array(main, bool), np.array(dist, np.float64), int(specular_depth), int(max_depth),
-                                 eps, ulps, c(env, np.float64), lights.area_radiance, unf, ends)
-    geom.counters["intersect_rays"] += traced
-    if done == 0:
-        return []
-    e_pix, e_pos, e_ns, e_ng, e_wi, e_mat, e_uv, e_thr, e_seg, e_main, e_dist = (a[:done] for a in ends)
-    return [EndPoints(e_pix, e_pos, e_ns, e_ng, e_wi, bsdf.gather(scene.materials, e_mat, e_uv), e_thr, e_seg, e_main,
-                      e_dist)]
-
-
 def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis_pdf, unf, env,
                    max_depth, specular_depth, rng, glossy_split_alpha=0.0,
                    light_mis: LightMIS | None = None) -> list[EndPoints]:
-    compiled = _compiled_eye_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis_pdf, unf, env,
-                                    max_depth, specular_depth, rng, glossy_split_alpha)
-    if compiled is not None:
-        return compiled
     out = []
     sky = bool(np.any(env != 0))  # (asked once: np.any costs ~8 µs, and this loop runs per bounce and tile)
     for bounce in range(1, specular_depth + 1):

@@ -1,0 +1,76 @@
+"""The compiled eye paths (worker.kernels.eye_paths.trace_eye: first hits, their split at
+mirrors and glass, the chains behind) give worker.shading.trace_eye exactly what its numpy form
+gives, on a glass ball with and without a sky, at path-length limits, and in a room without glass."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from igi.bench.stress_scenes import load_shared
+from igi.common.geometry import Geometry
+
+
+def _eye(monkeypatch, compiled: bool, max_depth: int, sky: bool, name: str = "cornell-box-sphere"):
+    """worker.shading.trace_eye through ``name`` (96×72; cornell-box-sphere: the light seen in
+    the glass ball): its result and the next draw of its generator, traced by
+    kernels.eye_paths.trace_eye — first hits, then the chains by specular_chain.eye_chains —
+    (``compiled``) or by the numpy form."""
+    from igi.common.camera import camera_rays, resolve_camera
+    from igi.common.lights import LightSampler
+    from igi.worker.shading import trace_eye
+
+    scene = load_shared(name)
+    geom = Geometry(scene)
+    lights = LightSampler(scene, geom)
+    if not compiled:
+        monkeypatch.setattr(geom, "closest_terms", lambda: None)
+    if sky:
+        monkeypatch.setattr(lights, "environment", lambda: np.array([0.5, 0.4, 0.3]))
+    cam, fov, w, h = resolve_camera(scene, None, 96, 72)
+    ys, xs = np.divmod(np.arange(w * h), w)
+    o, d = camera_rays(cam, fov, w, h, xs, ys)
+    g = np.random.default_rng(4)
+    eye = trace_eye(scene, geom, lights, o, d, max_depth, 8, g, 0.3)
+    return eye, g.random(), geom.counters["intersect_rays"]
+
+
+@pytest.mark.parametrize("max_depth", [-1, 3, 1])
+@pytest.mark.parametrize("sky", [False, True])
+def test_compiled_eye_paths_equal_the_numpy_eye_paths(monkeypatch, max_depth, sky):
+    """kernels.eye_paths.trace_eye gives trace_eye what its numpy form gave, bit for bit: the end
+    points (and their surfaces), the unfiltered light, depth and normals, the draws, the rays."""
+    got, got_next, got_rays = _eye(monkeypatch, True, max_depth, sky)
+    monkeypatch.undo()
+    want, want_next, want_rays = _eye(monkeypatch, False, max_depth, sky)
+    assert (got_next, got_rays) == (want_next, want_rays)
+    for name in ("unfiltered", "depth", "normal"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+    for name in ("pixel", "position", "ns", "ng", "wi", "throughput", "segments", "main", "distance"):
+        np.testing.assert_array_equal(getattr(got.end, name), getattr(want.end, name), err_msg=name)
+    for name in ("kind", "diffuse", "alpha"):
+        np.testing.assert_array_equal(getattr(got.end.sp, name), getattr(want.end.sp, name), err_msg=name)
+    chained = got.end.segments > 1
+    if max_depth == 1:  # no chain may start
+        assert not chained.any()
+        return
+    assert chained.sum() > 100  # end points seen through the ball
+    if max_depth < 0:  # the light seen in the ball
+        assert got.unfiltered[np.unique(got.end.pixel[chained])].max() > 1.0
+
+
+def test_compiled_eye_paths_of_a_room_without_glass_equal_the_numpy_eye_paths(monkeypatch):
+    got = _eye(monkeypatch, True, -1, False, "cornell-box")
+    monkeypatch.undo()
+    want = _eye(monkeypatch, False, -1, False, "cornell-box")
+    assert got[1:] == want[1:]
+    for name in ("pixel", "position", "ns", "wi", "distance"):
+        np.testing.assert_array_equal(getattr(got[0].end, name), getattr(want[0].end, name), err_msg=name)
+    np.testing.assert_array_equal(got[0].unfiltered, want[0].unfiltered)
+    assert len(got[0].end) > 0.9 * 96 * 72  # (the box is closed: nearly every pixel ends on a wall)
+
+
+def test_the_luminance_weights_of_the_main_branch_are_the_lights_module_s():
+    from igi.common.lights import LUMINANCE_WEIGHTS
+    from igi.worker.kernels import eye_paths
+
+    assert (eye_paths._WR, eye_paths._WG, eye_paths._WB) == LUMINANCE_WEIGHTS
