@@ -311,11 +311,12 @@ def material_packed(materials: list[Material]) -> tuple[tuple, np.ndarray]:
 
 
 def chain_materials(materials: list, glossy_split_alpha: float = 0.0) -> tuple | None:
-    """``(P, kind, specular)`` — the materials' packed parameters, kind and whether it is
-    mirror/glass per material row (the NULL kind at row len(materials)) — for the compiled
-    chains (worker.kernels.specular_chain, light_paths), or None where the numpy loops must
-    follow them: a mirror/glass material looks a texture up per point, or a smooth glossy
-    material is split off along them (``glossy_split_alpha``, worker.shading._split_smooth)."""
+    """``(P, kind, specular, smooth, P_lobe)`` per material row (the NULL kind at row
+    len(materials)) for the compiled paths (worker.kernels.eye_paths, specular_chain,
+    light_paths): the materials' packed parameters, kind, whether mirror/glass, whether a
+    smooth glossy one split off at ``glossy_split_alpha`` (worker.shading._split_smooth), and P
+    with each rough plastic's kind its lobe's (:func:`lobe_only`). None where the numpy loops
+    must run: a mirror/glass material looks a texture up per point."""
     t = _material_tables(materials)
     key = ("chains", float(glossy_split_alpha))
     if key not in t:  # (asked per tile and chain: worked out once per materials list and alpha)
@@ -323,8 +324,10 @@ def chain_materials(materials: list, glossy_split_alpha: float = 0.0) -> tuple |
         sp = gather(materials, np.arange(len(materials) + 1), None)
         specular = kind_in(sp.kind, SPECULAR_KINDS)
         smooth = kind_in(sp.kind, (ROUGHCONDUCTOR, ROUGHPLASTIC)) & (sp.alpha < glossy_split_alpha)
-        split = glossy_split_alpha > 0 and smooth.any()
-        t[key] = None if (textured & specular).any() or split else (P, np.ascontiguousarray(sp.kind), specular)
+        smooth &= glossy_split_alpha > 0
+        P_lobe = (np.where(P[0] == ROUGHPLASTIC, ROUGHPLASTIC_LOBE, P[0]).astype(P[0].dtype),) + tuple(P[1:])
+        per_point = (textured & (specular | smooth)).any()  # the kernels read P's material rows
+        t[key] = None if per_point else (P, np.ascontiguousarray(sp.kind), specular, smooth, P_lobe)
     return t[key]
 
 

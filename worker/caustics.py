@@ -264,7 +264,7 @@ def _compiled_photons(scene, geom, o, d, flux, u, max_bounces):
     tables = bsdf.chain_materials(scene.materials) if terms is not None else None
     if tables is None:
         return False
-    P, kind, specular = tables
+    P, kind, specular = tables[:3]
     n = len(o)
     out = (np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.int32),
            np.empty(n, np.int64))

@@ -103,7 +103,7 @@ def _compiled_chains(scene, geom, rows, thr, d, pos, ns, ng, mat_i, seg, specula
     tables = bsdf.chain_materials(scene.materials) if terms is not None else None
     if tables is None:
         return None
-    P, _kind, specular = tables
+    P, _kind, specular = tables[:3]
     n = len(rows)
     m = len(scene.materials)
     prow = np.where((mat_i >= 0) & (mat_i < m), mat_i, m).astype(np.int64)

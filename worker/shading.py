@@ -23,8 +23,8 @@ from igi.common.geometry import Geometry
 from igi.common.microfacet import lerp_gather
 from igi.common.lights import (VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE, LightSampler, luminance,
                                rays_meet_spheres, to_local, to_world)
-from igi.common.scene import (DIFFUSE, NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE, SPECULAR_KINDS,
-                              Scene, kind_in)
+from igi.common.scene import (DIFFUSE, NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE, ROUGHPLASTIC_LOBE,
+                              SPECULAR_KINDS, Scene, kind_in)
 
 from .caustics import PhotonSet, gather_photons
 from .kernels import bsdf_rays as br
@@ -137,7 +137,8 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
     if max_depth == 0:
         empty = _end_points_empty()
         return EyeResult(empty, unf, depth, normal)
-    compiled = _compiled_eye(scene, geom, lights, origins, dirs, max_depth, specular_depth, rng, glossy_split_alpha)
+    compiled = _compiled_eye(scene, geom, lights, origins, dirs, max_depth, specular_depth, rng, glossy_split_alpha,
+                             light_mis)
     if compiled is not None:
         return compiled
     hits = geom.intersect(origins, dirs)
@@ -214,31 +215,54 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
     return EyeResult(end, unf, depth, normal)
 
 
-def _compiled_eye(scene, geom, lights, origins, dirs, max_depth, specular_depth, rng,
-                  glossy_split_alpha) -> EyeResult | None:
+def _compiled_eye(scene, geom, lights, origins, dirs, max_depth, specular_depth, rng, glossy_split_alpha,
+                  light_mis) -> EyeResult | None:
     """:func:`trace_eye` in one compiled call (kernels.eye_paths.trace_eye: the same rays, draws,
-    end points and per-pixel buffers as its numpy form), or None where that form must run: no
-    smooth glossy lobe is split off, the rays go through Geometry.closest_terms, and no
-    mirror/glass material is textured (common.bsdf.chain_materials)."""
+    end points and per-pixel buffers as its numpy form), or None where that form must run: the
+    rays must go through Geometry.intersect (closest_terms), a mirror/glass material is
+    textured (common.bsdf.chain_materials), or split lobes' rays under a sky take MIS weights
+    against an environment guide."""
     terms = geom.closest_terms()
     tables = bsdf.chain_materials(scene.materials, glossy_split_alpha) if terms is not None else None
     if tables is None:
         return None
-    P, kind, specular = tables
+    P, kind, specular, smooth, P_lobe = tables
+    env = np.ascontiguousarray(lights.environment(), np.float64)
+    split = bool(smooth.any())
+    count = int(light_mis.direct_count) if light_mis is not None and light_mis.direct_count > 0 else 0
+    sky = bool(np.any(env > 0))
+    if split and count and sky and light_mis.env_guide is not None:
+        return None
+    pmf = light_mis.emitter_pmf if light_mis is not None else None
+    area_pdf = np.append(lights.area_pdf(np.arange(len(scene.emitters)), pmf), 0.0)
+    lobes = (split, smooth, P_lobe, count, area_pdf, float(lights.environment_pdf(pmf)) if sky else 0.0)
     p = len(origins)
     unf, depth, normal = np.zeros((p, 3)), np.empty(p), np.empty((p, 3))
-    n = 2 * p  # a first hit ends once, or splits into two chains that end once each
+    n = 3 * p  # room enough unless chains keep meeting smooth glossy surfaces (then: the numpy form)
     ends = (np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
             np.empty(n, np.int32), np.empty((n, 2)), np.empty((n, 3)), np.empty(n, np.int32), np.empty(n, bool),
-            np.empty(n))
+            np.empty(n), np.empty(n, np.int8))
     _center, eps, ulps = geom.offset_terms()
     c = np.ascontiguousarray
+    state = rng.bit_generator.state
     done, traced = ek.trace_eye(P, kind, specular, NULL, rng, terms, c(origins, np.float64), c(dirs, np.float64),
-                                int(specular_depth), int(max_depth), eps, ulps, c(lights.environment(), np.float64),
-                                lights.area_radiance, unf, depth, normal, ends)
+                                int(specular_depth), int(max_depth), eps, ulps, env, lights.area_radiance, lobes, unf,
+                                depth, normal, ends)
+    if done < 0:
+        rng.bit_generator.state = state  # the numpy form draws them again
+        return None
     geom.counters["intersect_rays"] += traced
-    pix, pos, ns, ng, wi, mat, uv, thr, seg, main, dist = (a[:done] for a in ends)
-    end = EndPoints(pix, pos, ns, ng, wi, bsdf.gather(scene.materials, mat, uv), thr, seg, main, dist)
+    pix, pos, ns, ng, wi, mat, uv, thr, seg, main, dist, code = (a[:done] for a in ends)
+    sp = bsdf.gather(scene.materials, mat, uv)
+    direct_only = None
+    if code.any():  # split smooth glossy hits: plastics' diffuse layers, the lobes' light-sample points
+        rp = sp.kind == ROUGHPLASTIC
+        sp = sp.replaced(kind=np.where(rp & (code == ek.LAYER), ROUGHPLASTIC_DIFFUSE,
+                                       np.where(rp & (code == ek.LOBE_LIGHTS), ROUGHPLASTIC_LOBE, sp.kind)
+                                       ).astype(sp.kind.dtype))
+        lobe_lights = code == ek.LOBE_LIGHTS
+        direct_only = lobe_lights if lobe_lights.any() else None
+    end = EndPoints(pix, pos, ns, ng, wi, sp, thr, seg, main, dist, direct_only)
     return EyeResult(end, unf, depth, normal)
 
 

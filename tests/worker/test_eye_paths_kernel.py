@@ -10,7 +10,8 @@ from igi.bench.stress_scenes import load_shared
 from igi.common.geometry import Geometry
 
 
-def _eye(monkeypatch, compiled: bool, max_depth: int, sky: bool, name: str = "cornell-box-sphere"):
+def _eye(monkeypatch, compiled: bool, max_depth: int, sky: bool, name: str = "cornell-box-sphere",
+         light_mis=None):
     """worker.shading.trace_eye through ``name`` (96×72; cornell-box-sphere: the light seen in
     the glass ball): its result and the next draw of its generator, traced by
     kernels.eye_paths.trace_eye — first hits, then the chains by specular_chain.eye_chains —
@@ -30,7 +31,7 @@ def _eye(monkeypatch, compiled: bool, max_depth: int, sky: bool, name: str = "co
     ys, xs = np.divmod(np.arange(w * h), w)
     o, d = camera_rays(cam, fov, w, h, xs, ys)
     g = np.random.default_rng(4)
-    eye = trace_eye(scene, geom, lights, o, d, max_depth, 8, g, 0.3)
+    eye = trace_eye(scene, geom, lights, o, d, max_depth, 8, g, 0.3, light_mis)
     return eye, g.random(), geom.counters["intersect_rays"]
 
 
@@ -74,3 +75,50 @@ def test_the_luminance_weights_of_the_main_branch_are_the_lights_module_s():
     from igi.worker.kernels import eye_paths
 
     assert (eye_paths._WR, eye_paths._WG, eye_paths._WB) == LUMINANCE_WEIGHTS
+
+
+def _same_eye(got, want) -> None:
+    assert got[1:] == want[1:]
+    for name in ("unfiltered", "depth", "normal"):
+        np.testing.assert_array_equal(getattr(got[0], name), getattr(want[0], name), err_msg=name)
+    for name in ("pixel", "position", "ns", "ng", "wi", "throughput", "segments", "main", "distance", "direct_only"):
+        np.testing.assert_array_equal(getattr(got[0].end, name), getattr(want[0].end, name), err_msg=name)
+    for name in ("kind", "diffuse", "specular", "alpha"):
+        np.testing.assert_array_equal(getattr(got[0].end.sp, name), getattr(want[0].end.sp, name), err_msg=name)
+
+
+@pytest.mark.parametrize("name", ["cornell-box-glossy", "veach-bidir"])
+@pytest.mark.parametrize("light_samples", [0, 4])
+def test_split_smooth_glossy_hits_equal_the_numpy_eye_paths(monkeypatch, name, light_samples):
+    """Smooth glossy hits split into the diffuse layer (an end point) and one sampled lobe ray,
+    the lobes' light-sample points (direct-only, with ``light_samples`` emitter samples) and the
+    MIS weight of the emission a lobe ray meets: the compiled eye paths equal the numpy form."""
+    from igi.worker.shading import LightMIS
+
+    mis = LightMIS(light_samples) if light_samples else None
+    got = _eye(monkeypatch, True, -1, False, name, mis)
+    monkeypatch.undo()
+    want = _eye(monkeypatch, False, -1, False, name, mis)
+    _same_eye(got, want)
+    end = got[0].end
+    assert (end.direct_only is not None) == (light_samples > 0)
+    if light_samples:
+        assert end.direct_only.sum() > 100  # the glossy surfaces' lobes took light samples
+
+
+def test_a_kernel_out_of_room_hands_the_tile_to_the_numpy_form_with_its_draws_untouched(monkeypatch):
+    """Where the kernel's end-point arrays run out (-1), trace_eye runs its numpy form from the
+    generator's state before the kernel drew: the same result as the numpy form alone."""
+    from igi.worker.kernels import eye_paths
+
+    real = eye_paths.trace_eye
+
+    def out_of_room(*args):
+        real(*args)  # draws from the generator, writes the buffers
+        return -1, 0
+
+    monkeypatch.setattr(eye_paths, "trace_eye", out_of_room)
+    got = _eye(monkeypatch, True, -1, False)
+    monkeypatch.undo()
+    want = _eye(monkeypatch, False, -1, False)
+    _same_eye(got, want)

@@ -1,10 +1,12 @@
 """Eye paths (Wald et al. 2002 §4: one per pixel, split at the first hit, mirror and glass
 chains followed), fused: the first hits from Embree's packets, what they see directly, their end
-points, the split of mirror/glass hits into their delta components and the chains behind them
-(:func:`_chains`), in one call per tile instead of ~40 numpy passes.
+points, the split of mirror/glass hits into their delta components and of smooth glossy hits into
+their diffuse layer and one sampled lobe ray, and the chains behind them (:func:`_chains`), in one
+call per tile instead of ~40 numpy passes and a dozen more per bounce.
 
-The math is the kernels' own (common.kernels.bsdf.specular, shading_frame, hit_surface), in the
-order worker.shading.trace_eye's numpy form applies it, so the end points are bit-identical.
+The math is the kernels' own (common.kernels.bsdf, shading_frame, hit_surface), in the order
+worker.shading.trace_eye's numpy form applies it, drawing from its generator in the same order,
+so the end points are bit-identical to it.
 """
 from __future__ import annotations
 
@@ -15,37 +17,77 @@ from igi.common.kernels import bsdf as kb
 from igi.common.kernels import shading_frame
 from igi.common.kernels.hit_surface import offset_point
 from igi.common.kernels.ray_packets import closest_surfaces, hit_buffers
+from igi.common.scene import ROUGHCONDUCTOR
 
 from .specular_chain import delta_bounce
 
 _WR, _WG, _WB = 0.212671, 0.715160, 0.072169  # common.lights.LUMINANCE_WEIGHTS (tested equal)
+# An end point's relabelling (ends' last array): a smooth plastic's diffuse layer
+# (ROUGHPLASTIC_DIFFUSE), or a split lobe's direct-only light-sample point (ROUGHPLASTIC_LOBE).
+LAYER, LOBE_LIGHTS = 1, 2
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _put_end(ends, k, pix, i, pos, ns, ng, wx, wy, wz, mat, uv, t0, t1, t2, seg, main, dist, code) -> bool:
+    """End point k from row i of the hit arrays; False (nothing written) where ends is full."""
+    e_pix, e_pos, e_ns, e_ng, e_wi, e_mat, e_uv, e_thr, e_seg, e_main, e_dist, e_code = ends
+    if k >= e_pix.shape[0]:
+        return False
+    e_pix[k] = pix
+    e_mat[k] = mat[i]
+    e_seg[k] = seg
+    e_main[k] = main
+    e_dist[k] = dist
+    e_code[k] = code
+    for a in range(3):
+        e_pos[k, a] = pos[i, a]
+        e_ns[k, a] = ns[i, a]
+        e_ng[k, a] = ng[i, a]
+    e_wi[k, 0], e_wi[k, 1], e_wi[k, 2] = wx, wy, wz
+    e_thr[k, 0], e_thr[k, 1], e_thr[k, 2] = t0, t1, t2
+    e_uv[k, 0] = uv[i, 0]
+    e_uv[k, 1] = uv[i, 1]
+    return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _carries_any(w0, w1, w2) -> bool:
+    """np.any(weight > 0)."""
+    return w0 > 0.0 or w1 > 0.0 or w2 > 0.0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, max_depth, eps, ulps, env,
-              radiance, unf, depth, normal, ends):
-    """The eye rays ``o``, ``d`` (one per pixel) through worker.shading.trace_eye where no smooth
-    glossy lobe is split off: ``depth``, ``normal`` and ``unf`` (emission and, along misses,
-    ``env`` seen directly) per pixel; the non-specular, non-NULL first hits (material-row tables
-    ``kind``, ``specular``) as end points — pixel, position, ns, ng, wi, material, uv,
-    throughput 1, segments 1, main, distance — in pixel order; then, where a chain may start,
-    each mirror/glass hit's reflected and transmitted rays (all reflections first, then all
-    transmissions; the brighter one the pixel's main) followed by :func:`_chains`, their end points
-    after the first hits'. The main chain ends' distance and ns replace their pixels' depth and
-    normal. Returns (end points written, rays traced)."""
+              radiance, lobes, unf, depth, normal, ends):
+    """The eye rays ``o``, ``d`` (one per pixel) through worker.shading.trace_eye: ``depth``,
+    ``normal`` and ``unf`` (emission and, along misses, ``env`` seen directly) per pixel; the
+    non-specular, non-NULL first hits (material-row tables ``kind``, ``specular``) as end points
+    — pixel, position, ns, ng, wi, material, uv, throughput, segments, main, distance, code —
+    in pixel order (a smooth glossy one, where a chain may start: a plastic's diffuse layer
+    only, code LAYER; a conductor none); then the split lobes' light-sample points (code
+    LOBE_LIGHTS); then, where a chain may start, the lobes' sampled rays and each mirror/glass
+    hit's reflected and transmitted rays (all reflections first, then all transmissions; the
+    brighter one the pixel's main) followed by :func:`_chains`, their end points after.
+    ``lobes``: (split smooth glossy hits?, smooth per material row, P with the plastics' kind
+    their lobe's, light samples per set (0: the lobes take none, no MIS), area pdf per emitter
+    (a last row of 0), the environment's pdf). The main chain ends' distance and ns replace their
+    pixels' depth and normal. Returns (end points written, rays traced); (-1, rays) where
+    ``ends`` was too small."""
     center = closest[1]
+    split, smooth, P_lobe, direct_count = lobes[0], lobes[1], lobes[2], lobes[3]
     p = o.shape[0]
     hits = hit_buffers(p)
     closest_surfaces(closest, o, d, p, hits)
     valid, hpos, hng, hns, huv, htt, hmat, hem = (hits[4], hits[5], hits[6], hits[7], hits[8], hits[9], hits[10],
                                                   hits[11])
-    e_pix, e_pos, e_ns, e_ng, e_wi, e_mat, e_uv, e_thr, e_seg, e_main, e_dist = ends
+    e_pix, e_main, e_dist, e_ns = ends[0], ends[9], ends[10], ends[2]
     null_row = specular.shape[0] - 1
     no_emitter = radiance.shape[0] - 1
+    chains = specular_depth > 0 and (max_depth < 0 or 2 <= max_depth)
+    split_here = split and chains
     wi = np.empty((p, 3))
-    delta = np.empty(p, np.int64)
-    n_delta = 0
-    done = 0
+    delta, lobe = np.empty(p, np.int64), np.empty(p, np.int64)
+    n_delta, n_lobe, done = 0, 0, 0
     for i in range(p):
         depth[i] = htt[i]
         for a in range(3):
@@ -67,23 +109,43 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
         if specular[r]:
             delta[n_delta] = i
             n_delta += 1
-        elif kind[r] != null_kind:
-            e_pix[done] = i
-            e_mat[done] = m
-            e_seg[done] = 1
-            e_main[done] = True
-            e_dist[done] = htt[i]
+            continue
+        if kind[r] == null_kind:
+            continue
+        code = 0
+        if split_here and smooth[r]:
+            lobe[n_lobe] = i
+            n_lobe += 1
+            if kind[r] == ROUGHCONDUCTOR:  # all lobe: its sampled ray alone
+                continue
+            code = LAYER
+        if not _put_end(ends, done, i, i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv, 1.0, 1.0, 1.0, 1,
+                        True, htt[i], code):
+            return -1, p
+        done += 1
+    # the split lobes: one sampled ray each (u2 drawn for all of them), their light-sample points
+    lobe_wo, lobe_w, lobe_pdf = np.empty((n_lobe, 3)), np.empty((n_lobe, 3)), np.zeros(n_lobe)
+    if n_lobe > 0:
+        u = rng.random((n_lobe, 2))
+        for q in range(n_lobe):
+            i = lobe[q]
+            m = hmat[i]
+            r = m if 0 <= m < null_row else null_row
+            res = kb.sample_lobe(P, r, wi[i, 0], wi[i, 1], wi[i, 2], u[q, 0], u[q, 1])
             for a in range(3):
-                e_pos[done, a] = hpos[i, a]
-                e_ns[done, a] = hns[i, a]
-                e_ng[done, a] = hng[i, a]
-                e_wi[done, a] = wi[i, a]
-                e_thr[done, a] = 1.0
-            e_uv[done, 0] = huv[i, 0]
-            e_uv[done, 1] = huv[i, 1]
-            done += 1
+                lobe_wo[q, a] = res[a]
+                lobe_w[q, a] = res[3 + a]
+            if direct_count > 0:
+                lobe_pdf[q] = kb.eval_pdf(P_lobe, r, wi[i, 0], wi[i, 1], wi[i, 2], res[0], res[1], res[2])[3]
+        if direct_count > 0:
+            for q in range(n_lobe):
+                i = lobe[q]
+                if not _put_end(ends, done, i, i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv, 1.0, 1.0,
+                                1.0, 1, False, htt[i], LOBE_LIGHTS):
+                    return -1, p
+                done += 1
     first = done
-    if n_delta == 0 or specular_depth <= 0 or not (max_depth < 0 or 2 <= max_depth):
+    if not chains or (n_delta == 0 and n_lobe == 0):
         return done, p
     # the delta components of each mirror/glass hit, both traced: reflections, then transmissions
     comp = np.empty((n_delta, 12))
@@ -95,43 +157,52 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
         for c in range(12):
             comp[q, c] = res[c]
         # np.argmax of (luminance where the component carries light, else -1): NaN wins, ties go first
-        lum0 = comp[q, 3] * _WR + comp[q, 4] * _WG + comp[q, 5] * _WB if _carries(comp, q, 3) else -1.0
-        lum1 = comp[q, 9] * _WR + comp[q, 10] * _WG + comp[q, 11] * _WB if _carries(comp, q, 9) else -1.0
+        lum0 = comp[q, 3] * _WR + comp[q, 4] * _WG + comp[q, 5] * _WB if _carries_any(
+            comp[q, 3], comp[q, 4], comp[q, 5]) else -1.0
+        lum1 = comp[q, 9] * _WR + comp[q, 10] * _WG + comp[q, 11] * _WB if _carries_any(
+            comp[q, 9], comp[q, 10], comp[q, 11]) else -1.0
         if lum0 != lum0:
             best[q] = 0
         elif lum1 != lum1 or lum1 > lum0:
             best[q] = 1
         else:
             best[q] = 0
-    n = 2 * n_delta
+    n = n_lobe + 2 * n_delta
     pix, bo, bd, thr = np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
-    main, dist = np.empty(n, np.bool_), np.empty(n)
+    main, dist, mis = np.empty(n, np.bool_), np.empty(n), np.empty(n)
     b = 0
-    for ci in range(2):
-        at = 6 * ci
-        for q in range(n_delta):
-            if not _carries(comp, q, at + 3):
+    for c in range(-1, 2):  # the lobes' rays (their radiance unfiltered: never main), then both components
+        for q in range(n_lobe if c < 0 else n_delta):
+            if c < 0:
+                i = lobe[q]
+                lx, ly, lz, w0, w1, w2 = lobe_wo[q, 0], lobe_wo[q, 1], lobe_wo[q, 2], lobe_w[q, 0], lobe_w[q, 1], lobe_w[
+                    q, 2]
+                is_main, pdf = False, lobe_pdf[q]
+            else:
+                i = delta[q]
+                at = 6 * c
+                lx, ly, lz = comp[q, at], comp[q, at + 1], comp[q, at + 2]
+                w0, w1, w2 = comp[q, at + 3], comp[q, at + 4], comp[q, at + 5]
+                is_main, pdf = best[q] == c, 0.0
+            if not _carries_any(w0, w1, w2):
                 continue
-            i = delta[q]
-            dx, dy, dz = shading_frame.to_world(comp[q, at], comp[q, at + 1], comp[q, at + 2], hns[i, 0], hns[i, 1],
-                                                hns[i, 2])
+            dx, dy, dz = shading_frame.to_world(lx, ly, lz, hns[i, 0], hns[i, 1], hns[i, 2])
             pix[b] = i
             bd[b, 0], bd[b, 1], bd[b, 2] = dx, dy, dz
             bo[b, 0], bo[b, 1], bo[b, 2] = offset_point(hpos[i, 0], hpos[i, 1], hpos[i, 2], hng[i, 0], hng[i, 1],
                                                         hng[i, 2], dx, dy, dz, center, eps, ulps)
-            for a in range(3):
-                thr[b, a] = comp[q, at + 3 + a]
-            main[b] = best[q] == ci
+            thr[b, 0], thr[b, 1], thr[b, 2] = w0, w1, w2
+            main[b] = is_main
             dist[b] = htt[i]
+            mis[b] = pdf
             b += 1
     if b == 0:
         return done, p
-    chained, traced = _chains(P, kind, specular, null_kind, rng, closest, pix[:b], bo[:b], bd[:b], thr[:b],
-                                 main[:b], dist[:b], specular_depth, max_depth, eps, ulps, env, radiance, unf,
-                                 (e_pix[first:], e_pos[first:], e_ns[first:], e_ng[first:], e_wi[first:],
-                                  e_mat[first:], e_uv[first:], e_thr[first:], e_seg[first:], e_main[first:],
-                                  e_dist[first:]))
-    done = first + chained
+    chained, traced = _chains(P, kind, specular, null_kind, rng, closest, (pix, bo, bd, thr, main, dist, mis), b,
+                              specular_depth, max_depth, eps, ulps, env, radiance, lobes, unf, ends, first)
+    if chained < 0:
+        return -1, p + traced
+    done = chained
     for k in range(first, done):  # the chains' main end points replace their pixels' first hits
         if e_main[k]:
             depth[e_pix[k]] = e_dist[k]
@@ -141,41 +212,58 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _carries(comp, q, at):
-    """np.any(weight > 0) of the component weight comp[q, at:at + 3]."""
-    return comp[q, at] > 0.0 or comp[q, at + 1] > 0.0 or comp[q, at + 2] > 0.0
+def _emission_mis(lobes, mis_pdf, valid, emitter, t, cos_front) -> float:
+    """worker.shading._mis_emission's weight of emission met by a ray of sampling pdf
+    ``mis_pdf`` (1 where 0) against the set's light samples: an area emitter's area pdf over
+    t²/|cos| (a valid hit), the environment's pdf (a miss), × the light samples per set."""
+    direct_count, area_pdf, env_pdf = lobes[3], lobes[4], lobes[5]
+    if not mis_pdf > 0.0:
+        return 1.0
+    if valid:
+        pl = area_pdf[emitter] * t ** 2 / max(abs(cos_front), 1e-7) if emitter >= 0 else 0.0
+    else:
+        pl = env_pdf
+    pl = pl * direct_count
+    return mis_pdf ** 2 / max(mis_pdf ** 2 + pl ** 2, 1e-300)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _chains(P, kind, specular, null_kind, rng, closest, pix, o, d, thr, main, dist, specular_depth, max_depth,
-               eps, ulps, env, radiance, unf, ends):
-    """The eye paths' mirror/glass chains past their first hit (worker.shading._follow_chains
-    where no smooth glossy lobe is split off along them). Rays (pixel ``pix``,
-    offset origin ``o``, direction ``d``, throughput, main flag, distance so far) reach their
-    closest hits; emission on area emitters (``radiance`` per emitter, a last row of 0, front
-    side only) and, under a sky, ``env`` along misses are added to their pixel's ``unf`` (misses
-    first, then hits, as the numpy loop adds them); a non-specular, non-NULL hit (material row
-    ``kind``/``specular`` tables) is an end point, written to ``ends`` (pixel, position, ns, ng,
-    wi, material, uv, throughput, segments, main, distance: per bounce, in ray order); a
-    specular one samples its BSDF (specular_chain.delta_bounce, any sample that carries light, u1 then
-    u2 drawn from ``rng``) and goes on. The ray arrays are overwritten. Returns (end points
-    written, rays traced)."""
+def _chains(P, kind, specular, null_kind, rng, closest, rays, live, specular_depth, max_depth, eps, ulps, env,
+            radiance, lobes, unf, ends, done):
+    """The eye paths' mirror/glass chains past their first hit (worker.shading._follow_chains).
+    ``rays`` (pixel, offset origin, direction, throughput, main flag, distance so far, lobe pdf
+    for MIS or 0), the first ``live`` of them, reach their closest hits; emission on area
+    emitters (``radiance`` per emitter, a last row of 0, front side only) and, under a sky,
+    ``env`` along misses are added to their pixel's ``unf`` (misses first, then hits, as the
+    numpy loop adds them; a lobe ray's MIS-weighted); a non-specular, non-NULL hit is an end
+    point, written to ``ends`` from ``done`` on (per bounce, in ray order; a smooth glossy one as
+    trace_eye's first hits, its lobe's light-sample points after the bounce's end points); a
+    specular one samples its BSDF (specular_chain.delta_bounce, any sample that carries light,
+    u1 then u2 drawn from ``rng``), then the smooth glossy ones their lobe (u2), and the rays go
+    on: the delta samples', then the lobes'. Returns (ends written in all, rays traced); -1 for
+    the first where ``ends`` was too small."""
     center = closest[1]
-    n = pix.shape[0]
+    split, smooth, P_lobe, direct_count = lobes[0], lobes[1], lobes[2], lobes[3]
+    cur = rays
+    n = cur[0].shape[0]
+    nxt = (np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_),
+           np.empty(n), np.empty(n))
     src, bthr, bseg = np.empty(n, np.int64), np.empty((n, 3)), np.empty(n, np.int64)
     bd, bo = np.empty((n, 3)), np.empty((n, 3))
     hits = hit_buffers(n)
     valid, hpos, hng, hns, huv, htt, hmat, hem = (hits[4], hits[5], hits[6], hits[7], hits[8], hits[9], hits[10],
                                                   hits[11])
-    no_seg, prow, di = np.zeros(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
-    e_pix, e_pos, e_ns, e_ng, e_wi, e_mat, e_uv, e_thr, e_seg, e_main, e_dist = ends
+    no_seg, prow, di, lobe = np.zeros(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
+    lobe_main = np.empty(n, np.bool_)
+    wi = np.empty((n, 3))
     sky = env[0] != 0.0 or env[1] != 0.0 or env[2] != 0.0
     null_row = specular.shape[0] - 1
     no_emitter = radiance.shape[0] - 1
-    live, done, traced = n, 0, 0
+    traced = 0
     for bounce in range(1, specular_depth + 1):
         if live == 0:
             break
+        pix, o, d, thr, main, dist, mis = cur
         seg = bounce + 1  # segments of the path once this ray hits
         closest_surfaces(closest, o, d, live, hits)
         traced += live
@@ -183,55 +271,86 @@ def _chains(P, kind, specular, null_kind, rng, closest, pix, o, d, thr, main, di
             if sky:
                 for i in range(live):
                     if not valid[i]:
+                        w = _emission_mis(lobes, mis[i], False, -1, htt[i], 0.0)
                         for a in range(3):
-                            unf[pix[i], a] += thr[i, a] * env[a]
+                            unf[pix[i], a] += thr[i, a] * env[a] * w
             for i in range(live):
                 e = hem[i]
                 if valid[i] and e >= 0:
                     cos_front = -(d[i, 0] * hns[i, 0] + d[i, 1] * hns[i, 1] + d[i, 2] * hns[i, 2])
+                    w = _emission_mis(lobes, mis[i], True, e, htt[i], cos_front)
                     row = e if e < no_emitter else no_emitter
                     for a in range(3):
                         le = 0.0 if cos_front <= 0 else radiance[row, a]
-                        unf[pix[i], a] += thr[i, a] * le
-        cnt = 0
+                        unf[pix[i], a] += thr[i, a] * le * w
+        n_di, n_lobe = 0, 0
         for i in range(live):
             dist[i] = dist[i] + htt[i]
+            wi[i, 0], wi[i, 1], wi[i, 2] = shading_frame.to_local(-d[i, 0], -d[i, 1], -d[i, 2], hns[i, 0], hns[i, 1],
+                                                                  hns[i, 2])
             m = hmat[i]
             r = m if 0 <= m < null_row else null_row
             if specular[r]:
-                di[cnt] = i
+                di[n_di] = i
                 prow[i] = r
-                cnt += 1
-            elif kind[r] != null_kind:
-                e_pix[done] = pix[i]
-                e_mat[done] = m
-                e_seg[done] = seg
-                e_main[done] = main[i]
-                e_dist[done] = dist[i]
-                e_wi[done, 0], e_wi[done, 1], e_wi[done, 2] = shading_frame.to_local(
-                    -d[i, 0], -d[i, 1], -d[i, 2], hns[i, 0], hns[i, 1], hns[i, 2])
-                for a in range(3):
-                    e_pos[done, a] = hpos[i, a]
-                    e_ns[done, a] = hns[i, a]
-                    e_ng[done, a] = hng[i, a]
-                    e_thr[done, a] = thr[i, a]
-                e_uv[done, 0] = huv[i, 0]
-                e_uv[done, 1] = huv[i, 1]
-                done += 1
-        if cnt == 0 or not (max_depth < 0 or seg + 1 <= max_depth):
+                n_di += 1
+                continue
+            if kind[r] == null_kind:
+                continue
+            code = 0
+            if split and smooth[r]:
+                lobe[n_lobe] = i
+                prow[i] = r
+                lobe_main[n_lobe] = main[i] and kind[r] == ROUGHCONDUCTOR  # a plastic's layer keeps the main end
+                n_lobe += 1
+                if kind[r] == ROUGHCONDUCTOR:
+                    continue
+                code = LAYER
+            if not _put_end(ends, done, pix[i], i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv, thr[i, 0],
+                            thr[i, 1], thr[i, 2], seg, main[i], dist[i], code):
+                return -1, traced
+            done += 1
+        if (n_di == 0 and n_lobe == 0) or not (max_depth < 0 or seg + 1 <= max_depth):
             break
-        u1 = rng.random(cnt)
-        u2 = rng.random((cnt, 2))
-        c = delta_bounce(P, prow, di[:cnt], hpos, hns, hng, d, thr, no_seg, u1, u2, -1, False, center, eps, ulps,
+        u1 = rng.random(n_di)
+        u2 = rng.random((n_di, 2))
+        c = delta_bounce(P, prow, di[:n_di], hpos, hns, hng, d, thr, no_seg, u1, u2, -1, False, center, eps, ulps,
                          src, bthr, bseg, bd, bo)
-        for j in range(c):  # (src[j] >= j: each ray read before its row is written)
+        npix, no, nd, nthr, nmain, ndist, nmis = nxt
+        for j in range(c):
             i = src[j]
-            pix[j] = pix[i]
-            main[j] = main[i]
-            dist[j] = dist[i]
+            npix[j] = pix[i]
+            nmain[j] = main[i]
+            ndist[j] = dist[i]
+            nmis[j] = 0.0
             for a in range(3):
-                thr[j, a] = bthr[j, a]
-                d[j, a] = bd[j, a]
-                o[j, a] = bo[j, a]
+                nthr[j, a] = bthr[j, a]
+                nd[j, a] = bd[j, a]
+                no[j, a] = bo[j, a]
+        if n_lobe > 0:
+            u = rng.random((n_lobe, 2))
+            for q in range(n_lobe):
+                i = lobe[q]
+                res = kb.sample_lobe(P, prow[i], wi[i, 0], wi[i, 1], wi[i, 2], u[q, 0], u[q, 1])
+                pdf = 0.0
+                if direct_count > 0:
+                    pdf = kb.eval_pdf(P_lobe, prow[i], wi[i, 0], wi[i, 1], wi[i, 2], res[0], res[1], res[2])[3]
+                    if not _put_end(ends, done, pix[i], i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv,
+                                    thr[i, 0], thr[i, 1], thr[i, 2], seg, False, dist[i], LOBE_LIGHTS):
+                        return -1, traced
+                    done += 1
+                if not kb.carries(res[3], res[4], res[5]):
+                    continue
+                dx, dy, dz = shading_frame.to_world(res[0], res[1], res[2], hns[i, 0], hns[i, 1], hns[i, 2])
+                npix[c] = pix[i]
+                nmain[c] = lobe_main[q]
+                ndist[c] = dist[i]
+                nmis[c] = pdf
+                nthr[c, 0], nthr[c, 1], nthr[c, 2] = thr[i, 0] * res[3], thr[i, 1] * res[4], thr[i, 2] * res[5]
+                nd[c, 0], nd[c, 1], nd[c, 2] = dx, dy, dz
+                no[c, 0], no[c, 1], no[c, 2] = offset_point(hpos[i, 0], hpos[i, 1], hpos[i, 2], hng[i, 0], hng[i, 1],
+                                                            hng[i, 2], dx, dy, dz, center, eps, ulps)
+                c += 1
+        cur, nxt = nxt, cur
         live = c
     return done, traced
