@@ -175,8 +175,8 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
         for q in range(n_lobe if c < 0 else n_delta):
             if c < 0:
                 i = lobe[q]
-                lx, ly, lz, w0, w1, w2 = lobe_wo[q, 0], lobe_wo[q, 1], lobe_wo[q, 2], lobe_w[q, 0], lobe_w[q, 1], lobe_w[
-                    q, 2]
+                lx, ly, lz = lobe_wo[q, 0], lobe_wo[q, 1], lobe_wo[q, 2]
+                w0, w1, w2 = lobe_w[q, 0], lobe_w[q, 1], lobe_w[q, 2]
                 is_main, pdf = False, lobe_pdf[q]
             else:
                 i = delta[q]
