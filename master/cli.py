@@ -236,12 +236,12 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 
 def _say_if_compiling() -> None:
-    """A first run on a machine compiles the kernels before the first frame (~20-40 s): say so
-    instead of looking stuck."""
+    """A first run on a machine compiles the kernels before the first frame (1-2 minutes on 2
+    cores): say so instead of looking stuck."""
     from igi.worker.kernels.warm import compiled_before
 
     if compiled_before() is False:
-        print("first run on this machine: compiling igi's kernels (~20-40 s, cached for later runs)",
+        print("first run on this machine: compiling igi's kernels (1-2 minutes on 2 cores, cached for later runs)",
               file=sys.stderr)
 
 

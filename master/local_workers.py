@@ -70,7 +70,18 @@ class LocalWorkers:
                 p.wait()
 
 
-def wait_workers(broker, workers: LocalWorkers, count: int, timeout: float = 120.0) -> None:
+HELLO_TIMEOUT = 120.0  # s for local workers to join (scene, BVH, kernels from numba's cache)
+FIRST_RUN_HELLO_TIMEOUT = 900.0  # ... on a machine whose kernels are not compiled yet (~2 min on 2 cores)
+
+
+def wait_workers(broker, workers: LocalWorkers, count: int, timeout: float | None = None) -> None:
+    """Until ``count`` workers have joined; a worker that exits first, or ``timeout`` s (None:
+    HELLO_TIMEOUT, or FIRST_RUN_HELLO_TIMEOUT while the kernels have never been compiled here —
+    every worker compiles them before its HELLO), is a :class:`UsageError`."""
+    if timeout is None:
+        from igi.worker.kernels.warm import compiled_before
+
+        timeout = FIRST_RUN_HELLO_TIMEOUT if compiled_before() is False else HELLO_TIMEOUT
     deadline = time.monotonic() + timeout
     while not broker.wait_for_workers(count, 0.2):
         workers.check()

@@ -55,12 +55,12 @@ def draw_padded(sv, shift, dims, scale, start, count, perms, out):
     g (engine sv[g, :dims[g]], shift[g, :dims[g]]) draws points [start, start+count) as
     :func:`draw` does, and its rows are taken in the order perms[g] (group 0 in order, row r of
     group g > 0 is point perms[g, r]) into out's columns after the earlier groups'."""
-    groups, gd, bits = sv.shape
-    tmp = np.empty((count, gd))
+    groups = sv.shape[0]
     d0 = 0
     for g in range(groups):
         d = dims[g]
-        draw(sv[g, :d], shift[g, :d], start, count, scale, tmp[:, :d])
+        tmp = np.empty((count, d))  # (C order, as draw's Python callers pass it: one compiled draw)
+        draw(sv[g, :d], shift[g, :d], start, count, scale, tmp)
         for r in range(count):
             i = perms[g, r] if g > 0 else r
             for a in range(d):

@@ -314,8 +314,9 @@ def _chains(P, kind, specular, null_kind, rng, closest, rays, live, specular_dep
             break
         u1 = rng.random(n_di)
         u2 = rng.random((n_di, 2))
-        c = delta_bounce(P, prow, di[:n_di], hpos, hns, hng, d, thr, no_seg, u1, u2, -1, False, center, eps, ulps,
-                         src, bthr, bseg, bd, bo)
+        # (np.int64/np.bool_: a literal argument would compile delta_bounce once more, ~10 s cold)
+        c = delta_bounce(P, prow, di[:n_di], hpos, hns, hng, d, thr, no_seg, u1, u2, np.int64(-1), np.bool_(False),
+                         center, eps, ulps, src, bthr, bseg, bd, bo)
         npix, no, nd, nthr, nmain, ndist, nmis = nxt
         for j in range(c):
             i = src[j]

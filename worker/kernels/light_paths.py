@@ -61,9 +61,6 @@ def continue_paths(P, prow, sel, rows, pos, ns, ng, d, o, flux, u, col, roulette
     return c
 
 
-_NO_SURVIVAL = np.zeros((0, 0))
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
 def trace_photons(P, kind, specular, null_kind, closest, o, d, flux, u, max_bounces, emit_dims, bounce_dims, eps,
                   ulps, out) -> tuple:
@@ -91,6 +88,7 @@ def trace_photons(P, kind, specular, null_kind, closest, o, d, flux, u, max_boun
             alive[live] = r
             live += 1
     stored, traced = 0, 0
+    no_survival = np.zeros((0, 0))
     for b in range(max_bounces + 1):
         if live == 0:
             break
@@ -136,6 +134,7 @@ def trace_photons(P, kind, specular, null_kind, closest, o, d, flux, u, max_boun
             break
         for q in range(spec):
             bounced[rows[sel[q]]] = True
+        # (typed values, not literals or a global array: either would compile continue_paths once more)
         live = continue_paths(P, prow, sel[:spec], rows, hpos, hns, hng, d, o, flux, u, emit_dims + bounce_dims * b,
-                              False, _NO_SURVIVAL, 0, center, eps, ulps, alive)
+                              np.bool_(False), no_survival, np.int64(0), center, eps, ulps, alive)
     return stored, traced

@@ -95,8 +95,9 @@ def query(q, r, w, inv, origin, ext, keys, starts, counts, order, points, occupi
     ``occupied``: one bit per key of the key space (bit key & 7 of byte key >> 3), or empty:
     none kept."""
     empty = np.empty(0, np.int64)
-    n = _visit(q, r, w, inv, origin, ext, keys, starts, counts, order, points, occupied, empty, empty, False)
+    # (np.bool_, not literals: each literal would compile _visit once more)
+    n = _visit(q, r, w, inv, origin, ext, keys, starts, counts, order, points, occupied, empty, empty, np.bool_(False))
     out_p = np.empty(n, np.int64)
     out_q = np.empty(n, np.int64)
-    _visit(q, r, w, inv, origin, ext, keys, starts, counts, order, points, occupied, out_p, out_q, True)
+    _visit(q, r, w, inv, origin, ext, keys, starts, counts, order, points, occupied, out_p, out_q, np.bool_(True))
     return out_p, out_q

@@ -82,8 +82,9 @@ def follow_chains(P, specular, rng, closest, rows, pos, ns, ng, d, thr, seg, pro
     for _ in range(specular_depth):
         u1 = rng.random(live)
         u2 = rng.random((live, 2))
-        c = delta_bounce(P, prow, order[:live], pos, ns, ng, d, thr, seg, u1, u2, max_depth, True, center, eps,
-                         ulps, src, bthr, bseg, bd, bo)
+        # (np.bool_, not a literal: a literal argument would compile delta_bounce once more, ~10 s cold)
+        c = delta_bounce(P, prow, order[:live], pos, ns, ng, d, thr, seg, u1, u2, max_depth, np.bool_(True), center,
+                         eps, ulps, src, bthr, bseg, bd, bo)
         if c == 0:
             break
         closest_surfaces(closest, bo, bd, c, hits)

@@ -478,7 +478,7 @@ def _sum_held(count, held, row, factors, color, acc) -> None:
     to their rows of ``acc``, in the order held."""
     hi, hj, hw, hpl, hd, hb, hf = held
     P_end, end_row, wi, ns, albedo, glossy_col, P_vpl, vpl_row, vwi, vnormal = factors
-    pair_factors(hi[:count], hj[:count], hd[:count], hpl[:count], hb[:count], row, 0, P_end, end_row, wi, ns,
+    pair_factors(hi[:count], hj[:count], hd[:count], hpl[:count], hb[:count], row, np.int64(0), P_end, end_row, wi, ns,
                  albedo, glossy_col, P_vpl, vpl_row, vwi, vnormal, hf[:count])
     for q in range(count):
         if hb[q]:

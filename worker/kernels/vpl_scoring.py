@@ -92,7 +92,8 @@ def scored_draws(x, ns, ng, off, side, row, vmax,
     staging = (sw, spl, np.empty((rows, 3), np.float32), vx, vy, vz, wx, wy, wz)
     weighed = ((x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi),
                (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis,
-                light_pdf, area, direct_count), (lum, 0.0, 0, 0))
+                light_pdf, area, direct_count), (lum, 0.0, np.int64(0), np.int64(0)))  # (typed, not literal: see
+    # worker.kernels.eye_paths — a literal would compile _stage once more)
     cr = np.empty(m)
     cg = np.empty(m)
     cb = np.empty(m)
