@@ -183,7 +183,7 @@ def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: 
 
 def _trace_photons(scene, geom, o, d, flux, u, max_bounces):
     compiled = _compiled_photons(scene, geom, o, d, flux, u, max_bounces)
-    if compiled is not False:
+    if compiled is not None:
         return compiled
     alive = np.nonzero(np.any(flux > 0, axis=1))[0]
     bounced = np.zeros(len(o), bool)
@@ -257,13 +257,13 @@ def gather_photons(end, photons: PhotonSet, albedo: np.ndarray, max_depth: int) 
 
 def _compiled_photons(scene, geom, o, d, flux, u, max_bounces):
     """:func:`_trace_photons` in one compiled call (kernels.light_paths.trace_photons: the same
-    rays, bounces and stored photons as its loop), or False where the loop must run: rays that
-    must pass through Geometry.intersect (a benchmark timing or recording them), or a
-    mirror/glass material with a texture (common.bsdf.chain_materials)."""
+    rays, bounces and stored photons as its loop; none stored: empty arrays), or None where the
+    loop must run: rays that must pass through Geometry.intersect (a benchmark timing or
+    recording them), or a mirror/glass material with a texture (common.bsdf.chain_materials)."""
     terms = geom.closest_terms()
     tables = bsdf.chain_materials(scene.materials) if terms is not None else None
     if tables is None:
-        return False
+        return None
     P, kind, specular = tables[:3]
     n = len(o)
     out = (np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.int32),
@@ -276,6 +276,4 @@ def _compiled_photons(scene, geom, o, d, flux, u, max_bounces):
                                                np.ascontiguousarray(u, np.float64), int(max_bounces), EMIT_DIMS,
                                                BOUNCE_DIMS, eps, ulps, out)
     geom.counters["intersect_rays"] += traced
-    if stored == 0:
-        return None
     return tuple(a[:stored] for a in out)

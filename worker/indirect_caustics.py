@@ -55,10 +55,57 @@ def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: E
     mat_i, uv = hits.material[first], hits.uv[first]
     seg = end.segments[rows].astype(np.int64) + 1  # segments once the ray reached the surface
     env = lights.environment()
-    chain = _compiled_chains(scene, geom, rows, thr, d, pos, ns, ng, mat_i, seg, specular_depth, max_depth,
-                             rng, env, albedo, out)
-    ends: list[tuple] = [] if chain is None or len(chain[0]) == 0 else [chain]
-    for _ in range(specular_depth if chain is None else 0):
+    chain = (rows, thr, d, pos, ns, ng, mat_i, uv, seg)
+    ends = _compiled_chains(scene, geom, *chain, specular_depth, max_depth, rng, env, albedo, out)
+    if ends is None:
+        ends = _numpy_chains(scene, geom, kinds, *chain, specular_depth, max_depth, rng, env, albedo, out)
+    if ends:
+        rows, thr, seg, d, p, n_s, n_g, m, uv, t = (np.concatenate(c) for c in zip(*ends))
+        z = np.zeros(len(rows), np.int32)
+        y = Hits(np.ones(len(rows), bool), t, z.astype(np.int64), p, n_g, n_s, uv, m, z - 1, z)
+        k, l_y = reflected_radiance(scene, geom, lights, y, np.arange(len(rows)), d, seg, vpls, clamp_d2,
+                                    max_depth, rng, lobe_alpha, photons, shadow_roulette=shadow_roulette)
+        if len(k):
+            r = rows[k]
+            # each row's chain ends once (here or as a miss above): its rows are unique
+            out[r] += bsdf.finite_or_zero(thr[k] * l_y / np.maximum(albedo[r], 1e-6))
+    return out
+
+
+def _compiled_chains(scene, geom, rows, thr, d, pos, ns, ng, mat_i, _uv, seg, specular_depth, max_depth, rng,
+                     env, albedo, out) -> list[tuple] | None:
+    """The chains of :func:`lensed_reflection` followed in one compiled call
+    (kernels.specular_chain.follow_chains: the same draws, rays and ends as its numpy loop),
+    their ends as that loop lists them (one entry, or none); None where the loop must run instead: rays that must
+    pass through Geometry.intersect (a benchmark timing or recording them), or a mirror/glass
+    material with a texture (its points' parameters are looked up per point)."""
+    terms = geom.closest_terms()
+    tables = bsdf.chain_materials(scene.materials) if terms is not None else None
+    if tables is None:
+        return None
+    P, _kind, specular = tables[:3]
+    n = len(rows)
+    m = len(scene.materials)
+    prow = np.where((mat_i >= 0) & (mat_i < m), mat_i, m).astype(np.int64)
+    ends = (np.empty(n, np.int64), np.empty((n, 3)), np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)),
+            np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.int32), np.empty((n, 2)), np.empty(n))
+    c = np.ascontiguousarray
+    _center, eps, ulps = geom.offset_terms()
+    done, traced = sc.follow_chains(P, specular, rng, terms, c(rows, np.int64), c(pos, np.float64), c(ns, np.float64),
+                                    c(ng, np.float64), c(d, np.float64), c(thr, np.float64), c(seg, np.int64), prow,
+                                    int(specular_depth), int(max_depth), eps, ulps, c(env, np.float64),
+                                    c(albedo, np.float64), out, ends)
+    geom.counters["intersect_rays"] += traced
+    return [tuple(a[:done] for a in ends)] if done else []
+
+
+def _numpy_chains(scene, geom, kinds, rows, thr, d, pos, ns, ng, mat_i, uv, seg, specular_depth, max_depth, rng, env,
+                  albedo, out) -> list[tuple]:
+    """The chains of :func:`lensed_reflection` followed bounce by bounce in numpy (where
+    :func:`_compiled_chains` cannot): the sky along misses added to ``out``, the chain ends
+    listed per bounce (rows, throughput, segments, direction, position, ns, ng, material, uv, t)."""
+    ends: list[tuple] = []
+    for _ in range(specular_depth):
         src, thr, seg, d, origin = delta_bounce(scene.materials, geom, np.arange(len(rows)), pos, ns, ng, d, thr, seg,
                                                 mat_i, uv, max_depth, rng)
         rows = rows[src]
@@ -79,41 +126,4 @@ def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: E
         pos, ns, ng, mat_i, uv = h.position[c], h.ns[c], h.ng[c], h.material[c], h.uv[c]
         if len(rows) == 0:
             break
-    if ends:
-        rows, thr, seg, d, p, n_s, n_g, m, uv, t = (np.concatenate(c) for c in zip(*ends))
-        z = np.zeros(len(rows), np.int32)
-        y = Hits(np.ones(len(rows), bool), t, z.astype(np.int64), p, n_g, n_s, uv, m, z - 1, z)
-        k, l_y = reflected_radiance(scene, geom, lights, y, np.arange(len(rows)), d, seg, vpls, clamp_d2,
-                                    max_depth, rng, lobe_alpha, photons, shadow_roulette=shadow_roulette)
-        if len(k):
-            r = rows[k]
-            # each row's chain ends once (here or as a miss above): its rows are unique
-            out[r] += bsdf.finite_or_zero(thr[k] * l_y / np.maximum(albedo[r], 1e-6))
-    return out
-
-
-def _compiled_chains(scene, geom, rows, thr, d, pos, ns, ng, mat_i, seg, specular_depth, max_depth, rng,
-                     env, albedo, out) -> tuple | None:
-    """The chains of :func:`lensed_reflection` followed in one compiled call
-    (kernels.specular_chain.follow_chains: the same draws, rays and ends as its numpy loop),
-    their ends as that loop lists them; None where the loop must run instead: rays that must
-    pass through Geometry.intersect (a benchmark timing or recording them), or a mirror/glass
-    material with a texture (its points' parameters are looked up per point)."""
-    terms = geom.closest_terms()
-    tables = bsdf.chain_materials(scene.materials) if terms is not None else None
-    if tables is None:
-        return None
-    P, _kind, specular = tables[:3]
-    n = len(rows)
-    m = len(scene.materials)
-    prow = np.where((mat_i >= 0) & (mat_i < m), mat_i, m).astype(np.int64)
-    ends = (np.empty(n, np.int64), np.empty((n, 3)), np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)),
-            np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.int32), np.empty((n, 2)), np.empty(n))
-    c = np.ascontiguousarray
-    _center, eps, ulps = geom.offset_terms()
-    done, traced = sc.follow_chains(P, specular, rng, terms, c(rows, np.int64), c(pos, np.float64), c(ns, np.float64),
-                                    c(ng, np.float64), c(d, np.float64), c(thr, np.float64), c(seg, np.int64), prow,
-                                    int(specular_depth), int(max_depth), eps, ulps, c(env, np.float64),
-                                    c(albedo, np.float64), out, ends)
-    geom.counters["intersect_rays"] += traced
-    return tuple(a[:done] for a in ends)
+    return ends

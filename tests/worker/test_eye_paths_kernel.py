@@ -70,13 +70,6 @@ def test_compiled_eye_paths_of_a_room_without_glass_equal_the_numpy_eye_paths(mo
     assert len(got[0].end) > 0.9 * 96 * 72  # (the box is closed: nearly every pixel ends on a wall)
 
 
-def test_the_luminance_weights_of_the_main_branch_are_the_lights_module_s():
-    from igi.common.lights import LUMINANCE_WEIGHTS
-    from igi.worker.kernels import eye_paths
-
-    assert (eye_paths._WR, eye_paths._WG, eye_paths._WB) == LUMINANCE_WEIGHTS
-
-
 def _same_eye(got, want) -> None:
     assert got[1:] == want[1:]
     for name in ("unfiltered", "depth", "normal"):

@@ -17,11 +17,12 @@ from igi.common.kernels import bsdf as kb
 from igi.common.kernels import shading_frame
 from igi.common.kernels.hit_surface import offset_point
 from igi.common.kernels.ray_packets import closest_surfaces, hit_buffers
+from igi.common.lights import LUMINANCE_WEIGHTS
 from igi.common.scene import ROUGHCONDUCTOR
 
 from .specular_chain import delta_bounce
 
-_WR, _WG, _WB = 0.212671, 0.715160, 0.072169  # common.lights.LUMINANCE_WEIGHTS (tested equal)
+_WR, _WG, _WB = LUMINANCE_WEIGHTS  # (frozen into the kernels as constants)
 # An end point's relabelling (ends' last array): a smooth plastic's diffuse layer
 # (ROUGHPLASTIC_DIFFUSE), or a split lobe's direct-only light-sample point (ROUGHPLASTIC_LOBE).
 LAYER, LOBE_LIGHTS = 1, 2
