@@ -42,7 +42,7 @@ from igi.common.params import make_params
 
 from .report import git_commit, machine_info, md_table
 
-STAGES = ("eye paths", "VPL set", "VPL gather", "compensation", "BSDF direct", "indirect caustics",
+STAGES = ("eye paths", "VPL set", "BSDF rays", "lensed chains", "final gather points", "VPL gather", "BSDF direct",
           "photon set", "photon gather")
 
 

@@ -42,6 +42,11 @@ class Hits:
         """The hits of rays ``idx`` (an index array)."""
         return Hits(*(getattr(self, f).take(idx, axis=0) for f in _HIT_FIELDS))
 
+    @staticmethod
+    def concat(parts: "list[Hits]") -> "Hits":
+        """The hits of ``parts`` in order."""
+        return Hits(*(np.concatenate([getattr(h, f) for h in parts]) for f in _HIT_FIELDS))
+
 
 _HIT_FIELDS = ("valid", "t", "prim", "position", "ng", "ns", "uv", "material", "emitter", "mesh")
 

@@ -6,10 +6,11 @@ VPLs cannot carry it (a shadow ray through glass is blocked) and caustic photons
 emitters. The end point's continuation ray (worker.shading.trace_bsdf_rays, already traced for
 BSDF-direct lighting) that hits a mirror or glass surface is followed along its chain, one
 sampled delta component per bounce, to the first non-specular surface y; the light y reflects
-back (the VPL set and the emitter samples at y, with y's own BSDF ray: what the compensation
-gathers at its near points) is the sample. Emission at the chain's end is left to the caustic
-photons (L S+ D E); the environment seen through the chain is added here (no photons leave
-distant lights, and shadow rays of the environment samples are blocked by the glass).
+back (the VPL set and the emitter samples at y, with y's own BSDF ray: worker.final_gather,
+which shades them with the compensation's near points) is the sample. Emission at the chain's
+end is left to the caustic photons (L S+ D E); the environment seen through the chain is added
+here (no photons leave distant lights, and shadow rays of the environment samples are blocked
+by the glass).
 No other estimator covers these paths, so no MIS weight is needed.
 """
 from __future__ import annotations
@@ -17,37 +18,35 @@ from __future__ import annotations
 import numpy as np
 
 from igi.common import bsdf
-from igi.common.geometry import Geometry, Hits
+from igi.common.geometry import Geometry
 from igi.common.lights import LightSampler
 from igi.common.scene import SPECULAR_KINDS, Scene, kind_in
 
-from .caustics import PhotonSet
+from .final_gather import Arrivals
 from .kernels import specular_chain as sc
-from .shading import BSDFRays, EndPoints, delta_bounce, reflected_radiance
-from .vpl import VPLSet
+from .shading import BSDFRays, EndPoints, delta_bounce
 
 
-def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints,
-                      albedo: np.ndarray, vpls: VPLSet, rays: BSDFRays, clamp_d2: float, max_depth: int,
-                      specular_depth: int, rng: np.random.Generator, lobe_alpha: float = 0.0,
-                      photons: PhotonSet | None = None, shadow_roulette: float = 0.0) -> np.ndarray:
-    """(E, 3) light reaching the end points through mirror/glass chains, per unit albedo (it
-    joins the filtered irradiance like BSDF-direct lighting). ``photons``: the caustic photons,
-    so a caustic seen through the chain is included (L S+ D S+ D E: the bright focus under a
-    glass ball imaged by the ball onto the ceiling). ``shadow_roulette``: the gathers at the
-    chains' ends take the eye path's shadow-ray roulette (unbiased; as the compensation's)."""
+def lensed_arrivals(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints, rays: BSDFRays,
+                    max_depth: int, specular_depth: int,
+                    rng: np.random.Generator) -> tuple[np.ndarray, Arrivals | None]:
+    """The end points' mirror/glass chains followed: ((E, 3) the radiance of the environment
+    seen through them, toward the end points; the chains' ends y, each to be gathered for its end point with the chain's
+    throughput: worker.final_gather, with the caustic photons there, so a caustic seen through
+    the chain is included — L S+ D S+ D E: the bright focus under a glass ball imaged by the
+    ball onto the ceiling). None: no chain ends on a surface."""
     e = len(end)
     out = np.zeros((e, 3))
     hits = rays.hits
     if e == 0 or len(rays.rows) == 0 or specular_depth <= 0:
-        return out
+        return out, None
     kinds = np.array([m.kind for m in scene.materials] + [-1], np.int8)
     mat = np.where(hits.material >= 0, hits.material, len(scene.materials))
     first = np.nonzero(hits.valid & ~rays.delta & kind_in(kinds[mat], SPECULAR_KINDS))[0]
     if max_depth >= 0:  # x -> mirror/glass -> something: at least the environment at segment + 2
         first = first[end.segments[rays.rows[first]] + 2 <= max_depth]
     if len(first) == 0:
-        return out
+        return out, None
     rows = rays.rows[first]
     thr = rays.weight[first]
     d = rays.direction[first]
@@ -56,20 +55,15 @@ def lensed_reflection(scene: Scene, geom: Geometry, lights: LightSampler, end: E
     seg = end.segments[rows].astype(np.int64) + 1  # segments once the ray reached the surface
     env = lights.environment()
     chain = (rows, thr, d, pos, ns, ng, mat_i, uv, seg)
+    albedo = np.ones((e, 3))  # the chain code reads light per unit albedo: the caller divides
     ends = _compiled_chains(scene, geom, *chain, specular_depth, max_depth, rng, env, albedo, out)
     if ends is None:
         ends = _numpy_chains(scene, geom, kinds, *chain, specular_depth, max_depth, rng, env, albedo, out)
-    if ends:
-        rows, thr, seg, d, p, n_s, n_g, m, uv, t = (np.concatenate(c) for c in zip(*ends))
-        z = np.zeros(len(rows), np.int32)
-        y = Hits(np.ones(len(rows), bool), t, z.astype(np.int64), p, n_g, n_s, uv, m, z - 1, z)
-        k, l_y = reflected_radiance(scene, geom, lights, y, np.arange(len(rows)), d, seg, vpls, clamp_d2,
-                                    max_depth, rng, lobe_alpha, photons, shadow_roulette=shadow_roulette)
-        if len(k):
-            r = rows[k]
-            # each row's chain ends once (here or as a miss above): its rows are unique
-            out[r] += bsdf.finite_or_zero(thr[k] * l_y / np.maximum(albedo[r], 1e-6))
-    return out
+    if not ends:
+        return out, None
+    # each row's chain ends once (here or as a miss above): its rows are unique
+    rows, thr, seg, d, p, n_s, n_g, m, uv, t = (np.concatenate(c) for c in zip(*ends))
+    return out, Arrivals(p, n_s, n_g, m, uv, t, d, seg, rows, thr, np.zeros(len(rows), np.int64))
 
 
 def _compiled_chains(scene, geom, rows, thr, d, pos, ns, ng, mat_i, _uv, seg, specular_depth, max_depth, rng,

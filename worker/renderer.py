@@ -14,6 +14,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.special import gammaln
 
+from igi.common import bsdf
 from igi.common.camera import camera_rays, pixel_jitter
 from igi.common.frame import FrameSpec, Tile, TileBuffers, accumulation_index, frame_seed
 from igi.common.geometry import Geometry
@@ -24,10 +25,10 @@ from igi.common.scene import DIFFUSE, GLOSSY_KINDS, PLASTIC, ROUGHPLASTIC_DIFFUS
 from igi.common.sobol_stream import rng as make_rng
 from igi.common.specular import specular_targets
 
-from .caustics import PhotonSet, build_photon_sets, default_radius, gather_photons
-from .indirect_caustics import lensed_reflection
-from .shading import (LightMIS, bsdf_direct, clamp_compensation, gather_vpls, lobe_light_count, trace_bsdf_rays,
-                      trace_eye)
+from .caustics import PhotonSet, build_photon_sets, default_radius
+from .final_gather import Arrivals, compensation_enabled, final_gather, near_arrivals
+from .indirect_caustics import lensed_arrivals
+from .shading import LightMIS, lobe_light_count, trace_bsdf_rays, trace_eye
 from .kernels import tile_buffers
 from .set_cache import FrameSets
 from .vpl import VPLSet, build_vpl_sets
@@ -337,41 +338,31 @@ class Renderer:
         clamp_d2 = frame_clamp_distance2(params, self.geom.diagonal, index, consistent)
         # Regularized glossy senders: the bound shrinks like the photon radius (consistent)
         lobe_alpha = params.vpl_lobe_alpha * radius_scale(index, params)
-        with self._stage("VPL gather"):
-            albedo, irr = gather_vpls(self.geom, eye.end, vpls, clamp_d2, params.max_depth,
-                                      force_general=self.plan is None, lobe_alpha=lobe_alpha,
-                                      shadow_roulette=params.shadow_roulette, seed=int(rng.integers(1 << 62)),
-                                      lobe_lights=lobe_lights)
         end = eye.end
-        rays = None
         compensate = consistent
         lensed = self.plan is None or self.plan.specular_chains
-        if compensate or lensed:
+        with self._stage("BSDF rays"):
             # One traced BSDF ray per end point serves BSDF-direct lighting, the compensation and
             # the light reflected through mirror/glass chains.
-            with self._stage("BSDF direct"):
-                rays = trace_bsdf_rays(self.geom, self.lights, end, params.max_depth, rng,
-                                       np.sqrt(clamp_d2) if compensate else 0.0,
-                                       self._specular_targets if lensed else None)
+            rays = trace_bsdf_rays(self.geom, self.lights, end, params.max_depth, rng,
+                                   np.sqrt(clamp_d2) if compensate else 0.0,
+                                   self._specular_targets if lensed else None)
         with self._stage("photon set"):
             photons = self.photon_set(spec.seed, tile.k, params, index)
-        if compensate:
-            # Accumulating: give back what the clamp took.
-            with self._stage("compensation"):
-                irr = irr + clamp_compensation(self.scene, self.geom, self.lights, end, albedo, vpls,
-                                               clamp_d2, params.max_depth, rng, lobe_alpha, rays, photons,
-                                               shadow_roulette=params.shadow_roulette)
-        with self._stage("BSDF direct"):
-            irr = irr + bsdf_direct(self.scene, self.geom, self.lights, end, albedo, vpls.direct_count,
-                                    params.max_depth, rng, vpls.env_guide, rays, vpls.emitter_pmf)
+        arrivals, sky = [], None
+        if compensate and compensation_enabled(vpls, clamp_d2):
+            # Accumulating: give back what the clamp took (its near points, found by the rays).
+            arrivals.append(near_arrivals(end, rays, 1, clamp_d2, params.max_depth, rng))
         if lensed:
-            with self._stage("indirect caustics"):
-                irr = irr + lensed_reflection(self.scene, self.geom, self.lights, end, albedo, vpls, rays,
-                                              clamp_d2, params.max_depth, params.specular_depth, rng, lobe_alpha,
-                                              photons, shadow_roulette=params.shadow_roulette)
-        if len(photons):
-            with self._stage("photon gather"):
-                irr = irr + gather_photons(end, photons, albedo, params.max_depth)
+            with self._stage("lensed chains"):
+                sky, ends = lensed_arrivals(self.scene, self.geom, self.lights, end, rays, params.max_depth,
+                                            params.specular_depth, rng)
+                arrivals.append(ends)
+        albedo, irr = final_gather(self.scene, self.geom, self.lights, end, rays, Arrivals.concat(arrivals), vpls,
+                                   clamp_d2, params.max_depth, rng, lobe_alpha, photons, params.shadow_roulette,
+                                   force_general=self.plan is None, lobe_lights=lobe_lights, stage=self._stage)
+        if sky is not None:
+            irr += bsdf.finite_or_zero(sky / np.maximum(albedo, 1e-6))
         refl = np.zeros((p, 3))
         irr_buf = np.zeros((p, 3))
         unf = eye.unfiltered

@@ -26,7 +26,6 @@ from igi.common.lights import (VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE,
 from igi.common.scene import (DIFFUSE, NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE, ROUGHPLASTIC_LOBE,
                               SPECULAR_KINDS, Scene, kind_in)
 
-from .caustics import PhotonSet, gather_photons
 from .kernels import bsdf_rays as br
 from .kernels import eye_paths as ek
 from .kernels import specular_chain as sc
@@ -36,12 +35,6 @@ from .regularization import regularization_gain, regularized_senders
 from .vpl import VPLSet, concat_surface, subset_vpls
 
 PAIR_CHUNK = 1 << 17  # (end point, VPL) pairs per kernel call: bounds memory, keeps Embree batches large
-# Clamp compensation recurses (Kollig & Keller 2004): the point y that a short gather ray finds is
-# lit by a clamped gather too, which darkens creases and corners by the square of the clamped share.
-# In a crease most of y's own short rays meet a surface again, so from level 2 on (y's own
-# compensation) a near hit goes on with probability 1/2 (Russian roulette, weight 2).
-COMPENSATION_ROULETTE_LEVEL = 2
-COMPENSATION_MAX_LEVEL = 3  # deeper levels hold ~0.1% of the light (furnace at a 0.2 clamp) for ~1/5 of the cost
 
 
 @dataclass
@@ -877,13 +870,13 @@ class BSDFRays:
 
 
 def trace_bsdf_rays(geom: Geometry, lights: LightSampler, end: EndPoints, max_depth: int,
-                    rng: np.random.Generator, short: float,
+                    rng: np.random.Generator, short: float | np.ndarray,
                     targets: tuple[np.ndarray, np.ndarray] | None = None) -> BSDFRays:
     """The continuation rays of every end point that may still add a segment (not the split
     lobes' direct-only points: a lobe's own traced ray is its BSDF sample). Rays that provably
     reach no emitter and none of the ``targets`` spheres (centres, radii: the mirror/glass
-    objects whose chains are gathered) are traced only ``short`` far (the clamp radius: all the
-    compensation reads of them)."""
+    objects whose chains are gathered) are traced only ``short`` far (one length, or one per
+    end point: the clamp radius where the compensation reads them, else 0)."""
     e = len(end)
     ok = end.segments + 1 <= max_depth if max_depth >= 0 else np.ones(e, bool)
     if end.direct_only is not None:
@@ -902,7 +895,7 @@ def trace_bsdf_rays(geom: Geometry, lights: LightSampler, end: EndPoints, max_de
     reach = lights.may_reach_emitter(o, d)
     if targets is not None and len(targets[1]) and not reach.all():
         reach |= rays_meet_spheres(o, d, *targets)
-    tmax = np.where(reach, np.inf, short)
+    tmax = np.where(reach, np.inf, short if np.ndim(short) == 0 else np.asarray(short)[ok])
     return BSDFRays(ok, weight, pdf_b, delta, d, geom.intersect(o, d, tmax=tmax))
 
 
@@ -948,98 +941,3 @@ def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoin
     contrib = weight * le * w_mis[:, None] / np.maximum(albedo[ok], 1e-6)
     out[ok] = bsdf.finite_or_zero(contrib)
     return out
-
-
-def clamp_compensation(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints,
-                       albedo: np.ndarray, vpls: VPLSet, clamp_d2: float, max_depth: int,
-                       rng: np.random.Generator, lobe_alpha: float = 0.0,
-                       rays: BSDFRays | None = None, photons: PhotonSet | None = None,
-                       level: int = 1, shadow_roulette: float = 0.0) -> np.ndarray:
-    """Energy the VPL clamp removed, added back by short BSDF-sampled gather rays
-    (Kollig & Keller 2004; pbrt-v2's igi integrator), per unit albedo. ``rays``: the end
-    points' traced continuation rays (:func:`trace_bsdf_rays`), shared with BSDF-direct; None:
-    sampled and traced here. ``level``: the recursion depth of this call (1: the eye path's end
-    points; the points y it finds are compensated at level 2, and so on). ``shadow_roulette``:
-    the gathers at y thin their small pairs' shadow rays as the eye path's gather does.
-
-    The clamp replaces 1/d² by 1/max(d², c) for surface VPLs, i.e. it drops the fraction
-    (1 - d²/c) of the light a point y closer than √c sends to x. A BSDF-sampled ray from x
-    limited to √c finds such points; the radiance leaving y toward x (VPLs and emitters at y,
-    with y's own MIS ray) times (1 - d²/c) times the sample weight is exactly that share.
-    """
-    e = len(end)
-    out = np.zeros((e, 3))
-    if e == 0 or clamp_d2 <= 0 or not np.any(vpls.kind == VPL_SURFACE):
-        return out
-    r = np.sqrt(clamp_d2)
-    if rays is None:
-        rays = trace_bsdf_rays(geom, lights, end, max_depth, rng, short=r)
-    ok, weight, d, hits = rays.rows, rays.weight, rays.direction, rays.hits
-    near = hits.valid & (hits.t < r) & ~rays.delta  # a delta sample never meets a clamped VPL
-    if max_depth >= 0:
-        near &= end.segments[ok] + 2 <= max_depth
-    survive = 1.0
-    if level >= COMPENSATION_ROULETTE_LEVEL:
-        survive = 0.5
-        near &= rng.random(len(near)) < survive
-    if not near.any():
-        return out
-    sel = np.nonzero(near)[0]
-    keep, l_y = reflected_radiance(scene, geom, lights, hits, sel, d[sel], end.segments[ok[sel]] + 1, vpls,
-                                   clamp_d2, max_depth, rng, lobe_alpha, photons,
-                                   compensate=level + 1 if level < COMPENSATION_MAX_LEVEL else 0,
-                                   shadow_roulette=shadow_roulette)
-    if len(keep) == 0:
-        return out
-    t = hits.t[sel][keep]
-    share = np.clip(1.0 - t * t / clamp_d2, 0.0, 1.0)
-    rows = ok[sel][keep]
-    contrib = weight[sel][keep] * l_y * (share / survive)[:, None] / np.maximum(albedo[rows], 1e-6)
-    out[rows] += bsdf.finite_or_zero(contrib)  # one ray per end point: rows unique
-    return out
-
-
-def reflected_radiance(scene: Scene, geom: Geometry, lights: LightSampler, hits, sel: np.ndarray,
-                       d: np.ndarray, segments: np.ndarray, vpls: VPLSet, clamp_d2: float,
-                       max_depth: int, rng: np.random.Generator, lobe_alpha: float = 0.0,
-                       photons: PhotonSet | None = None, compensate: int = 0,
-                       shadow_roulette: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Radiance that the surfaces hit by rays ``sel`` of ``hits`` (world directions ``d``,
-    reached after ``segments`` segments) reflect back along the rays: the VPL set's light and the
-    emitter samples there, with their own MIS-weighted BSDF ray, and the caustic ``photons``
-    there (L S+ D: the light walks behind the VPLs pass through glass, so the VPLs stand for it
-    too); their emission is not included. ``compensate`` > 0: y's clamped VPL light is completed
-    by :func:`clamp_compensation` at that recursion level. ``shadow_roulette``: as
-    :func:`gather_vpls`' (unbiased; y's small pairs skip most of their shadow rays).
-    Returns ``(k, L)``: the positions in ``sel`` of the non-specular, non-black hits and their
-    (len(k), 3) radiance.
-
-    y reflects light toward x as a VPL would: its microfacet lobes are regularized like the VPL
-    senders' (:func:`regularized_senders`, ``lobe_alpha``), or a smooth plastic at y (α 0.01)
-    turns one caustic photon or VPL near its mirror direction into a spike of ~10³ times the
-    pixel's light that the discontinuity buffer spreads over a whole interleave block."""
-    y_orig = bsdf.gather(scene.materials, hits.material[sel], hits.uv[sel])
-    y_sp = regularized_senders(y_orig, lobe_alpha)
-    nd = np.nonzero(~kind_in(y_sp.kind, SPECULAR_KINDS) & (y_sp.kind != NULL))[0]
-    if len(nd) == 0:
-        return nd, np.zeros((0, 3))
-    s = sel[nd]
-    wo_y = to_local(-d[nd], hits.ns[s])
-    y = EndPoints(np.arange(len(nd)), hits.position[s], hits.ns[s], hits.ng[s], wo_y,
-                  y_sp.subset(nd), np.ones((len(nd), 3)), np.asarray(segments)[nd], np.ones(len(nd), bool),
-                  hits.t[s])
-    a_y, irr_y = gather_vpls(geom, y, vpls, clamp_d2, max_depth, lobe_alpha=lobe_alpha, shadow_roulette=shadow_roulette,
-                             seed=int(rng.integers(1 << 62)) if shadow_roulette > 0 else 0)
-    # y's continuation rays serve its BSDF-direct light and, when compensated, its compensation
-    # (as the eye path's end points share theirs): one trace, not two
-    rays = trace_bsdf_rays(geom, lights, y, max_depth, rng, short=np.sqrt(clamp_d2)) if compensate > 0 else None
-    irr_y = irr_y + bsdf_direct(scene, geom, lights, y, a_y, vpls.direct_count, max_depth, rng, vpls.env_guide,
-                                rays, vpls.emitter_pmf)
-    if photons is not None and len(photons):
-        irr_y = irr_y + gather_photons(y, photons, a_y, max_depth)
-    if compensate > 0:
-        irr_y = irr_y + clamp_compensation(scene, geom, lights, y, a_y, vpls, clamp_d2, max_depth, rng, lobe_alpha,
-                                           rays, photons, level=compensate, shadow_roulette=shadow_roulette)
-    if y_sp is not y_orig:  # reciprocity: the lobe toward x keeps the energy of the one from x
-        irr_y = irr_y * regularization_gain(y_orig.subset(nd), y.sp, wo_y)
-    return nd, a_y * irr_y

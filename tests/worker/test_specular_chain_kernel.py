@@ -95,12 +95,14 @@ def test_packed_rows_of_gathered_points_hold_each_points_parameters(textured):
 
 
 def _lensed(monkeypatch, compiled: bool, max_depth: int, sky: bool):
-    """worker.indirect_caustics.lensed_reflection on cornell-box-sphere's end points (96×72, one
-    set): its output, the next draw of its generator and the rays it traced, with its chains
-    followed by the compiled kernel (``compiled``) or by its numpy loop."""
+    """worker.indirect_caustics.lensed_arrivals on cornell-box-sphere's end points (96×72): the
+    sky seen through the chains, the chains' ends (as one array), the next draw of its generator
+    and the rays it traced, with its chains followed by the compiled kernel (``compiled``) or by
+    its numpy loop."""
     from igi.common.camera import camera_rays, resolve_camera
     from igi.common.params import make_params
-    from igi.worker.indirect_caustics import lensed_reflection
+    from igi.worker.final_gather import _FIELDS
+    from igi.worker.indirect_caustics import lensed_arrivals
     from igi.worker.renderer import Renderer, clamp_distance2
     from igi.worker.shading import trace_bsdf_rays, trace_eye
 
@@ -117,24 +119,25 @@ def _lensed(monkeypatch, compiled: bool, max_depth: int, sky: bool):
     eye = trace_eye(scene, r.geom, r.lights, o, d, max_depth, 8, g, 0.3)
     d2 = clamp_distance2(make_params(), r.geom.diagonal)
     rays = trace_bsdf_rays(r.geom, r.lights, eye.end, max_depth, g, np.sqrt(d2), r._specular_targets)
-    albedo = np.full((len(eye.end), 3), 0.5)
     before = r.geom.counters["intersect_rays"]
-    out = lensed_reflection(scene, r.geom, r.lights, eye.end, albedo, r.vpl_set(0, 0, make_params()), rays, d2,
-                            max_depth, 8, g, 0.5)
-    return out, g.random(), r.geom.counters["intersect_rays"] - before
+    sky_light, ends = lensed_arrivals(scene, r.geom, r.lights, eye.end, rays, max_depth, 8, g)
+    table = np.column_stack([np.asarray(getattr(ends, f), np.float64).reshape(len(ends), -1) for f in _FIELDS])
+    return sky_light, table, g.random(), r.geom.counters["intersect_rays"] - before
 
 
 @pytest.mark.parametrize("max_depth", [-1, 4])
 @pytest.mark.parametrize("sky", [False, True])
 def test_compiled_chains_equal_the_numpy_chains(monkeypatch, max_depth, sky):
-    """kernels.specular_chain.follow_chains, whole chains in one call, gives lensed_reflection
-    what its numpy loop gave bit for bit: the light, the generator's draws, the rays traced."""
+    """kernels.specular_chain.follow_chains, whole chains in one call, gives lensed_arrivals
+    what its numpy loop gave bit for bit: the sky, the chains' ends, the generator's draws, the
+    rays traced."""
     got = _lensed(monkeypatch, True, max_depth, sky)
     monkeypatch.undo()
     want = _lensed(monkeypatch, False, max_depth, sky)
     np.testing.assert_array_equal(got[0], want[0])
-    assert got[1:] == want[1:]
-    assert (got[0] > 0).any(axis=1).sum() > 100  # light did come through the ball
+    np.testing.assert_array_equal(got[1], want[1])
+    assert got[2:] == want[2:]
+    assert len(got[1]) > 100  # chains did pass through the ball to a surface
 
 
 def test_a_lit_sky_seen_through_the_chains_adds_light(monkeypatch):

@@ -224,13 +224,13 @@ def test_recursive_clamp_compensation_restores_the_light_of_creases(monkeypatch)
     # gather. With one level (y stays clamped) a furnace at a very wide clamp (0.2 of the squared
     # diagonal: most of a corner's light) loses ~3% of Le / (1 - rho) = 2; the recursion (Russian
     # roulette past level 2) gives it back to within 1%.
-    import igi.worker.shading as shading
+    import igi.worker.final_gather as final_gather
 
     scene = furnace_box(0.5, 1.0, 12, 12)
     r = Renderer(scene)
     p = make_params(interleave=3, clamp=0.2, light_path_length=2, indirect_vpls=8, direct_vpls=16)
     recursive = _interleaved_furnace_mean(r, scene, p, range(1, 61))
-    monkeypatch.setattr(shading, "COMPENSATION_MAX_LEVEL", 1)
+    monkeypatch.setattr(final_gather, "COMPENSATION_MAX_LEVEL", 1)
     one_level = _interleaved_furnace_mean(r, scene, p, range(1, 61))
     assert recursive == pytest.approx(2.0, rel=0.01)
     assert one_level < 2.0 * 0.98

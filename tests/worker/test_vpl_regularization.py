@@ -112,14 +112,16 @@ def _smooth_plastic_floor():
 
 def test_a_caustic_photon_in_a_smooth_plastics_mirror_direction_is_no_spike_where_it_is_read_back():
     """The clamp compensation and the lensed chains read the light a surface y reflects toward
-    x (shading.reflected_radiance): y is a sender like a VPL, so its lobe is regularized too.
+    x (worker.final_gather): y is a sender like a VPL, so its lobe is regularized too.
     One photon arriving from y's mirror direction on a plastic of α 0.01 read with the raw lobe
     is ~500 Lambertian photons' worth (modern-hall: one such read put a 1000× spike into a
     pixel's filtered irradiance, smeared over a whole 5×5 interleave block)."""
     from igi.worker.caustics import PhotonSet
     from igi.worker.hash_grid import HashGrid
     from igi.worker.renderer import Renderer
-    from igi.worker.shading import reflected_radiance
+    from igi.common import bsdf
+    from igi.worker.final_gather import Arrivals, final_gather
+    from igi.worker.shading import BSDFRays, EndPoints
     from igi.worker.vpl import _empty_set
 
     scene = _smooth_plastic_floor()
@@ -134,11 +136,21 @@ def test_a_caustic_photon_in_a_smooth_plastics_mirror_direction_is_no_spike_wher
                         radius, HashGrid(pos, radius), 1)
     lambertian = 0.5 / np.pi / (np.pi * radius ** 2)  # the same photon on a diffuse 0.5 surface
 
+    y = Arrivals(hits.position, hits.ns, hits.ng, hits.material, hits.uv, hits.t, d, np.array([1]), np.array([0]),
+                 np.ones((1, 3)), np.array([0]))
+    # x: an end point at the ray's origin with no light of its own (no VPLs, no BSDF ray, far
+    # from the photon): all it gathers is y's
+    up = np.array([[0.0, 1.0, 0.0]])
+    x = EndPoints(np.array([0]), np.array([[0.0, 1.0, 1.0]]), up, up, np.array([[0.0, 0.0, 1.0]]),
+                  bsdf.gather(scene.materials, np.array([0]), None), np.ones((1, 3)), np.array([0]), np.array([True]),
+                  np.array([1.0]))
+    empty = r.geom.intersect(np.zeros((0, 3)), np.zeros((0, 3)))
+    no_rays = BSDFRays(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0, bool), np.zeros((0, 3)), empty)
+
     def read(lobe_alpha):
-        k, radiance = reflected_radiance(scene, r.geom, r.lights, hits, np.array([0]), d, np.array([1]), _empty_set(),
-                                         0.01, -1, np.random.default_rng(0), lobe_alpha, photons)
-        assert list(k) == [0]
-        return float(radiance.mean()) / lambertian
+        albedo, irr = final_gather(scene, r.geom, r.lights, x, no_rays, y, _empty_set(), 0.01, -1,
+                                   np.random.default_rng(0), lobe_alpha, photons)
+        return float((albedo * irr).mean()) / lambertian
 
     assert read(0.0) > 100  # the raw lobe: the spike
     assert 0.5 < read(0.5) < 4  # regularized: about a Lambertian photon

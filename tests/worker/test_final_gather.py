@@ -1,0 +1,138 @@
+"""worker.final_gather: the end points and the points y behind them (the clamp compensation's
+near points, level by level, and the lensed chains' ends) shaded in one batch, their light
+carried back to the end points."""
+from __future__ import annotations
+
+import numpy as np
+import igi.worker.final_gather as fg
+import igi.worker.renderer as renderer
+from igi.bench.stress_scenes import load_shared
+from igi.common.camera import camera_rays, resolve_camera
+from igi.common.params import make_params
+from igi.master.inprocess import render_local
+from igi.worker.renderer import Renderer
+from igi.worker.shading import trace_bsdf_rays, trace_eye
+from tests.support.scenes_synthetic import furnace_box
+
+
+def _end_points(scene, r: Renderer, w: int = 24, h: int = 24, clamp: float = 0.2):
+    cam, fov, w, h = resolve_camera(scene, None, w, h)
+    ys, xs = np.divmod(np.arange(w * h), w)
+    o, d = camera_rays(cam, fov, w, h, xs, ys)
+    g = np.random.default_rng(5)
+    eye = trace_eye(scene, r.geom, r.lights, o, d, -1, 8, g, 0.3)
+    d2 = clamp * r.geom.diagonal ** 2
+    rays = trace_bsdf_rays(r.geom, r.lights, eye.end, -1, g, np.sqrt(d2))
+    return eye.end, rays, d2, g
+
+
+def test_near_points_are_the_rays_inside_the_clamp_radius_weighted_by_the_clamped_share():
+    scene = furnace_box(0.5, 1.0, 12, 12)
+    r = Renderer(scene)
+    end, rays, d2, g = _end_points(scene, r)
+    first = fg.near_arrivals(end, rays, 1, d2, -1, g)
+    near = rays.hits.valid & (rays.hits.t < np.sqrt(d2)) & ~rays.delta
+    assert 0 < len(first) == near.sum()  # level 1: no roulette
+    np.testing.assert_array_equal(first.parent, rays.rows[near])
+    t = rays.hits.t[near]
+    np.testing.assert_allclose(first.factor, rays.weight[near] * (1 - t * t / d2)[:, None])
+    np.testing.assert_array_equal(first.level, 2)
+    np.testing.assert_array_equal(first.segments, end.segments[rays.rows[near]] + 1)
+    # from the roulette level on, about half the near points go on, weighted twice
+    second = fg.near_arrivals(end, rays, fg.COMPENSATION_ROULETTE_LEVEL, d2, -1, g)
+    assert 0.35 * near.sum() < len(second) < 0.65 * near.sum()
+    keep = np.searchsorted(rays.rows[near], second.parent)
+    np.testing.assert_allclose(second.factor, 2 * first.factor[keep])
+    # past the last level the points are not compensated themselves
+    last = fg.near_arrivals(end, rays, fg.COMPENSATION_MAX_LEVEL, d2, -1, g)
+    np.testing.assert_array_equal(last.level, 0)
+    assert fg.near_arrivals(end, rays, 0, d2, -1, g) is None  # level 0: not compensated
+
+
+def test_each_levels_light_reaches_its_parent_per_unit_of_the_parents_albedo():
+    """Two end points; level 1: a near point and a chain end both arriving at end point 0, one
+    at end point 1; level 2: a near point of level 1's first point. The end point's irradiance
+    gains factor × a_y × E_y / a_x per point y that arrives, E_y complete with y's own (level 2
+    first, the lobe gain applied to y's light as a sender)."""
+    albedo = np.array([[0.5] * 3, [0.25] * 3, [0.8] * 3, [0.4] * 3, [0.2] * 3, [0.6] * 3])
+    irr = np.array([[1.0] * 3, [2.0] * 3, [3.0] * 3, [4.0] * 3, [5.0] * 3, [6.0] * 3])
+    f1 = np.array([[0.1] * 3, [0.2] * 3, [0.3] * 3])
+    f2 = np.array([[0.5] * 3])
+    gain1 = np.array([[1.0] * 3, [2.0] * 3, [1.0] * 3])
+    out = irr.copy()
+    fg.carry_back([2, 3, 1], [np.array([0, 0, 1]), np.array([0])], [f1, f2], [gain1, None], albedo, out)
+    e_y0 = 3.0 + 0.5 * 0.6 * 6.0 / 0.8  # level 1's first point with its near point's light
+    want0 = 1.0 + (0.1 * 0.8 * e_y0 + 0.2 * 2.0 * 0.4 * 4.0) / 0.5
+    want1 = 2.0 + 0.3 * 0.2 * 5.0 / 0.25
+    np.testing.assert_allclose(out[:2, 0], [want0, want1])
+    np.testing.assert_allclose(out[2, 0], e_y0)
+
+
+def test_the_final_gather_is_what_its_levels_shaded_apart_give(monkeypatch):
+    """final_gather with the shading replaced by a per-point function of position (albedo and
+    irradiance) equals carry_back over the points it found: the levels it finds are the ones
+    shaded, in order, and only their light is added back."""
+    scene = furnace_box(0.5, 1.0, 12, 12)
+    r = Renderer(scene)
+    end, rays, d2, g = _end_points(scene, r)
+    first = fg.near_arrivals(end, rays, 1, d2, -1, g)
+    seen = {}
+
+    def shade(points):
+        p = points.position
+        return 0.3 + 0.1 * np.abs(np.sin(p)), 1.0 + np.abs(np.cos(3 * p))
+
+    def gather(geom, points, *a, **k):
+        seen["points"] = points
+        return shade(points)
+
+    levels = []
+    real_near = fg.near_arrivals
+
+    def near(y, y_rays, lv, *a):
+        out = real_near(y, y_rays, lv, *a)
+        levels.append(out)
+        return out
+
+    monkeypatch.setattr(fg, "gather_vpls", gather)
+    monkeypatch.setattr(fg, "bsdf_direct", lambda _s, _g, _l, points, *a, **k: np.zeros((len(points), 3)))
+    monkeypatch.setattr(fg, "near_arrivals", near)
+    vpls = r.vpl_set(0, 0, make_params())
+    got_a, got = fg.final_gather(scene, r.geom, r.lights, end, rays, first, vpls, d2, -1, g)
+    points = seen["points"]
+    chain = [first] + [lv for lv in levels if lv is not None]
+    assert len(chain) == 3 and len(points) == len(end) + sum(len(c) for c in chain)  # furnace: all diffuse
+    a, e = shade(points)
+    want = e.copy()
+    fg.carry_back([len(end)] + [len(c) for c in chain], [c.parent for c in chain], [c.factor for c in chain],
+                  [None] * len(chain), a, want)
+    np.testing.assert_array_equal(got_a, a[:len(end)])
+    np.testing.assert_allclose(got, want[:len(end)], rtol=1e-12)
+    assert np.all(got[first.parent] > e[first.parent])  # the near points did add light
+
+
+def test_the_final_gather_takes_the_shadow_roulette(monkeypatch):
+    """With the shadow-ray roulette on, the batch (end points, near points, chain ends) traces
+    fewer shadow rays for the same light on average (the roulette counts a kept small pair 1/p)."""
+    calls = []
+    real = renderer.final_gather
+
+    def spy(*a, **k):
+        geom = a[1]
+        before = geom.counters["occluded_rays"]
+        albedo, irr = real(*a, **k)
+        calls.append((a[12] if len(a) > 12 else k.get("shadow_roulette", 0.0),
+                      geom.counters["occluded_rays"] - before, (albedo * irr).sum(axis=0)))
+        return albedo, irr
+
+    monkeypatch.setattr(renderer, "final_gather", spy)
+    scene = load_shared("cornell-box-sphere")
+    totals = {}
+    for fraction in (0.0, 1.0):
+        calls.clear()
+        render_local(scene, {"shadow_roulette": fraction}, 8, width=96, height=72)
+        assert calls and all(c[0] == fraction for c in calls)
+        totals[fraction] = (sum(c[1] for c in calls), sum(c[2] for c in calls))
+    (rays_off, light_off), (rays_on, light_on) = totals[0.0], totals[1.0]
+    assert rays_on < 0.8 * rays_off
+    np.testing.assert_allclose(light_on, light_off, rtol=0.05)
