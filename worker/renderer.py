@@ -307,6 +307,11 @@ class Renderer:
         """sets_built / set_hits of the VPL sets (benchmarks, tests)."""
         return self._frame_sets.stats
 
+    @property
+    def sets_version(self) -> int:
+        """Changes whenever :meth:`cached_sets` may have (a worker asks for the list only then)."""
+        return self._frame_sets.version
+
     def cached_sets(self) -> set[tuple[int, int]]:
         """The (frame seed, k) of the VPL sets held for the current scene version."""
         return {(seed, k) for (config, seed, _index), k in self._frame_sets.keys()

@@ -41,6 +41,7 @@ class FrameSets:
         self._history: OrderedDict[tuple, set[int]] = OrderedDict()  # frame -> k's asked for
         self._cond = threading.Condition()
         self.stats = {"sets_built": 0, "set_hits": 0}
+        self.version = 0  # changes whenever the held keys do (what a worker lists to its master)
 
     def keys(self) -> list[tuple]:
         with self._cond:
@@ -84,6 +85,7 @@ class FrameSets:
                         self.stats["sets_built"] += len(keys)
                     while len(self._sets) > self._max:
                         self._sets.popitem(last=False)
+                    self.version += 1
                 self._cond.notify_all()
         return built[0]
 

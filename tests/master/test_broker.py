@@ -264,6 +264,28 @@ def test_worker_lists_its_sets_only_when_they_change():
     node._scene_pool.shutdown()
 
 
+def test_worker_lists_its_sets_only_after_the_renderers_sets_version_changed():
+    """A renderer with a sets_version is asked for its list only when the version moved."""
+    from igi.worker.node import WorkerNode
+
+    class R:
+        sets_version = 0
+        calls = 0
+
+        def cached_sets(self):
+            R.calls += 1
+            return {(7, 0)} if R.sets_version == 0 else {(7, 0), (8, 1)}
+
+    node = WorkerNode("tcp://127.0.0.1:1")
+    r = R()
+    assert node._sets_to_send(r, 1) == [[7, 0]]
+    assert node._sets_to_send(r, 1) is None and R.calls == 1  # same version: not even asked
+    R.sets_version = 1
+    assert node._sets_to_send(r, 1) == [[7, 0], [8, 1]] and R.calls == 2
+    node._pool.shutdown()
+    node._scene_pool.shutdown()
+
+
 def test_master_keeps_the_last_set_list_of_each_worker(broker):
     a = FakeWorker(broker.endpoint, "a", credit=2)
     hello_ok(a)

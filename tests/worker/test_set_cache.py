@@ -191,3 +191,18 @@ def test_later_frames_skip_a_set_another_thread_is_building():
     release.set()
     a.join(10)
     assert (f3, 0) not in built[0] and (f2, 0) in built[0] and (_frames(4, 1)[0], 0) in built[0]
+
+
+def test_the_version_moves_exactly_when_the_held_sets_change():
+    cache, (_calls, build) = FrameSets(4), _recording()
+    f = (CFG, 7, 1)
+    v0 = cache.version
+    cache.get(f, 0, 9, build(f))
+    v1 = cache.version
+    assert v1 != v0 and cache.keys() == [(f, 0)]
+    cache.get(f, 0, 9, build(f))  # a hit changes nothing
+    assert cache.version == v1
+    for k in range(1, 6):  # builds past the limit evict: each changes the keys
+        before = (cache.version, cache.keys())
+        cache.get(f, k, 9, build(f))
+        assert cache.version != before[0] and cache.keys() != before[1]
