@@ -194,7 +194,7 @@ def test_later_frames_skip_a_set_another_thread_is_building():
 
 
 def test_the_version_moves_exactly_when_the_held_sets_change():
-    cache, (_calls, build) = FrameSets(4), _recording()
+    cache, (_, build) = FrameSets(4), _recording()
     f = (CFG, 7, 1)
     v0 = cache.version
     cache.get(f, 0, 9, build(f))
