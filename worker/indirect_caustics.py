@@ -68,7 +68,7 @@ def lensed_arrivals(scene: Scene, geom: Geometry, lights: LightSampler, end: End
 
 def _compiled_chains(scene, geom, rows, thr, d, pos, ns, ng, mat_i, _uv, seg, specular_depth, max_depth, rng,
                      env, albedo, out) -> list[tuple] | None:
-    """The chains of :func:`lensed_reflection` followed in one compiled call
+    """The chains of :func:`lensed_arrivals` followed in one compiled call
     (kernels.specular_chain.follow_chains: the same draws, rays and ends as its numpy loop),
     their ends as that loop lists them (one entry, or none); None where the loop must run instead: rays that must
     pass through Geometry.intersect (a benchmark timing or recording them), or a mirror/glass
@@ -95,7 +95,7 @@ def _compiled_chains(scene, geom, rows, thr, d, pos, ns, ng, mat_i, _uv, seg, sp
 
 def _numpy_chains(scene, geom, kinds, rows, thr, d, pos, ns, ng, mat_i, uv, seg, specular_depth, max_depth, rng, env,
                   albedo, out) -> list[tuple]:
-    """The chains of :func:`lensed_reflection` followed bounce by bounce in numpy (where
+    """The chains of :func:`lensed_arrivals` followed bounce by bounce in numpy (where
     :func:`_compiled_chains` cannot): the sky along misses added to ``out``, the chain ends
     listed per bounce (rows, throughput, segments, direction, position, ns, ng, material, uv, t)."""
     ends: list[tuple] = []
