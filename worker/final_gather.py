@@ -33,10 +33,12 @@ import numpy as np
 
 from igi.common import bsdf
 from igi.common.geometry import Geometry, Hits
+from igi.common.kernels.ray_packets import hit_buffers
 from igi.common.lights import VPL_SURFACE, LightSampler, to_local
 from igi.common.scene import NULL, SPECULAR_KINDS, Scene, kind_in
 
 from .caustics import PhotonSet, gather_photons
+from .kernels import final_gather_levels as flv
 from .regularization import regularization_gain, regularized_senders
 from .shading import BSDFRays, EndPoints, bsdf_direct, gather_vpls, trace_bsdf_rays
 from .vpl import VPLSet
@@ -114,11 +116,129 @@ def near_arrivals(end: EndPoints, rays: BSDFRays, level: np.ndarray | int, clamp
 
 
 @dataclass
-class _Level:
-    points: Arrivals | None  # the level's non-specular points (None: the end points themselves)
-    end: EndPoints  # the same as end points (unit throughput) for the BSDF rays
+class Levels:
+    """What the final gather found behind the end points: every level's points y in order (as
+    end points with unit throughput, lobes regularized as senders), their BSDF rays (rows into
+    ``y``), and per level its size, its points' parent rows (in the level before; level 0's in
+    the end points), weights toward them and regularization gains (None: no lobe widened)."""
+
+    y: EndPoints
     rays: BSDFRays
-    gain: np.ndarray | None  # (n, 3) regularization gain of the widened lobes (None: none widened)
+    sizes: list[int]
+    parents: list[np.ndarray]
+    factors: list[np.ndarray]
+    gains: list[np.ndarray | None]
+
+
+def find_levels(scene: Scene, geom: Geometry, lights: LightSampler, first: Arrivals | None, vpls: VPLSet,
+                clamp_d2: float, max_depth: int, rng: np.random.Generator, lobe_alpha: float = 0.0) -> Levels | None:
+    """The points y of ``first`` that reflect, their continuation rays and, for compensated
+    points, the near points those rays find, level by level (None: no point reflects). A
+    level's rays serve its BSDF-direct light and, when compensated, its near points; the others'
+    reach only emitters (those that provably reach none are traced 0 far). Compiled in one call
+    (kernels.final_gather_levels: the same draws, points, rays and hits) where the materials
+    allow; else level by level in numpy."""
+    if first is None or len(first) == 0:
+        return None
+    compensate = compensation_enabled(vpls, clamp_d2)
+    compiled = _compiled_levels(scene, geom, lights, first, compensate, clamp_d2, max_depth, rng, lobe_alpha)
+    if compiled is not None:
+        return compiled if compiled.sizes else None
+    ends, rays, arrivals, gains = [], [], [], []
+    arr = first
+    short = np.sqrt(clamp_d2) if compensate else 0.0
+    while arr is not None and len(arr):
+        arr, y, gain = _as_end_points(scene, arr, lobe_alpha)
+        if len(arr) == 0:
+            break
+        lv = arr.level if compensate else np.zeros(len(arr), np.int64)
+        y_rays = trace_bsdf_rays(geom, lights, y, max_depth, rng, np.where(lv > 0, short, 0.0))
+        ends.append(y)
+        rays.append(y_rays)
+        arrivals.append(arr)
+        gains.append(gain)
+        arr = near_arrivals(y, y_rays, lv, clamp_d2, max_depth, rng) if compensate and lv.any() else None
+    if not ends:
+        return None
+    return Levels(EndPoints.concat(ends) if len(ends) > 1 else ends[0], concat_rays(rays, [len(y) for y in ends]),
+                  [len(y) for y in ends], [a.parent for a in arrivals], [a.factor for a in arrivals], gains)
+
+
+def _compiled_levels(scene: Scene, geom: Geometry, lights: LightSampler, first: Arrivals, compensate: bool,
+                     clamp_d2: float, max_depth: int, rng: np.random.Generator, lobe_alpha: float) -> Levels | None:
+    """:func:`find_levels` in one compiled call (kernels.final_gather_levels.find_levels); None
+    where its numpy loop must run: rays that must pass through Geometry.intersect (a benchmark
+    timing or recording them), or a material that looks a texture up per point (the kernel reads
+    each material's row of P)."""
+    terms = geom.closest_terms()
+    rows = _sender_rows(scene.materials, lobe_alpha) if terms is not None else None
+    if rows is None:
+        return None
+    P, reflects = rows
+    n0 = len(first)
+    cap = n0 * (max(COMPENSATION_MAX_LEVEL, 1) + 1) + 1  # each level has at most the points of the one before
+    points = (np.empty((cap, 3)), np.empty((cap, 3)), np.empty((cap, 3)), np.empty(cap, np.int32),
+              np.empty((cap, 2)), np.empty(cap), np.empty((cap, 3)), np.empty(cap, np.int64), np.empty(cap, np.int64),
+              np.empty((cap, 3)), np.empty(cap, np.int64), np.empty((cap, 3)))
+    rays = (np.empty(cap, np.int64), np.empty((cap, 3)), np.empty(cap), np.empty(cap, np.bool_), np.empty((cap, 3)),
+            np.empty((cap, 3)))
+    hits = hit_buffers(cap)
+    level_stop, ray_stop = np.zeros(cap + 1, np.int64), np.zeros(cap + 1, np.int64)
+    centres, radii = lights.emitter_spheres()
+    reach_all = bool(np.any(lights.environment() > 0)) or len(radii) > 64
+    c = np.ascontiguousarray
+    level = first.level if compensate else np.zeros(n0, np.int64)
+    arrivals = (c(first.position, np.float64), c(first.ns, np.float64), c(first.ng, np.float64),
+                c(first.material, np.int32), c(first.uv, np.float64), c(first.t, np.float64),
+                c(first.direction, np.float64), c(first.segments, np.int64), c(first.parent, np.int64),
+                c(first.factor, np.float64), c(level, np.int64))
+    count = flv.find_levels(P, reflects, terms, rng, *geom.offset_terms(), reach_all, c(centres, np.float64),
+                            c(np.asarray(radii, np.float64) ** 2), float(clamp_d2),
+                            float(np.sqrt(clamp_d2)) if compensate else 0.0, int(max_depth),
+                            np.int64(COMPENSATION_ROULETTE_LEVEL), np.int64(COMPENSATION_MAX_LEVEL), arrivals, points,
+                            level_stop, rays, hits, ray_stop)
+    n, nr = int(level_stop[count]), int(ray_stop[count])
+    geom.counters["intersect_rays"] += nr
+    pos, ns, ng, mat, uv, t, _d, seg, parent, factor, _lv, wo = (a[:n] for a in points)
+    orig = bsdf.gather(scene.materials, mat, uv)
+    sp = regularized_senders(orig, lobe_alpha)
+    gain = regularization_gain(orig, sp, wo) if sp is not orig and n else None
+    stops = level_stop[:count + 1]
+    sizes = [int(b - a) for a, b in zip(stops[:-1], stops[1:])]
+    y = EndPoints(np.concatenate([np.arange(k) for k in sizes]) if sizes else np.zeros(0, np.int64), pos, ns, ng, wo,
+                  sp, np.ones((n, 3)), seg, np.ones(n, bool), t)
+    row, w, pdf, delta, d, _o = (a[:nr] for a in rays)
+    _prim, _u, _v, _t, valid, hpos, hng, hns, huv, ht, hmat, hem, hmesh, _tfar = hits
+    # rays' rows are their level's: offset to rows of y
+    row = row + np.repeat(stops[:-1], np.diff(ray_stop[:count + 1]))
+    found_rays = BSDFRays(row, w, pdf, delta, d, Hits(valid[:nr], ht[:nr], _prim[:nr], hpos[:nr], hng[:nr], hns[:nr],
+                                                      huv[:nr], hmat[:nr], hem[:nr], hmesh[:nr]))
+    per = [slice(int(a), int(b)) for a, b in zip(stops[:-1], stops[1:])]
+    return Levels(y, found_rays, sizes, [parent[sl] for sl in per], [factor[sl] for sl in per],
+                  [None if gain is None else gain[sl] for sl in per])
+
+
+_SENDER_ROWS: dict = {}
+
+
+def _sender_rows(materials: list, lobe_alpha: float) -> tuple | None:
+    """(P, reflects) per material row (NULL at row len(materials)): the materials' packed
+    parameters as senders (lobes regularized at ``lobe_alpha``) and whether they reflect (not
+    mirror/glass, not NULL); None where a material looks a texture up per point. Kept for the
+    last few (materials, lobe_alpha): the bound moves with every accumulated frame."""
+    key = (tuple(id(m) for m in materials), float(lobe_alpha))
+    hit = _SENDER_ROWS.get(key)
+    if hit is None:
+        _P, textured = bsdf.material_packed(materials)
+        rows = None
+        if not textured.any():
+            sp = regularized_senders(bsdf.gather(materials, np.arange(len(materials) + 1), None), lobe_alpha)
+            P, _rows = bsdf.packed_rows(sp)
+            rows = (P, ~kind_in(sp.kind, SPECULAR_KINDS) & (sp.kind != NULL))
+        if len(_SENDER_ROWS) >= 8:
+            _SENDER_ROWS.pop(next(iter(_SENDER_ROWS)))
+        hit = _SENDER_ROWS[key] = (tuple(materials), rows)  # the materials held: their ids stay theirs
+    return hit[1]
 
 
 def _as_end_points(scene: Scene, arr: Arrivals, lobe_alpha: float) -> tuple[Arrivals, EndPoints, np.ndarray | None]:
@@ -136,12 +256,14 @@ def _as_end_points(scene: Scene, arr: Arrivals, lobe_alpha: float) -> tuple[Arri
                           np.ones(n, bool), arr.t), gain
 
 
-def _concat_rays(levels: list[_Level]) -> BSDFRays:
-    base = np.cumsum([0] + [len(lv.end) for lv in levels[:-1]])
-    return BSDFRays(np.concatenate([lv.rays.rows + b for lv, b in zip(levels, base)]),
-                    *(np.concatenate([getattr(lv.rays, f) for lv in levels]) for f in ("weight", "pdf", "delta",
-                                                                                          "direction")),
-                    Hits.concat([lv.rays.hits for lv in levels]))
+def concat_rays(parts: list[BSDFRays], sizes: list[int]) -> BSDFRays:
+    """The rays of ``parts`` in order, part i's rows offset by the ``sizes`` of the parts before."""
+    if len(parts) == 1:
+        return parts[0]
+    base = np.cumsum([0] + list(sizes[:-1]))
+    return BSDFRays(np.concatenate([r.rows + b for r, b in zip(parts, base)]),
+                    *(np.concatenate([getattr(r, f) for r in parts]) for f in ("weight", "pdf", "delta", "direction")),
+                    Hits.concat([r.hits for r in parts]))
 
 
 def final_gather(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints, rays: BSDFRays,
@@ -158,25 +280,15 @@ def final_gather(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoi
     emitter samples at y with y's own MIS-weighted BSDF ray, the caustic photons there (L S+ D:
     the light walks behind the VPLs pass through glass, so the VPLs stand for it too), and for
     a point of compensation level > 0 the compensation of its own clamp (its near points,
-    recursively); y's emission is not included. The end points and every level's y are
-    shaded in one batch. ``stage``: a context manager per named step (Renderer's stage timer)."""
-    levels: list[_Level] = [_Level(None, end, rays, None)]
+    recursively: :func:`find_levels`); y's emission is not included. The end points and every
+    level's y are shaded in one batch. ``stage``: a context manager per named step (Renderer's
+    stage timer)."""
     with stage("final gather points"):
-        arr = first
-        compensate = compensation_enabled(vpls, clamp_d2)
-        short = np.sqrt(clamp_d2) if compensate else 0.0
-        while arr is not None and len(arr):
-            arr, y, gain = _as_end_points(scene, arr, lobe_alpha)
-            if len(arr) == 0:
-                break
-            # y's continuation rays serve its BSDF-direct light and, when compensated, its near
-            # points; the others' reach only emitters (those that provably reach none are traced 0 far)
-            lv = arr.level if compensate else np.zeros(len(arr), np.int64)
-            y_rays = trace_bsdf_rays(geom, lights, y, max_depth, rng, np.where(lv > 0, short, 0.0))
-            levels.append(_Level(arr, y, y_rays, gain))
-            arr = near_arrivals(y, y_rays, lv, clamp_d2, max_depth, rng) if compensate and lv.any() else None
-        points = EndPoints.concat([lv.end for lv in levels]) if len(levels) > 1 else end
-        all_rays = _concat_rays(levels) if len(levels) > 1 else rays
+        found = find_levels(scene, geom, lights, first, vpls, clamp_d2, max_depth, rng, lobe_alpha)
+        points, all_rays = end, rays
+        if found is not None:
+            points = EndPoints.concat([end, found.y])
+            all_rays = concat_rays([rays, found.rays], [len(end), len(found.y)])
     with stage("VPL gather"):
         albedo, irr = gather_vpls(geom, points, vpls, clamp_d2, max_depth, force_general=force_general,
                                   lobe_alpha=lobe_alpha, shadow_roulette=shadow_roulette,
@@ -187,8 +299,8 @@ def final_gather(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoi
     if photons is not None and len(photons):
         with stage("photon gather"):
             irr += gather_photons(points, photons, albedo, max_depth)
-    carry_back([len(lv.end) for lv in levels], [lv.points.parent for lv in levels[1:]],
-               [lv.points.factor for lv in levels[1:]], [lv.gain for lv in levels[1:]], albedo, irr)
+    if found is not None:
+        carry_back([len(end), *found.sizes], found.parents, found.factors, found.gains, albedo, irr)
     e = len(end)
     return albedo[:e], irr[:e]
 

@@ -4,6 +4,7 @@ carried back to the end points."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import igi.worker.final_gather as fg
 import igi.worker.renderer as renderer
 from igi.bench.stress_scenes import load_shared
@@ -70,8 +71,8 @@ def test_each_levels_light_reaches_its_parent_per_unit_of_the_parents_albedo():
 
 def test_the_final_gather_is_what_its_levels_shaded_apart_give(monkeypatch):
     """final_gather with the shading replaced by a per-point function of position (albedo and
-    irradiance) equals carry_back over the points it found: the levels it finds are the ones
-    shaded, in order, and only their light is added back."""
+    irradiance) equals carry_back over the levels find_levels found: those levels' points are
+    the ones shaded, after the end points and in order, and only their light is added back."""
     scene = furnace_box(0.5, 1.0, 12, 12)
     r = Renderer(scene)
     end, rays, d2, g = _end_points(scene, r)
@@ -86,26 +87,23 @@ def test_the_final_gather_is_what_its_levels_shaded_apart_give(monkeypatch):
         seen["points"] = points
         return shade(points)
 
-    levels = []
-    real_near = fg.near_arrivals
+    real_find = fg.find_levels
 
-    def near(y, y_rays, lv, *a):
-        out = real_near(y, y_rays, lv, *a)
-        levels.append(out)
-        return out
+    def find(*a, **k):
+        seen["found"] = real_find(*a, **k)
+        return seen["found"]
 
     monkeypatch.setattr(fg, "gather_vpls", gather)
     monkeypatch.setattr(fg, "bsdf_direct", lambda _s, _g, _l, points, *a, **k: np.zeros((len(points), 3)))
-    monkeypatch.setattr(fg, "near_arrivals", near)
+    monkeypatch.setattr(fg, "find_levels", find)
     vpls = r.vpl_set(0, 0, make_params())
     got_a, got = fg.final_gather(scene, r.geom, r.lights, end, rays, first, vpls, d2, -1, g)
-    points = seen["points"]
-    chain = [first] + [lv for lv in levels if lv is not None]
-    assert len(chain) == 3 and len(points) == len(end) + sum(len(c) for c in chain)  # furnace: all diffuse
+    points, found = seen["points"], seen["found"]
+    assert len(found.sizes) == 3 and found.sizes[0] == len(first)  # furnace: all diffuse, every level reached
+    np.testing.assert_array_equal(points.position, np.concatenate([end.position, found.y.position]))
     a, e = shade(points)
     want = e.copy()
-    fg.carry_back([len(end)] + [len(c) for c in chain], [c.parent for c in chain], [c.factor for c in chain],
-                  [None] * len(chain), a, want)
+    fg.carry_back([len(end), *found.sizes], found.parents, found.factors, found.gains, a, want)
     np.testing.assert_array_equal(got_a, a[:len(end)])
     np.testing.assert_allclose(got, want[:len(end)], rtol=1e-12)
     assert np.all(got[first.parent] > e[first.parent])  # the near points did add light
@@ -136,3 +134,60 @@ def test_the_final_gather_takes_the_shadow_roulette(monkeypatch):
     (rays_off, light_off), (rays_on, light_on) = totals[0.0], totals[1.0]
     assert rays_on < 0.8 * rays_off
     np.testing.assert_allclose(light_on, light_off, rtol=0.05)
+
+
+def _levels(monkeypatch, scene_name: str, compiled: bool, max_depth: int, lobe_alpha: float):
+    """worker.final_gather.find_levels behind 96×72 end points of a shared scene (the
+    compensation's near points at a wide clamp and the lensed chains' ends): the levels, the next
+    draw of the generator and the rays traced — compiled, or its numpy loop."""
+    from igi.worker.indirect_caustics import lensed_arrivals
+
+    scene = load_shared(scene_name)
+    r = Renderer(scene)
+    if not compiled:
+        monkeypatch.setattr(r.geom, "closest_terms", lambda: None)
+    cam, fov, w, h = resolve_camera(scene, None, 96, 72)
+    ys, xs = np.divmod(np.arange(w * h), w)
+    o, d = camera_rays(cam, fov, w, h, xs, ys)
+    g = np.random.default_rng(9)
+    eye = trace_eye(scene, r.geom, r.lights, o, d, max_depth, 8, g, 0.3)
+    d2 = 0.02 * r.geom.diagonal ** 2
+    rays = trace_bsdf_rays(r.geom, r.lights, eye.end, max_depth, g, np.sqrt(d2), r._specular_targets)
+    first = fg.Arrivals.concat([fg.near_arrivals(eye.end, rays, 1, d2, max_depth, g),
+                                lensed_arrivals(scene, r.geom, r.lights, eye.end, rays, max_depth, 8, g)[1]])
+    before = r.geom.counters["intersect_rays"]
+    found = fg.find_levels(scene, r.geom, r.lights, first, r.vpl_set(0, 0, make_params()), d2, max_depth, g,
+                           lobe_alpha)
+    return found, g.random(), r.geom.counters["intersect_rays"] - before
+
+
+@pytest.mark.parametrize("scene_name, max_depth, lobe_alpha", [("cornell-box-sphere", -1, 0.5),
+                                                               ("cornell-box-sphere", 5, 0.5),
+                                                               ("cornell-box-glossy", -1, 0.5),
+                                                               ("cornell-box-glossy", -1, 0.0)])
+def test_the_compiled_levels_equal_the_numpy_levels(monkeypatch, scene_name, max_depth, lobe_alpha):
+    """kernels.final_gather_levels.find_levels gives find_levels what its numpy loop gave, bit
+    for bit: every level's points (sender lobes regularized or not), rays, hits, parents,
+    weights and gains, the generator's next draw and the rays traced — on glass (chain ends
+    and near points) and on glossy senders, with and without a path-length limit."""
+    got = _levels(monkeypatch, scene_name, True, max_depth, lobe_alpha)
+    monkeypatch.undo()
+    want = _levels(monkeypatch, scene_name, False, max_depth, lobe_alpha)
+    a, b = got[0], want[0]
+    assert a.sizes == b.sizes and len(a.sizes) >= 2  # deeper levels were found
+    assert got[1:] == want[1:]
+    for name in ("pixel", "position", "ns", "ng", "wi", "segments", "distance"):
+        np.testing.assert_array_equal(getattr(a.y, name), getattr(b.y, name), err_msg=name)
+    np.testing.assert_array_equal(a.y.sp.kind, b.y.sp.kind)
+    np.testing.assert_array_equal(a.y.sp.alpha, b.y.sp.alpha)
+    for name in ("rows", "weight", "pdf", "delta", "direction"):
+        np.testing.assert_array_equal(getattr(a.rays, name), getattr(b.rays, name), err_msg=name)
+    for name in ("valid", "t", "position", "ns", "ng", "material", "emitter"):
+        np.testing.assert_array_equal(getattr(a.rays.hits, name), getattr(b.rays.hits, name), err_msg=name)
+    for x, y in zip(a.parents + a.factors, b.parents + b.factors):
+        np.testing.assert_array_equal(x, y)
+    # a level's gain is None where none of its lobes was widened: 1 each
+    for x, y, n in zip(a.gains, b.gains, a.sizes):
+        np.testing.assert_array_equal(np.ones((n, 3)) if x is None else x, np.ones((n, 3)) if y is None else y)
+    if scene_name == "cornell-box-glossy" and lobe_alpha > 0:
+        assert any(gain is not None and (gain != 1).any() for gain in a.gains)  # regularized senders were met
