@@ -288,7 +288,9 @@ def final_gather(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoi
         points, all_rays = end, rays
         if found is not None:
             points = EndPoints.concat([end, found.y])
-            all_rays = concat_rays([rays, found.rays], [len(end), len(found.y)])
+            # only the rays that carry BSDF-direct light are copied into the batch's
+            env = lights.environment()
+            all_rays = concat_rays([r.subset(r.lit(env)) for r in (rays, found.rays)], [len(end), len(found.y)])
     with stage("VPL gather"):
         albedo, irr = gather_vpls(geom, points, vpls, clamp_d2, max_depth, force_general=force_general,
                                   lobe_alpha=lobe_alpha, shadow_roulette=shadow_roulette,

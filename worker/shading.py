@@ -868,6 +868,19 @@ class BSDFRays:
     direction: np.ndarray  # (n, 3) world space
     hits: object  # common.geometry.Hits of the n rays
 
+    def subset(self, idx: np.ndarray) -> "BSDFRays":
+        """The rays ``idx`` (an index array), in that order."""
+        return BSDFRays(self.rows.take(idx), self.weight.take(idx, axis=0), self.pdf.take(idx), self.delta.take(idx),
+                        self.direction.take(idx, axis=0), self.hits.rows(idx))
+
+    def lit(self, env: np.ndarray) -> np.ndarray:
+        """The rays that reach an emitter, or leave the scene under a lit sky ``env``: the only
+        ones that carry BSDF-direct light (:func:`bsdf_direct`)."""
+        seen = self.hits.valid & (self.hits.emitter >= 0)
+        if np.any(env > 0):
+            seen |= ~self.hits.valid
+        return np.flatnonzero(seen)
+
 
 def trace_bsdf_rays(geom: Geometry, lights: LightSampler, end: EndPoints, max_depth: int,
                     rng: np.random.Generator, short: float | np.ndarray,
@@ -918,11 +931,7 @@ def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoin
         rays = trace_bsdf_rays(geom, lights, end, max_depth, rng, short=0.0)
     hits = rays.hits
     env = lights.environment()
-    # Only rays that reach an emitter, or leave the scene under a lit sky, carry light here.
-    seen = hits.valid & (hits.emitter >= 0)
-    if np.any(env > 0):
-        seen |= ~hits.valid
-    sel = np.flatnonzero(seen)
+    sel = rays.lit(env)
     if len(sel) == 0:
         return out
     ok, weight, pdf_b, delta, d = (a.take(sel, axis=0) for a in (rays.rows, rays.weight, rays.pdf, rays.delta,
