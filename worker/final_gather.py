@@ -25,6 +25,7 @@ that the discontinuity buffer spreads over a whole interleave block.
 """
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
@@ -219,6 +220,7 @@ def _compiled_levels(scene: Scene, geom: Geometry, lights: LightSampler, first: 
 
 
 _SENDER_ROWS: dict = {}
+_SENDER_LOCK = threading.Lock()
 
 
 def _sender_rows(materials: list, lobe_alpha: float) -> tuple | None:
@@ -235,9 +237,11 @@ def _sender_rows(materials: list, lobe_alpha: float) -> tuple | None:
             sp = regularized_senders(bsdf.gather(materials, np.arange(len(materials) + 1), None), lobe_alpha)
             P, _rows = bsdf.packed_rows(sp)
             rows = (P, ~kind_in(sp.kind, SPECULAR_KINDS) & (sp.kind != NULL))
-        if len(_SENDER_ROWS) >= 8:
-            _SENDER_ROWS.pop(next(iter(_SENDER_ROWS)))
-        hit = _SENDER_ROWS[key] = (tuple(materials), rows)  # the materials held: their ids stay theirs
+        hit = (tuple(materials), rows)  # the materials held: their ids stay theirs
+        with _SENDER_LOCK:  # render threads share the cache
+            while len(_SENDER_ROWS) >= 8:
+                _SENDER_ROWS.pop(next(iter(_SENDER_ROWS)))
+            _SENDER_ROWS[key] = hit
     return hit[1]
 
 
@@ -313,7 +317,7 @@ def carry_back(sizes: list[int], parent: list[np.ndarray], factor: list[np.ndarr
     point's light is complete once its own near points' is in): the points of level i ≥ 1 (rows
     ``sizes[0] + … + sizes[i-1]`` on of ``albedo``/``irr``, level 0 the end points) send
     factor × gain × albedo × irradiance to row ``parent[i-1]`` of level i - 1, per unit of
-    that parent's albedo. A parent may take several (an end point's near point and chain end)."""
+    that parent's albedo (summed with np.add.at: right whether or not a parent takes several)."""
     stops = np.cumsum([0, *sizes])
     for i in range(len(sizes) - 1, 0, -1):
         radiance = albedo[stops[i]:stops[i + 1]] * irr[stops[i]:stops[i + 1]]
