@@ -250,12 +250,13 @@ def _as_end_points(scene: Scene, arr: Arrivals, lobe_alpha: float) -> tuple[Arri
     lobes regularized as senders, and the regularization's gain (None: no lobe widened)."""
     orig = bsdf.gather(scene.materials, arr.material, arr.uv)
     sp = regularized_senders(orig, lobe_alpha)
+    widened = sp is not orig
     nd = np.nonzero(~kind_in(sp.kind, SPECULAR_KINDS) & (sp.kind != NULL))[0]
     if len(nd) < len(arr):
         arr, sp = arr.rows(nd), sp.subset(nd)
     n = len(arr)
     wo = to_local(-arr.direction, arr.ns)
-    gain = regularization_gain(orig.subset(nd), sp, wo) if sp is not orig and n else None
+    gain = regularization_gain(orig.subset(nd), sp, wo) if widened and n else None
     return arr, EndPoints(np.arange(n), arr.position, arr.ns, arr.ng, wo, sp, np.ones((n, 3)), arr.segments,
                           np.ones(n, bool), arr.t), gain
 

@@ -39,6 +39,7 @@ import threading
 import time
 import traceback
 import uuid
+import weakref
 
 import zmq
 
@@ -427,7 +428,8 @@ class WorkerNode:
             return None
         # The list is only made when the renderer says its sets may have changed (sorting its
         # few hundred keys per task was ~1% of a worker's time at 320×240).
-        version = (session, id(renderer), getattr(renderer, "sets_version", object()))
+        # (a weak reference, not id(): a new renderer may take a freed one's address)
+        version = (session, weakref.ref(renderer), getattr(renderer, "sets_version", object()))
         if self._sets_version == version:
             return None
         self._sets_version = version

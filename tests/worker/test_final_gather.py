@@ -156,8 +156,12 @@ def _levels(monkeypatch, scene_name: str, compiled: bool, max_depth: int, lobe_a
     first = fg.Arrivals.concat([fg.near_arrivals(eye.end, rays, 1, d2, max_depth, g),
                                 lensed_arrivals(scene, r.geom, r.lights, eye.end, rays, max_depth, 8, g)[1]])
     before = r.geom.counters["intersect_rays"]
+    calls = []
+    kernel = fg.flv.find_levels
+    monkeypatch.setattr(fg.flv, "find_levels", lambda *a: calls.append(1) or kernel(*a))
     found = fg.find_levels(scene, r.geom, r.lights, first, r.vpl_set(0, 0, make_params()), d2, max_depth, g,
                            lobe_alpha)
+    assert bool(calls) == compiled  # the kernel ran, or the numpy loop did
     return found, g.random(), r.geom.counters["intersect_rays"] - before
 
 

@@ -44,7 +44,21 @@ def _ceiling_ratio(monkeypatch, photons_at_chain_ends: bool, seeds: tuple[int, .
     from scipy.ndimage import binary_dilation
 
     if not photons_at_chain_ends:
-        monkeypatch.setattr(final_gather, "gather_photons", lambda end, *a, **k: np.zeros((len(end), 3)))
+        # the batch holds the end points first, then the points y behind them: y's photons only
+        ends = {}
+        real_gather, real_photons = renderer.final_gather, final_gather.gather_photons
+
+        def batch(*a, **k):
+            ends["n"] = len(a[3])
+            return real_gather(*a, **k)
+
+        def photons_at_end_points(points, *a, **k):
+            out = real_photons(points, *a, **k)
+            out[ends["n"]:] = 0.0
+            return out
+
+        monkeypatch.setattr(renderer, "final_gather", batch)
+        monkeypatch.setattr(final_gather, "gather_photons", photons_at_end_points)
     _, ref = load_reference("cornell-box-sphere")
     ref = reduced_reference(ref, 4)
     lum = ref.mean(axis=2)
