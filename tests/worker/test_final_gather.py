@@ -136,7 +136,7 @@ def test_the_final_gather_takes_the_shadow_roulette(monkeypatch):
     np.testing.assert_allclose(light_on, light_off, rtol=0.05)
 
 
-def _levels(monkeypatch, scene_name: str, compiled: bool, max_depth: int, lobe_alpha: float):
+def _levels(monkeypatch, scene_name: str, compiled: bool, max_depth: int, lobe_alpha: float, sky: bool = False):
     """worker.final_gather.find_levels behind 96×72 end points of a shared scene (the
     compensation's near points at a wide clamp and the lensed chains' ends): the levels, the next
     draw of the generator and the rays traced — compiled, or its numpy loop."""
@@ -146,6 +146,8 @@ def _levels(monkeypatch, scene_name: str, compiled: bool, max_depth: int, lobe_a
     r = Renderer(scene)
     if not compiled:
         monkeypatch.setattr(r.geom, "closest_terms", lambda: None)
+    if sky:  # a lit sky: every ray may reach light, so all run unbounded
+        monkeypatch.setattr(r.lights, "environment", lambda: np.array([0.5, 0.4, 0.3]))
     cam, fov, w, h = resolve_camera(scene, None, 96, 72)
     ys, xs = np.divmod(np.arange(w * h), w)
     o, d = camera_rays(cam, fov, w, h, xs, ys)
@@ -165,18 +167,20 @@ def _levels(monkeypatch, scene_name: str, compiled: bool, max_depth: int, lobe_a
     return found, g.random(), r.geom.counters["intersect_rays"] - before
 
 
-@pytest.mark.parametrize("scene_name, max_depth, lobe_alpha", [("cornell-box-sphere", -1, 0.5),
-                                                               ("cornell-box-sphere", 5, 0.5),
-                                                               ("cornell-box-glossy", -1, 0.5),
-                                                               ("cornell-box-glossy", -1, 0.0)])
-def test_the_compiled_levels_equal_the_numpy_levels(monkeypatch, scene_name, max_depth, lobe_alpha):
+@pytest.mark.parametrize("scene_name, max_depth, lobe_alpha, sky", [("cornell-box-sphere", -1, 0.5, False),
+                                                                    ("cornell-box-sphere", 5, 0.5, False),
+                                                                    ("cornell-box-sphere", -1, 0.5, True),
+                                                                    ("cornell-box-glossy", -1, 0.5, False),
+                                                                    ("cornell-box-glossy", -1, 0.0, False)])
+def test_the_compiled_levels_equal_the_numpy_levels(monkeypatch, scene_name, max_depth, lobe_alpha, sky):
     """kernels.final_gather_levels.find_levels gives find_levels what its numpy loop gave, bit
     for bit: every level's points (sender lobes regularized or not), rays, hits, parents,
     weights and gains, the generator's next draw and the rays traced — on glass (chain ends
-    and near points) and on glossy senders, with and without a path-length limit."""
-    got = _levels(monkeypatch, scene_name, True, max_depth, lobe_alpha)
+    and near points), under a lit sky and on glossy senders, with and without a path-length
+    limit."""
+    got = _levels(monkeypatch, scene_name, True, max_depth, lobe_alpha, sky)
     monkeypatch.undo()
-    want = _levels(monkeypatch, scene_name, False, max_depth, lobe_alpha)
+    want = _levels(monkeypatch, scene_name, False, max_depth, lobe_alpha, sky)
     a, b = got[0], want[0]
     assert a.sizes == b.sizes and len(a.sizes) >= 2  # deeper levels were found
     assert got[1:] == want[1:]
