@@ -310,6 +310,34 @@ def material_packed(materials: list[Material]) -> tuple[tuple, np.ndarray]:
     return P, t["textured_mask"]
 
 
+def texture_atlas(materials: list) -> tuple:
+    """The materials' bitmap textures for compiled lookups (common.kernels.texture.texel):
+    ``(pixels float32 flat, tex int64 (T, 3) = base, height, width, xform float64 (T, 4) =
+    uv scale and offset, nearest bool (T,), mat_tex int64 (m + 1, 3))`` — texture ids of each
+    material row's diffuse, specular and transmittance (-1: constant; the NULL row none). Made
+    once per materials list."""
+    t = _material_tables(materials)
+    if "atlas" not in t:
+        parts, tex, xform, nearest = [], [], [], []
+        mat_tex = np.full((len(materials) + 1, 3), -1, np.int64)
+        base = 0
+        for i, mat in enumerate(materials):
+            for c, texture in enumerate((mat.diffuse, mat.specular, mat.specular_transmittance)):
+                if texture.is_constant:
+                    continue
+                img = np.ascontiguousarray(texture.image, dtype=np.float32)
+                mat_tex[i, c] = len(tex)
+                tex.append((base, img.shape[0], img.shape[1]))
+                xform.append((*texture.uv_scale, *texture.uv_offset))
+                nearest.append(texture.filter == "nearest")
+                parts.append(img.reshape(-1))
+                base += img.size
+        t["atlas"] = (np.concatenate(parts) if parts else np.zeros(0, np.float32),
+                      np.array(tex, np.int64).reshape(-1, 3), np.array(xform, np.float64).reshape(-1, 4),
+                      np.array(nearest, bool), mat_tex)
+    return t["atlas"]
+
+
 def chain_materials(materials: list, glossy_split_alpha: float = 0.0) -> tuple | None:
     """``(P, kind, specular, smooth, P_lobe)`` per material row (the NULL kind at row
     len(materials)) for the compiled paths (worker.kernels.eye_paths, specular_chain,

@@ -137,8 +137,8 @@ def find_levels(scene: Scene, geom: Geometry, lights: LightSampler, first: Arriv
     points, the near points those rays find, level by level (None: no point reflects). A
     level's rays serve its BSDF-direct light and, when compensated, its near points; the others'
     reach only emitters (those that provably reach none are traced 0 far). Compiled in one call
-    (kernels.final_gather_levels: the same draws, points, rays and hits) where the materials
-    allow; else level by level in numpy."""
+    (kernels.final_gather_levels: the same draws, points, rays and hits); level by level in
+    numpy where the rays must pass through Geometry.intersect."""
     if first is None or len(first) == 0:
         return None
     compensate = compensation_enabled(vpls, clamp_d2)
@@ -169,15 +169,16 @@ def _compiled_levels(scene: Scene, geom: Geometry, lights: LightSampler, first: 
                      clamp_d2: float, max_depth: int, rng: np.random.Generator, lobe_alpha: float) -> Levels | None:
     """:func:`find_levels` in one compiled call (kernels.final_gather_levels.find_levels); None
     where its numpy loop must run: rays that must pass through Geometry.intersect (a benchmark
-    timing or recording them), or a material that looks a texture up per point (the kernel reads
-    each material's row of P)."""
+    timing or recording them)."""
     terms = geom.closest_terms()
-    rows = _sender_rows(scene.materials, lobe_alpha) if terms is not None else None
-    if rows is None:
+    if terms is None:
         return None
-    P, reflects = rows
+    P, reflects, textured = _sender_rows(scene.materials, lobe_alpha)
     n0 = len(first)
     cap = n0 * (max(COMPENSATION_MAX_LEVEL, 1) + 1) + 1  # each level has at most the points of the one before
+    if textured:  # a row of P per point for the texels of its own (the coat tables, 12 and 13, are shared)
+        P = tuple(f if i in (12, 13) else np.concatenate([f, np.empty((cap,) + f.shape[1:], f.dtype)])
+                  for i, f in enumerate(P))
     points = (np.empty((cap, 3)), np.empty((cap, 3)), np.empty((cap, 3)), np.empty(cap, np.int32),
               np.empty((cap, 2)), np.empty(cap), np.empty((cap, 3)), np.empty(cap, np.int64), np.empty(cap, np.int64),
               np.empty((cap, 3)), np.empty(cap, np.int64), np.empty((cap, 3)))
@@ -193,11 +194,11 @@ def _compiled_levels(scene: Scene, geom: Geometry, lights: LightSampler, first: 
                 c(first.material, np.int32), c(first.uv, np.float64), c(first.t, np.float64),
                 c(first.direction, np.float64), c(first.segments, np.int64), c(first.parent, np.int64),
                 c(first.factor, np.float64), c(level, np.int64))
-    count = flv.find_levels(P, reflects, terms, rng, *geom.offset_terms(), reach_all, c(centres, np.float64),
-                            c(np.asarray(radii, np.float64) ** 2), float(clamp_d2),
+    count = flv.find_levels(P, reflects, bsdf.texture_atlas(scene.materials), terms, rng, *geom.offset_terms(),
+                            reach_all, c(centres, np.float64), c(np.asarray(radii, np.float64) ** 2), float(clamp_d2),
                             float(np.sqrt(clamp_d2)) if compensate else 0.0, int(max_depth),
                             np.int64(COMPENSATION_ROULETTE_LEVEL), np.int64(COMPENSATION_MAX_LEVEL), arrivals, points,
-                            level_stop, rays, hits, ray_stop)
+                            np.empty(cap, np.int64), level_stop, rays, hits, ray_stop)
     n, nr = int(level_stop[count]), int(ray_stop[count])
     geom.counters["intersect_rays"] += nr
     pos, ns, ng, mat, uv, t, _d, seg, parent, factor, _lv, wo = (a[:n] for a in points)
@@ -223,20 +224,19 @@ _SENDER_ROWS: dict = {}
 _SENDER_LOCK = threading.Lock()
 
 
-def _sender_rows(materials: list, lobe_alpha: float) -> tuple | None:
-    """(P, reflects) per material row (NULL at row len(materials)): the materials' packed
-    parameters as senders (lobes regularized at ``lobe_alpha``) and whether they reflect (not
-    mirror/glass, not NULL); None where a material looks a texture up per point. Kept for the
-    last few (materials, lobe_alpha): the bound moves with every accumulated frame."""
+def _sender_rows(materials: list, lobe_alpha: float) -> tuple:
+    """(P, reflects, textured) per material row (NULL at row len(materials)): the materials'
+    packed parameters as senders (lobes regularized at ``lobe_alpha``; a bitmap texture's
+    value at uv 0), whether they reflect (not mirror/glass, not NULL), and whether any looks a
+    texture up per point. Kept for the last few (materials, lobe_alpha): the bound moves with
+    every accumulated frame."""
     key = (tuple(id(m) for m in materials), float(lobe_alpha))
     hit = _SENDER_ROWS.get(key)
     if hit is None:
         _P, textured = bsdf.material_packed(materials)
-        rows = None
-        if not textured.any():
-            sp = regularized_senders(bsdf.gather(materials, np.arange(len(materials) + 1), None), lobe_alpha)
-            P, _rows = bsdf.packed_rows(sp)
-            rows = (P, ~kind_in(sp.kind, SPECULAR_KINDS) & (sp.kind != NULL))
+        sp = regularized_senders(bsdf.gather(materials, np.arange(len(materials) + 1), None), lobe_alpha)
+        P, _rows = bsdf.packed_rows(sp)
+        rows = (P, ~kind_in(sp.kind, SPECULAR_KINDS) & (sp.kind != NULL), bool(textured.any()))
         hit = (tuple(materials), rows)  # the materials held: their ids stay theirs
         with _SENDER_LOCK:  # render threads share the cache
             while len(_SENDER_ROWS) >= 8:

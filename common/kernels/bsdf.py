@@ -818,3 +818,24 @@ def coat_columns(kind, eta, rrow, reg_fdr, reg_tavg, out_fdr, out_tavg) -> int:
         elif k == PLASTIC:
             out_fdr[i] = fresnel_diffuse_reflectance(1.0 / eta[i])
     return missing
+
+
+@njit(**_KERNEL, inline="always")
+def copy_row(P, src, dst) -> None:
+    """Row ``src`` of P's per-point arrays copied to row ``dst`` (the coat tables, shared, stay)."""
+    P[0][dst] = P[0][src]
+    for c in range(3):
+        P[1][dst, c] = P[1][src, c]
+        P[2][dst, c] = P[2][src, c]
+        P[3][dst, c] = P[3][src, c]
+        P[6][dst, c] = P[6][src, c]
+        P[7][dst, c] = P[7][src, c]
+    P[4][dst] = P[4][src]
+    P[5][dst] = P[5][src]
+    P[8][dst] = P[8][src]
+    P[9][dst] = P[9][src]
+    P[10][dst] = P[10][src]
+    P[11][dst] = P[11][src]
+    P[14][dst] = P[14][src]
+    P[15][dst] = P[15][src]
+    P[16][dst] = P[16][src]

@@ -5,24 +5,27 @@ hits that make the next level's points — with the same draws from the tile's g
 same order, so the points, rays and hits are bit for bit the loop's. At 320×240 a tile's deeper
 levels hold a few dozen points; the loop's ~40 numpy passes per level cost more than them.
 
-Materials are read per material row of P (regularized as senders: worker.regularization), so
-the caller runs the loop instead where a material looks a texture up per point.
+Materials are read per material row of P (regularized as senders: worker.regularization); a
+point on a material with bitmap textures gets a row of its own with its texels.
 """
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
+from igi.common.kernels import bsdf as kb
 from igi.common.kernels import shading_frame
 from igi.common.kernels.bounding_spheres import any_hit
 from igi.common.kernels.ray_packets import closest_surfaces
+from igi.common.kernels.texture import texel
 
 from .bsdf_rays import sample_rays
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def find_levels(P, reflects, closest, rng, center, eps, ulps, reach_all, emitter_c, emitter_r2, clamp_d2, short,
-                max_depth, roulette_level, max_level, first, points, level_stop, rays, hits, ray_stop) -> int:
+def find_levels(P, reflects, atlas, closest, rng, center, eps, ulps, reach_all, emitter_c, emitter_r2, clamp_d2,
+                short, max_depth, roulette_level, max_level, first, points, prow, level_stop, rays, hits,
+                ray_stop) -> int:
     """Every level's points from the ``first`` arrivals (position, ns, ng, material, uv, t,
     direction, segments, parent, factor, level: worker.final_gather.Arrivals' fields) into
     ``points`` (the same fields, then wo), level by level: a point is kept where its material
@@ -33,7 +36,10 @@ def find_levels(P, reflects, closest, rng, center, eps, ulps, reach_all, emitter
     emitter (``reach_all``, or it meets an emitter sphere), else ``short`` far for a point of
     compensation level > 0 and 0 far otherwise. Its near hits (closer than √clamp_d2, not a
     delta sample, a segment left; from ``roulette_level`` on each goes on with probability 1/2)
-    are the next level's arrivals. Returns the number of levels."""
+    are the next level's arrivals. A point reads its material's row of P (``prow[n]``), or, on
+    a material with bitmap textures (``atlas``: common.bsdf.texture_atlas), a row of its own
+    past the materials' (P holds room for every point) with the textures looked up at its uv.
+    Returns the number of levels."""
     a_pos, a_ns, a_ng, a_mat, a_uv, a_t, a_d, a_seg, a_parent, a_factor, a_level = first
     p_pos, p_ns, p_ng, p_mat, p_uv, p_t, p_d, p_seg, p_parent, p_factor, p_level, p_wo = points
     r_row, r_w, r_pdf, r_delta, r_d, r_o = rays
@@ -52,6 +58,7 @@ def find_levels(P, reflects, closest, rng, center, eps, ulps, reach_all, emitter
         _put(points, n, a_pos[i, 0], a_pos[i, 1], a_pos[i, 2], a_ns[i, 0], a_ns[i, 1], a_ns[i, 2], a_ng[i, 0],
              a_ng[i, 1], a_ng[i, 2], mat, a_uv[i, 0], a_uv[i, 1], a_t[i], a_d[i, 0], a_d[i, 1], a_d[i, 2], a_seg[i],
              a_parent[i], a_factor[i, 0], a_factor[i, 1], a_factor[i, 2], a_level[i])
+        prow[n] = _material_row(P, row, n, m, atlas, a_uv[i, 0], a_uv[i, 1])
         n += 1
     level = 0
     p0, p1, r0 = 0, n, 0
@@ -66,11 +73,8 @@ def find_levels(P, reflects, closest, rng, center, eps, ulps, reach_all, emitter
                 k += 1
         u1 = rng.random(k)
         u2 = rng.random((k, 2))
-        prow = np.empty(p1 - p0, np.int64)
-        for i in range(p0, p1):
-            prow[i - p0] = p_mat[i] if 0 <= p_mat[i] < m else m
-        c = sample_rays(P, prow, src[:k], p_wo[p0:p1], p_ns[p0:p1], p_pos[p0:p1], p_ng[p0:p1], u1, u2, True, center,
-                        eps, ulps, r_row[r0:], r_w[r0:], r_pdf[r0:], r_delta[r0:], r_d[r0:], r_o[r0:])
+        c = sample_rays(P, prow[p0:p1], src[:k], p_wo[p0:p1], p_ns[p0:p1], p_pos[p0:p1], p_ng[p0:p1], u1, u2,
+                        True, center, eps, ulps, r_row[r0:], r_w[r0:], r_pdf[r0:], r_delta[r0:], r_d[r0:], r_o[r0:])
         r1 = r0 + c
         reach = np.ones(c, np.bool_)
         if not reach_all:
@@ -114,6 +118,7 @@ def find_levels(P, reflects, closest, rng, center, eps, ulps, reach_all, emitter
                      h_ng[q, 0], h_ng[q, 1], h_ng[q, 2], mat, h_uv[q, 0], h_uv[q, 1], t, r_d[q, 0], r_d[q, 1],
                      r_d[q, 2], p_seg[i] + 1, i - p0, r_w[q, 0] * share, r_w[q, 1] * share, r_w[q, 2] * share,
                      lv + 1 if lv < max_level else 0)
+                prow[n] = _material_row(P, row, n, m, atlas, h_uv[q, 0], h_uv[q, 1])
                 n += 1
         level += 1
         p0, p1, r0 = p1, n, r1
@@ -136,3 +141,27 @@ def _put(points, n, px, py, pz, nx, ny, nz, gx, gy, gz, mat, u, v, t, dx, dy, dz
     p_factor[n, 0], p_factor[n, 1], p_factor[n, 2] = f0, f1, f2
     p_level[n] = level
     p_wo[n, 0], p_wo[n, 1], p_wo[n, 2] = shading_frame.to_local(-dx, -dy, -dz, nx, ny, nz)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _material_row(P, row, n, m, atlas, u, v):
+    """The row of P point n reads: its material's, or on a textured material the row m + 1 + n
+    made from it with the textures looked up at (u, v) (as common.bsdf.gather looks them up)."""
+    pixels, tex, xform, nearest, mat_tex = atlas
+    if mat_tex[row, 0] < 0 and mat_tex[row, 1] < 0 and mat_tex[row, 2] < 0:
+        return row
+    dst = m + 1 + n
+    kb.copy_row(P, row, dst)
+    for c in range(3):
+        ti = mat_tex[row, c]
+        if ti < 0:
+            continue
+        r, g, b = texel(pixels, tex[ti, 0], tex[ti, 1], tex[ti, 2], u, v, xform[ti, 0], xform[ti, 1], xform[ti, 2],
+                        xform[ti, 3], nearest[ti])
+        if c == 0:
+            P[1][dst, 0], P[1][dst, 1], P[1][dst, 2] = r, g, b
+        elif c == 1:
+            P[2][dst, 0], P[2][dst, 1], P[2][dst, 2] = r, g, b
+        else:
+            P[3][dst, 0], P[3][dst, 1], P[3][dst, 2] = r, g, b
+    return dst
