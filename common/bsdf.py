@@ -355,7 +355,12 @@ def chain_materials(materials: list, glossy_split_alpha: float = 0.0) -> tuple |
         smooth = kind_in(sp.kind, (ROUGHCONDUCTOR, ROUGHPLASTIC)) & (sp.alpha < glossy_split_alpha)
         smooth &= glossy_split_alpha > 0
         P_lobe = (np.where(P[0] == ROUGHPLASTIC, ROUGHPLASTIC_LOBE, P[0]).astype(P[0].dtype),) + tuple(P[1:])
-        per_point = (textured & (specular | smooth)).any()  # the kernels read P's material rows
+        # The kernels read the material rows of P where they sample a mirror/glass component or
+        # a split lobe: the specular and transmittance colours, never the diffuse one (a split
+        # plastic's diffuse layer is an end point, its colour looked up per point later).
+        lobe_tex = np.array([not (mat.specular.is_constant and mat.specular_transmittance.is_constant)
+                             for mat in materials] + [False], bool)
+        per_point = (lobe_tex & (specular | smooth)).any()
         t[key] = None if per_point else (P, np.ascontiguousarray(sp.kind), specular, smooth, P_lobe)
     return t[key]
 

@@ -115,3 +115,26 @@ def test_a_kernel_out_of_room_hands_the_tile_to_the_numpy_form_with_its_draws_un
     monkeypatch.undo()
     want = _eye(monkeypatch, False, -1, False)
     _same_eye(got, want)
+
+
+def test_split_plastics_with_textured_diffuse_layers_take_the_kernel_and_equal_the_numpy_eye_paths(monkeypatch):
+    """grey-white-room's floor and table are smooth plastics whose diffuse colour is a bitmap:
+    the kernel samples only their lobes (specular colour and roughness per material), the diffuse
+    layer's colour is looked up per end point afterwards, so the kernel serves them — bit for
+    bit the numpy form. A split material whose *specular* colour is a bitmap (veach-ajar's
+    floor) still takes the numpy form."""
+    from igi.common.bsdf import chain_materials
+    from igi.worker.kernels import eye_paths
+
+    calls = []
+    real = eye_paths.trace_eye
+    monkeypatch.setattr(eye_paths, "trace_eye", lambda *a: calls.append(1) or real(*a))
+    got = _eye(monkeypatch, True, -1, False, "grey-white-room")
+    assert calls
+    monkeypatch.undo()
+    want = _eye(monkeypatch, False, -1, False, "grey-white-room")
+    _same_eye(got, want)
+    textured = got[0].end.sp.diffuse
+    assert len(np.unique(textured[:, 0])) > 50  # texels, not one colour per material
+    assert chain_materials(load_shared("grey-white-room").materials, 0.3) is not None
+    assert chain_materials(load_shared("veach-ajar").materials, 0.3) is None
