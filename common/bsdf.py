@@ -344,8 +344,9 @@ def chain_materials(materials: list, glossy_split_alpha: float = 0.0) -> tuple |
     light_paths): the materials' packed parameters, kind, whether mirror/glass, whether a
     smooth glossy one split off at ``glossy_split_alpha`` (worker.shading._split_smooth), and P
     with each rough plastic's kind its lobe's (:func:`lobe_only`). None where the numpy loops
-    must run: a mirror/glass material, or a smooth glossy one split off, looks a texture up per
-    point (the kernels read their material's row of P)."""
+    must run: a mirror/glass material, or a smooth glossy one split off, looks its specular or
+    transmittance colour up in a bitmap per point (the kernels read their material's row of P
+    for those; a bitmap diffuse colour is looked up per end point after them)."""
     t = _material_tables(materials)
     key = ("chains", float(glossy_split_alpha))
     if key not in t:  # (asked per tile and chain: worked out once per materials list and alpha)

@@ -213,7 +213,8 @@ def _compiled_eye(scene, geom, lights, origins, dirs, max_depth, specular_depth,
     """:func:`trace_eye` in one compiled call (kernels.eye_paths.trace_eye: the same rays, draws,
     end points and per-pixel buffers as its numpy form), or None where that form must run: the
     rays must go through Geometry.intersect (closest_terms), a mirror/glass or split smooth
-    glossy material is textured (common.bsdf.chain_materials), or split lobes' rays under a sky
+    glossy material takes its specular or transmittance colour from a bitmap
+    (common.bsdf.chain_materials), or split lobes' rays under a sky
     take MIS weights against an environment guide."""
     terms = geom.closest_terms()
     tables = bsdf.chain_materials(scene.materials, glossy_split_alpha) if terms is not None else None
