@@ -141,20 +141,9 @@ def _levels(monkeypatch, scene_name: str, compiled: bool, max_depth: int, lobe_a
     compensation's near points at a wide clamp and the lensed chains' ends): the levels, the next
     draw of the generator and the rays traced — compiled, or its numpy loop."""
     from igi.worker.indirect_caustics import lensed_arrivals
+    from tests.support.end_points import traced_end_points
 
-    scene = load_shared(scene_name)
-    r = Renderer(scene)
-    if not compiled:
-        monkeypatch.setattr(r.geom, "closest_terms", lambda: None)
-    if sky:  # a lit sky: every ray may reach light, so all run unbounded
-        monkeypatch.setattr(r.lights, "environment", lambda: np.array([0.5, 0.4, 0.3]))
-    cam, fov, w, h = resolve_camera(scene, None, 96, 72)
-    ys, xs = np.divmod(np.arange(w * h), w)
-    o, d = camera_rays(cam, fov, w, h, xs, ys)
-    g = np.random.default_rng(9)
-    eye = trace_eye(scene, r.geom, r.lights, o, d, max_depth, 8, g, 0.3)
-    d2 = 0.02 * r.geom.diagonal ** 2
-    rays = trace_bsdf_rays(r.geom, r.lights, eye.end, max_depth, g, np.sqrt(d2), r._specular_targets)
+    scene, r, eye, rays, d2, g = traced_end_points(monkeypatch, scene_name, compiled, sky, max_depth, 9, 0.02)
     first = fg.Arrivals.concat([fg.near_arrivals(eye.end, rays, 1, d2, max_depth, g),
                                 lensed_arrivals(scene, r.geom, r.lights, eye.end, rays, max_depth, 8, g)[1]])
     before = r.geom.counters["intersect_rays"]

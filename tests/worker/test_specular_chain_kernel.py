@@ -99,26 +99,11 @@ def _lensed(monkeypatch, compiled: bool, max_depth: int, sky: bool):
     sky seen through the chains, the chains' ends (as one array), the next draw of its generator
     and the rays it traced, with its chains followed by the compiled kernel (``compiled``) or by
     its numpy loop."""
-    from igi.common.camera import camera_rays, resolve_camera
-    from igi.common.params import make_params
     from igi.worker.final_gather import _FIELDS
     from igi.worker.indirect_caustics import lensed_arrivals
-    from igi.worker.renderer import Renderer, clamp_distance2
-    from igi.worker.shading import trace_bsdf_rays, trace_eye
+    from tests.support.end_points import traced_end_points
 
-    scene = load_shared("cornell-box-sphere")
-    r = Renderer(scene)
-    if not compiled:
-        monkeypatch.setattr(r.geom, "closest_terms", lambda: None)
-    if sky:  # a lit sky seen through the glass: the misses' branch
-        monkeypatch.setattr(r.lights, "environment", lambda: np.array([0.5, 0.4, 0.3]))
-    cam, fov, w, h = resolve_camera(scene, None, 96, 72)
-    ys, xs = np.divmod(np.arange(w * h), w)
-    o, d = camera_rays(cam, fov, w, h, xs, ys)
-    g = np.random.default_rng(3)
-    eye = trace_eye(scene, r.geom, r.lights, o, d, max_depth, 8, g, 0.3)
-    d2 = clamp_distance2(make_params(), r.geom.diagonal)
-    rays = trace_bsdf_rays(r.geom, r.lights, eye.end, max_depth, g, np.sqrt(d2), r._specular_targets)
+    scene, r, eye, rays, _d2, g = traced_end_points(monkeypatch, "cornell-box-sphere", compiled, sky, max_depth, 3)
     before = r.geom.counters["intersect_rays"]
     sky_light, ends = lensed_arrivals(scene, r.geom, r.lights, eye.end, rays, max_depth, 8, g)
     table = np.column_stack([np.asarray(getattr(ends, f), np.float64).reshape(len(ends), -1) for f in _FIELDS])
