@@ -15,8 +15,8 @@ off — the product's path, where the VPL gather traces its shadow rays inside i
 Stage breakdown (``stages``, seconds per frame, first frame and steady frames): the renderer's
 profiler hook (``Renderer.stage_times``: eye paths, VPL set, BSDF rays, lensed chains, final
 gather points, VPL gather, BSDF direct, photon set, photon gather — the last three over the end
-points and the final gather's points together) and the Geometry's Embree timer (``time_embree``), so each
-stage is split into Embree time (intersect, occluded) and the rest; ``buffers`` is what
+points and the final gather's points together) and the Geometry's Embree timer
+(``time_embree``), so each stage is split into Embree time (intersect, occluded) and the rest; ``buffers`` is what
 render_tile does outside the stages, ``encode`` the wire encoding (common.codec) of the
 tiles. Both hooks cost nothing when off (the product's default).
 

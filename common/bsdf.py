@@ -350,7 +350,7 @@ def chain_materials(materials: list, glossy_split_alpha: float = 0.0) -> tuple |
     t = _material_tables(materials)
     key = ("chains", float(glossy_split_alpha))
     if key not in t:  # (asked per tile and chain: worked out once per materials list and alpha)
-        P, textured = material_packed(materials)
+        P, _textured = material_packed(materials)
         sp = gather(materials, np.arange(len(materials) + 1), None)
         specular = kind_in(sp.kind, SPECULAR_KINDS)
         smooth = kind_in(sp.kind, (ROUGHCONDUCTOR, ROUGHPLASTIC)) & (sp.alpha < glossy_split_alpha)

@@ -173,10 +173,11 @@ def _compiled_levels(scene: Scene, geom: Geometry, lights: LightSampler, first: 
     terms = geom.closest_terms()
     if terms is None:
         return None
-    P, reflects, textured = _sender_rows(scene.materials, lobe_alpha)
+    P, reflects = _sender_rows(scene.materials, lobe_alpha)
+    atlas = bsdf.texture_atlas(scene.materials)
     n0 = len(first)
     cap = n0 * (max(COMPENSATION_MAX_LEVEL, 1) + 1) + 1  # each level has at most the points of the one before
-    if textured:  # a row of P per point for the texels of its own (the coat tables, 12 and 13, are shared)
+    if len(atlas[1]):  # a row of P per point for the texels of its own (the coat tables, 12 and 13, are shared)
         P = tuple(f if i in (12, 13) else np.concatenate([f, np.empty((cap,) + f.shape[1:], f.dtype)])
                   for i, f in enumerate(P))
     points = (np.empty((cap, 3)), np.empty((cap, 3)), np.empty((cap, 3)), np.empty(cap, np.int32),
@@ -194,7 +195,7 @@ def _compiled_levels(scene: Scene, geom: Geometry, lights: LightSampler, first: 
                 c(first.material, np.int32), c(first.uv, np.float64), c(first.t, np.float64),
                 c(first.direction, np.float64), c(first.segments, np.int64), c(first.parent, np.int64),
                 c(first.factor, np.float64), c(level, np.int64))
-    count = flv.find_levels(P, reflects, bsdf.texture_atlas(scene.materials), terms, rng, *geom.offset_terms(),
+    count = flv.find_levels(P, reflects, atlas, terms, rng, *geom.offset_terms(),
                             reach_all, c(centres, np.float64), c(np.asarray(radii, np.float64) ** 2), float(clamp_d2),
                             float(np.sqrt(clamp_d2)) if compensate else 0.0, int(max_depth),
                             np.int64(COMPENSATION_ROULETTE_LEVEL), np.int64(COMPENSATION_MAX_LEVEL), arrivals, points,
@@ -225,18 +226,16 @@ _SENDER_LOCK = threading.Lock()
 
 
 def _sender_rows(materials: list, lobe_alpha: float) -> tuple:
-    """(P, reflects, textured) per material row (NULL at row len(materials)): the materials'
-    packed parameters as senders (lobes regularized at ``lobe_alpha``; a bitmap texture's
-    value at uv 0), whether they reflect (not mirror/glass, not NULL), and whether any looks a
-    texture up per point. Kept for the last few (materials, lobe_alpha): the bound moves with
-    every accumulated frame."""
+    """(P, reflects) per material row (NULL at row len(materials)): the materials' packed
+    parameters as senders (lobes regularized at ``lobe_alpha``; a bitmap texture's value at uv
+    0) and whether they reflect (not mirror/glass, not NULL). Kept for the last few
+    (materials, lobe_alpha): the bound moves with every accumulated frame."""
     key = (tuple(id(m) for m in materials), float(lobe_alpha))
     hit = _SENDER_ROWS.get(key)
     if hit is None:
-        _P, textured = bsdf.material_packed(materials)
         sp = regularized_senders(bsdf.gather(materials, np.arange(len(materials) + 1), None), lobe_alpha)
         P, _rows = bsdf.packed_rows(sp)
-        rows = (P, ~kind_in(sp.kind, SPECULAR_KINDS) & (sp.kind != NULL), bool(textured.any()))
+        rows = (P, ~kind_in(sp.kind, SPECULAR_KINDS) & (sp.kind != NULL))
         hit = (tuple(materials), rows)  # the materials held: their ids stay theirs
         with _SENDER_LOCK:  # render threads share the cache
             while len(_SENDER_ROWS) >= 8:

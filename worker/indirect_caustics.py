@@ -31,10 +31,10 @@ def lensed_arrivals(scene: Scene, geom: Geometry, lights: LightSampler, end: End
                     max_depth: int, specular_depth: int,
                     rng: np.random.Generator) -> tuple[np.ndarray, Arrivals | None]:
     """The end points' mirror/glass chains followed: ((E, 3) the radiance of the environment
-    seen through them, toward the end points; the chains' ends y, each to be gathered for its end point with the chain's
-    throughput: worker.final_gather, with the caustic photons there, so a caustic seen through
-    the chain is included — L S+ D S+ D E: the bright focus under a glass ball imaged by the
-    ball onto the ceiling). None: no chain ends on a surface."""
+    seen through them, toward the end points; the chains' ends y, each to be gathered for its
+    end point with the chain's throughput: worker.final_gather, with the caustic photons there,
+    so a caustic seen through the chain is included — L S+ D S+ D E: the bright focus under a
+    glass ball imaged by the ball onto the ceiling). None: no chain ends on a surface."""
     e = len(end)
     out = np.zeros((e, 3))
     hits = rays.hits
@@ -55,10 +55,9 @@ def lensed_arrivals(scene: Scene, geom: Geometry, lights: LightSampler, end: End
     seg = end.segments[rows].astype(np.int64) + 1  # segments once the ray reached the surface
     env = lights.environment()
     chain = (rows, thr, d, pos, ns, ng, mat_i, uv, seg)
-    albedo = np.ones((e, 3))  # the chain code reads light per unit albedo: the caller divides
-    ends = _compiled_chains(scene, geom, *chain, specular_depth, max_depth, rng, env, albedo, out)
+    ends = _compiled_chains(scene, geom, *chain, specular_depth, max_depth, rng, env, out)
     if ends is None:
-        ends = _numpy_chains(scene, geom, kinds, *chain, specular_depth, max_depth, rng, env, albedo, out)
+        ends = _numpy_chains(scene, geom, kinds, *chain, specular_depth, max_depth, rng, env, out)
     if not ends:
         return out, None
     # each row's chain ends once (here or as a miss above): its rows are unique
@@ -67,7 +66,7 @@ def lensed_arrivals(scene: Scene, geom: Geometry, lights: LightSampler, end: End
 
 
 def _compiled_chains(scene, geom, rows, thr, d, pos, ns, ng, mat_i, _uv, seg, specular_depth, max_depth, rng,
-                     env, albedo, out) -> list[tuple] | None:
+                     env, out) -> list[tuple] | None:
     """The chains of :func:`lensed_arrivals` followed in one compiled call
     (kernels.specular_chain.follow_chains: the same draws, rays and ends as its numpy loop),
     their ends as that loop lists them (one entry, or none); None where the loop must run instead: rays that must
@@ -88,13 +87,13 @@ def _compiled_chains(scene, geom, rows, thr, d, pos, ns, ng, mat_i, _uv, seg, sp
     done, traced = sc.follow_chains(P, specular, rng, terms, c(rows, np.int64), c(pos, np.float64), c(ns, np.float64),
                                     c(ng, np.float64), c(d, np.float64), c(thr, np.float64), c(seg, np.int64), prow,
                                     int(specular_depth), int(max_depth), eps, ulps, c(env, np.float64),
-                                    c(albedo, np.float64), out, ends)
+                                    out, ends)
     geom.counters["intersect_rays"] += traced
     return [tuple(a[:done] for a in ends)] if done else []
 
 
 def _numpy_chains(scene, geom, kinds, rows, thr, d, pos, ns, ng, mat_i, uv, seg, specular_depth, max_depth, rng, env,
-                  albedo, out) -> list[tuple]:
+                  out) -> list[tuple]:
     """The chains of :func:`lensed_arrivals` followed bounce by bounce in numpy (where
     :func:`_compiled_chains` cannot): the sky along misses added to ``out``, the chain ends
     listed per bounce (rows, throughput, segments, direction, position, ns, ng, material, uv, t)."""
@@ -108,7 +107,7 @@ def _numpy_chains(scene, geom, kinds, rows, thr, d, pos, ns, ng, mat_i, uv, seg,
         h = geom.intersect(origin, d)
         miss = np.nonzero(~h.valid)[0]
         if len(miss) and np.any(env > 0):
-            np.add.at(out, rows[miss], thr[miss] * env / np.maximum(albedo[rows[miss]], 1e-6))
+            np.add.at(out, rows[miss], thr[miss] * env)
         hit = np.nonzero(h.valid)[0]
         spec = kind_in(kinds[h.material[hit]], SPECULAR_KINDS)
         y = hit[~spec]

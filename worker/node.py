@@ -97,7 +97,7 @@ class WorkerNode:
         self._rl = RateLimitedLog(log)  # junk from the master: one line per kind per interval
         self._sets_lock = threading.Lock()
         self._sets_sent: tuple | None = None  # (session, id(renderer), list) last sent in a RESULT
-        self._sets_version: tuple | None = None  # (session, id(renderer), sets_version) last listed
+        self._sets_version: tuple | None = None  # (session, weakref(renderer), sets_version) last listed
 
     # ------------------------------------------------------------------ control
     def stop(self, reason: str = "stopped") -> None:
@@ -427,8 +427,8 @@ class WorkerNode:
         if cached is None:
             return None
         # The list is only made when the renderer says its sets may have changed (sorting its
-        # few hundred keys per task was ~1% of a worker's time at 320×240).
-        # (a weak reference, not id(): a new renderer may take a freed one's address)
+        # few hundred keys per task was ~1% of a worker's time at 320×240); a weak reference,
+        # not id(): a new renderer may take a freed one's address.
         version = (session, weakref.ref(renderer), getattr(renderer, "sets_version", object()))
         if self._sets_version == version:
             return None

@@ -58,12 +58,12 @@ def delta_bounce(P, prow, src, pos, ns, ng, d, thr, seg, u1, u2, max_depth, delt
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def follow_chains(P, specular, rng, closest, rows, pos, ns, ng, d, thr, seg, prow, specular_depth, max_depth,
-                  eps, ulps, env, albedo, out, ends):
+                  eps, ulps, env, out, ends):
     """Whole mirror/glass chains (worker.indirect_caustics), bounce after bounce in one call:
     each vertex samples its delta BSDF (:func:`delta_bounce`, u1 then u2 drawn from ``rng``
     per bounce, as the numpy loop draws them), the rays go to Embree in packets and their hits
     are reconstructed (``closest``: common.geometry.Geometry.closest_terms); a miss adds
-    throughput × ``env`` / albedo to its row of ``out`` (under a lit sky), a hit on a surface
+    throughput × ``env`` to its row of ``out`` (under a lit sky), a hit on a surface
     whose material row is not ``specular`` ends the chain and is written to ``ends`` (rows,
     throughput, segments, direction, position, ns, ng, material, uv, t: per bounce, in ray
     order), a specular one goes on. The chain state (``rows`` … ``prow``: the vertices of
@@ -95,7 +95,7 @@ def follow_chains(P, specular, rng, closest, rows, pos, ns, ng, d, thr, seg, pro
             if not valid[i]:
                 if sky:
                     for a in range(3):
-                        out[r, a] += bthr[i, a] * env[a] / np.maximum(albedo[r, a], 1e-6)
+                        out[r, a] += bthr[i, a] * env[a]
                 continue
             m = hmat[i]
             if not specular[m if m >= 0 else specular.shape[0] + m]:
