@@ -45,6 +45,7 @@ import zmq
 
 from igi.common import protocol as P
 from igi.common.frame import Tile
+from igi.common.gc_policy import settle_long_lived
 from igi.common.ratelimit_log import RateLimitedLog
 
 log = logging.getLogger("igi.worker")
@@ -372,6 +373,7 @@ class WorkerNode:
         for e in edits:
             scene = apply_edit(scene, e)
         renderer = self._make_renderer(scene, base_version + len(edits))
+        settle_long_lived()  # the scene and its BVHs out of the frames' full collections
         log.info("scene %s… version %d ready in %.2f s", h[:12], base_version + len(edits),
                  time.perf_counter() - t0)
         return scene, renderer
@@ -522,6 +524,7 @@ def run_from_args(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, on_signal)
     from .kernels.warm import warm_up_before_hello  # compile / load every kernel before HELLO (issue 16)
     warm_up_before_hello(log)
+    settle_long_lived()  # the kernels' objects out of later full collections
     log.info("worker %s: %d render thread(s), connecting to %s", node.name, node.threads, node.connect)
     return node.run()
 

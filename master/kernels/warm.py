@@ -15,6 +15,8 @@ import time
 
 import numpy as np
 
+from igi.common.gc_policy import settle_long_lived
+
 log = logging.getLogger(__name__)
 
 _SIZE, _N = 10, 5  # a tiny frame: every sub-image of a 5x5 interleave, 2x2 pixels each
@@ -63,6 +65,7 @@ def warm_up_master_in_background() -> threading.Thread:
     def run() -> None:
         try:
             log.debug("master kernels ready in %.2f s", warm_up_master())
+            settle_long_lived()  # the kernels' objects out of the frames' full collections
         except Exception as e:  # noqa: BLE001 - only an optimization
             log.info("master warm-up failed (%s: %s); the first frame loads the kernels", type(e).__name__, e)
 
