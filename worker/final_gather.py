@@ -41,7 +41,7 @@ from igi.common.scene import NULL, SPECULAR_KINDS, Scene, kind_in
 from .caustics import PhotonSet, gather_photons
 from .kernels import final_gather_levels as flv
 from .regularization import regularization_gain, regularized_senders
-from .shading import BSDFRays, EndPoints, bsdf_direct, gather_vpls, trace_bsdf_rays
+from .shading import BSDFRays, EndPoints, LightMIS, add_bsdf_direct, gather_vpls, trace_bsdf_rays
 from .vpl import VPLSet
 
 # In a crease most of y's own short rays meet a surface again, so from level 2 on (y's own
@@ -289,19 +289,18 @@ def final_gather(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoi
     stage timer)."""
     with stage("final gather points"):
         found = find_levels(scene, geom, lights, first, vpls, clamp_d2, max_depth, rng, lobe_alpha)
-        points, all_rays = end, rays
+        points, ray_sets = end, [(rays, 0)]
         if found is not None:
             points = EndPoints.concat([end, found.y])
-            # only the rays that carry BSDF-direct light are copied into the batch's
-            env = lights.environment()
-            all_rays = concat_rays([r.subset(r.lit(env)) for r in (rays, found.rays)], [len(end), len(found.y)])
+            ray_sets.append((found.rays, len(end)))  # the y's rays light rows len(end) on
     with stage("VPL gather"):
         albedo, irr = gather_vpls(geom, points, vpls, clamp_d2, max_depth, force_general=force_general,
                                   lobe_alpha=lobe_alpha, shadow_roulette=shadow_roulette,
                                   seed=int(rng.integers(1 << 62)), lobe_lights=lobe_lights)
     with stage("BSDF direct"):
-        irr += bsdf_direct(scene, geom, lights, points, albedo, vpls.direct_count, max_depth, rng, vpls.env_guide,
-                           all_rays, vpls.emitter_pmf)
+        if lights.has_light:
+            mis = LightMIS(vpls.direct_count, vpls.env_guide, vpls.emitter_pmf)
+            add_bsdf_direct(lights, ray_sets, albedo, mis, irr)
     if photons is not None and len(photons):
         with stage("photon gather"):
             irr += gather_photons(points, photons, albedo, max_depth)

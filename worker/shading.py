@@ -13,6 +13,7 @@ specular bounces is s + 2 + d segments.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
 from functools import cached_property
 
@@ -26,6 +27,7 @@ from igi.common.lights import (VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE,
 from igi.common.scene import (DIFFUSE, NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE, ROUGHPLASTIC_LOBE,
                               SPECULAR_KINDS, Scene, kind_in)
 
+from .kernels import bsdf_direct as kbd
 from .kernels import bsdf_rays as br
 from .kernels import eye_paths as ek
 from .kernels import specular_chain as sc
@@ -923,31 +925,36 @@ def bsdf_direct(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoin
     ``emitter_pmf``: the set's emitter choice (VPLSet.emitter_pmf).
     ``rays``: the end points' traced continuation rays (:func:`trace_bsdf_rays`), shared with
     the clamp compensation; None: sampled and traced here (only those that may reach a light)."""
-    e = len(end)
-    out = np.zeros((e, 3))
-    if e == 0 or not lights.has_light:
+    out = np.zeros((len(end), 3))
+    if len(end) == 0 or not lights.has_light:
         return out
     if rays is None:
         # Rays that provably reach no emitter carry nothing here: traced 0 far.
         rays = trace_bsdf_rays(geom, lights, end, max_depth, rng, short=0.0)
-    hits = rays.hits
-    env = lights.environment()
-    sel = rays.lit(env)
-    if len(sel) == 0:
-        return out
-    ok, weight, pdf_b, delta, d = (a.take(sel, axis=0) for a in (rays.rows, rays.weight, rays.pdf, rays.delta,
-                                                                 rays.direction))
-    hits = hits.rows(sel)
-    le = np.zeros((len(ok), 3))
-    v = hits.valid
-    if v.any():
-        cos_front = -np.einsum("ij,ij->i", d[v], hits.ns[v])
-        le[v] = lights.emitted_radiance(hits.emitter[v], cos_front)
-    if np.any(env > 0) and (~v).any():
-        le[~v] = env
-    # Solid-angle pdf of the emitter sampler for the same point.
-    pl = emitter_pdf(lights, hits, v, d, LightMIS(direct_count, env_guide, emitter_pmf))
-    w_mis = np.where(delta, 1.0, pdf_b ** 2 / np.maximum(pdf_b ** 2 + pl ** 2, 1e-300))
-    contrib = weight * le * w_mis[:, None] / np.maximum(albedo[ok], 1e-6)
-    out[ok] = bsdf.finite_or_zero(contrib)
+    add_bsdf_direct(lights, [(rays, 0)], albedo, LightMIS(direct_count, env_guide, emitter_pmf), out)
     return out
+
+
+def add_bsdf_direct(lights: LightSampler, ray_sets: Sequence[tuple[BSDFRays, int]], albedo: np.ndarray,
+                    light_mis: LightMIS, irr: np.ndarray) -> None:
+    """:func:`bsdf_direct`'s light added to ``irr`` in place (compiled: kernels.bsdf_direct):
+    each ``(rays, base)`` of ``ray_sets`` lights rows ``base + rays.rows`` of ``irr`` (the end
+    points' albedo at the same rows of ``albedo``) — several batches' rays with no copy into
+    one."""
+    env = np.ascontiguousarray(lights.environment(), np.float64)
+    sky = bool(np.any(env > 0))
+    area_pdf = np.append(lights.area_pdf(np.arange(len(lights.scene.emitters)), light_mis.emitter_pmf), 0.0)
+    alb = np.ascontiguousarray(albedo, np.float64)
+    for rays, base in ray_sets:
+        h = rays.hits
+        env_pl = np.zeros(0)
+        if sky:  # the sky's pdf along the misses, as emitter_pdf takes it
+            miss = ~h.valid
+            env_pl = np.zeros(len(miss))
+            if miss.any():
+                g = light_mis.env_guide
+                env_pl[miss] = (g.pmf * g.pdf(rays.direction[miss]) if g is not None
+                                else lights.environment_pdf(light_mis.emitter_pmf))
+        kbd.add_emission(rays.rows, int(base), rays.weight, rays.pdf, rays.delta, rays.direction, h.valid, h.t, h.ns,
+                         h.emitter, lights.area_radiance, area_pdf, env, sky, env_pl, float(light_mis.direct_count),
+                         alb, irr)

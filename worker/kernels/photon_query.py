@@ -4,7 +4,9 @@ binary search in the sorted occupied-cell keys (skipped for cells an occupancy b
 empty: photon sets are sparse, most cells a query touches hold nothing), and the photons
 within r.
 
-Two passes (count, then fill) so the pair arrays are allocated once at their exact size.
+Two passes (count, then fill) so the pair arrays are allocated once at their exact size; the
+fill visits only the queries the count found photons for (most of a frame's end points are
+nowhere near a caustic: the second pass was half the query's time).
 """
 from __future__ import annotations
 
@@ -39,12 +41,20 @@ def _find(keys, key) -> int:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _visit(q, r, w, inv, origin, ext, keys, starts, counts, order, points, occupied, out_p, out_q, fill):
+def _visit(q, rows, nrows, every, r, w, inv, origin, ext, keys, starts, counts, order, points, occupied, out_p,
+           out_q, fill):
+    """Pairs of queries ``rows[:nrows]`` (``every``: queries 0 … nrows - 1): counted, or
+    written to out_p/out_q (``fill``). Counting, the queries that found a photon are written
+    to ``rows`` in order (it may be the list read: a query is written after it is read);
+    returns (pairs, queries that found one)."""
     r2 = r * r
     bitmap = occupied.shape[0] > 0
     ey, ez = ext[1], ext[2]
     total = 0
-    for i in range(q.shape[0]):
+    found = 0
+    for t in range(nrows):
+        i = t if every else rows[t]
+        before = total
         g0, lx = _cell(q[i, 0] - w, inv)
         g1, hx = _cell(q[i, 0] + w, inv)
         g2, ly = _cell(q[i, 1] - w, inv)
@@ -84,7 +94,10 @@ def _visit(q, r, w, inv, origin, ext, keys, starts, counts, order, points, occup
                                 out_p[total] = p
                                 out_q[total] = i
                             total += 1
-    return total
+        if not fill and total > before:
+            rows[found] = i
+            found += 1
+    return total, found
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -95,9 +108,12 @@ def query(q, r, w, inv, origin, ext, keys, starts, counts, order, points, occupi
     ``occupied``: one bit per key of the key space (bit key & 7 of byte key >> 3), or empty:
     none kept."""
     empty = np.empty(0, np.int64)
+    rows = np.empty(q.shape[0], np.int64)
     # (np.bool_, not literals: each literal would compile _visit once more)
-    n = _visit(q, r, w, inv, origin, ext, keys, starts, counts, order, points, occupied, empty, empty, np.bool_(False))
+    n, found = _visit(q, rows, q.shape[0], np.bool_(True), r, w, inv, origin, ext, keys, starts, counts, order, points,
+                      occupied, empty, empty, np.bool_(False))
     out_p = np.empty(n, np.int64)
     out_q = np.empty(n, np.int64)
-    _visit(q, r, w, inv, origin, ext, keys, starts, counts, order, points, occupied, out_p, out_q, np.bool_(True))
+    _visit(q, rows, found, np.bool_(False), r, w, inv, origin, ext, keys, starts, counts, order, points, occupied,
+           out_p, out_q, np.bool_(True))
     return out_p, out_q

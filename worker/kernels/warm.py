@@ -151,10 +151,17 @@ def _direct_calls() -> dict:
         "igi.worker.kernels.specular_chain.delta_bounce": _delta_bounce_call,
         "igi.worker.kernels.photon_query._cell": lambda: photon_query._cell(0.5, 2.0),
         "igi.worker.kernels.photon_query._find": lambda: photon_query._find(np.zeros(1, np.int64), 0),
-        # _visit: query's arguments (empty arrays of its types) plus the output arrays
-        "igi.worker.kernels.photon_query._visit": lambda: photon_query._visit(
-            *_empty_args(photon_query.query), np.zeros(0, np.int64), np.zeros(0, np.int64), False),
+        # _visit: query's arguments (empty arrays of its types), the rows visited, the outputs
+        "igi.worker.kernels.photon_query._visit": _visit_call,
     }
+
+
+def _visit_call() -> None:
+    from igi.worker.kernels import photon_query
+
+    q, *rest = _empty_args(photon_query.query)
+    none = np.zeros(0, np.int64)
+    photon_query._visit(q, none, 0, False, *rest, none, none, False)
 
 
 def _delta_bounce_call() -> None:
