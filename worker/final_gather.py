@@ -99,21 +99,23 @@ def near_arrivals(end: EndPoints, rays: BSDFRays, level: np.ndarray | int, clamp
     ok, hits = rays.rows, rays.hits
     if len(ok) == 0:
         return None
-    lv = np.broadcast_to(np.asarray(level, np.int64), (len(end),))[ok]
-    near = hits.valid & (hits.t < np.sqrt(clamp_d2)) & ~rays.delta & (lv > 0)  # a delta sample meets no clamped VPL
-    if max_depth >= 0:
-        near &= end.segments[ok] + 2 <= max_depth
-    rolled = lv >= COMPENSATION_ROULETTE_LEVEL
-    if rolled.any():
-        near &= ~rolled | (rng.random(len(near)) < 0.5)
-    sel = np.nonzero(near)[0]
-    if len(sel) == 0:
+    if np.ndim(level) == 0:
+        rolled = int(level) >= COMPENSATION_ROULETTE_LEVEL
+        level = np.full(len(end), int(level), np.int64)
+    else:
+        level = np.ascontiguousarray(level, np.int64)
+        rolled = bool(np.any(level[ok] >= COMPENSATION_ROULETTE_LEVEL))
+    u = rng.random(len(ok)) if rolled else np.empty(0)  # one uniform per ray once any level rolls
+    sel, share, child = np.empty(len(ok), np.int64), np.empty(len(ok)), np.empty(len(ok), np.int64)
+    n = flv.near_points(ok, hits.valid, hits.t, rays.delta, level, end.segments, u, float(np.sqrt(clamp_d2)),
+                        float(clamp_d2), int(max_depth), COMPENSATION_ROULETTE_LEVEL, COMPENSATION_MAX_LEVEL, sel,
+                        share, child)
+    if n == 0:
         return None
-    t = hits.t[sel]
-    share = np.clip(1.0 - t * t / clamp_d2, 0.0, 1.0) / np.where(rolled[sel], 0.5, 1.0)
-    child = np.where(lv[sel] < COMPENSATION_MAX_LEVEL, lv[sel] + 1, 0)
-    return Arrivals(hits.position[sel], hits.ns[sel], hits.ng[sel], hits.material[sel], hits.uv[sel], t,
-                    rays.direction[sel], end.segments[ok[sel]] + 1, ok[sel], rays.weight[sel] * share[:, None], child)
+    sel = sel[:n]
+    return Arrivals(hits.position[sel], hits.ns[sel], hits.ng[sel], hits.material[sel], hits.uv[sel], hits.t[sel],
+                    rays.direction[sel], end.segments[ok[sel]] + 1, ok[sel], rays.weight[sel] * share[:n, None],
+                    child[:n])
 
 
 @dataclass
@@ -316,11 +318,13 @@ def carry_back(sizes: list[int], parent: list[np.ndarray], factor: list[np.ndarr
     point's light is complete once its own near points' is in): the points of level i ≥ 1 (rows
     ``sizes[0] + … + sizes[i-1]`` on of ``albedo``/``irr``, level 0 the end points) send
     factor × gain × albedo × irradiance to row ``parent[i-1]`` of level i - 1, per unit of
-    that parent's albedo (summed with np.add.at: right whether or not a parent takes several)."""
+    that parent's albedo (summed in point order, as np.add.at sums: right whether or not a parent
+    takes several; compiled, kernels.final_gather_levels.carry_level)."""
     stops = np.cumsum([0, *sizes])
     for i in range(len(sizes) - 1, 0, -1):
-        radiance = albedo[stops[i]:stops[i + 1]] * irr[stops[i]:stops[i + 1]]
-        if gain[i - 1] is not None:  # reciprocity: the lobe toward x keeps the energy of the one from x
-            radiance *= gain[i - 1]
-        rows = stops[i - 1] + parent[i - 1]
-        np.add.at(irr, rows, bsdf.finite_or_zero(factor[i - 1] * radiance / np.maximum(albedo[rows], 1e-6)))
+        g = gain[i - 1]
+        flv.carry_level(int(stops[i]), int(stops[i - 1]), np.ascontiguousarray(parent[i - 1], np.int64),
+                        np.ascontiguousarray(factor[i - 1], np.float64), _NO_GAIN if g is None else g, albedo, irr)
+
+
+_NO_GAIN = np.zeros((0, 3))

@@ -94,7 +94,7 @@ def test_the_final_gather_is_what_its_levels_shaded_apart_give(monkeypatch):
         return seen["found"]
 
     monkeypatch.setattr(fg, "gather_vpls", gather)
-    monkeypatch.setattr(fg, "bsdf_direct", lambda _s, _g, _l, points, *a, **k: np.zeros((len(points), 3)))
+    monkeypatch.setattr(fg, "add_bsdf_direct", lambda *a, **k: None)
     monkeypatch.setattr(fg, "find_levels", find)
     vpls = r.vpl_set(0, 0, make_params())
     got_a, got = fg.final_gather(scene, r.geom, r.lights, end, rays, first, vpls, d2, -1, g)
@@ -195,3 +195,47 @@ def test_the_compiled_levels_equal_the_numpy_levels(monkeypatch, scene_name, max
         assert len(textured) and np.isin(got[3], textured).any()
     if scene_name == "cornell-box-glossy" and lobe_alpha > 0:
         assert any(gain is not None and (gain != 1).any() for gain in a.gains)  # regularized senders were met
+
+
+@pytest.mark.parametrize("max_depth", [-1, 4])
+@pytest.mark.parametrize("level", ["one", "rolled", "last", "mixed"])
+def test_compiled_near_points_equal_the_numpy_near_points(level, max_depth):
+    """kernels.final_gather_levels.near_points through near_arrivals: the numpy form's arrivals
+    and the generator's next draw, bit for bit (one level, a rolled one, the last, a level per
+    end point with 0s)."""
+    from tests.support.oracle_final_gather import near_arrivals_numpy
+
+    scene = load_shared("cornell-box-sphere")
+    r = Renderer(scene)
+    end, rays, d2, _g = _end_points(scene, r, 32, 24)
+    lv = {"one": 1, "rolled": fg.COMPENSATION_ROULETTE_LEVEL, "last": fg.COMPENSATION_MAX_LEVEL,
+          "mixed": np.arange(len(end)) % (fg.COMPENSATION_MAX_LEVEL + 1)}[level]
+    got_g, want_g = np.random.default_rng(9), np.random.default_rng(9)
+    got = fg.near_arrivals(end, rays, lv, d2, max_depth, got_g)
+    want = near_arrivals_numpy(end, rays, lv, d2, max_depth, want_g)
+    assert want is not None and len(want) > 0
+    for f in fg._FIELDS:
+        np.testing.assert_array_equal(getattr(got, f), getattr(want, f), err_msg=f)
+    assert got_g.random() == want_g.random()
+
+
+def test_compiled_carry_back_equals_numpy_add_at():
+    """kernels.final_gather_levels.carry_level through carry_back: np.add.at's sums bit for bit,
+    with parents taking several points, a gain, albedo 0 (the 1e-6 floor) and NaN / Inf light
+    (dropped)."""
+    from tests.support.oracle_final_gather import carry_back_numpy
+
+    g = np.random.default_rng(4)
+    sizes = [40, 30, 20, 10]
+    n = sum(sizes)
+    albedo, irr = g.random((n, 3)), g.random((n, 3)) * 3
+    albedo[::9] = 0.0
+    irr[5::11, 1] = np.nan
+    irr[7::13, 2] = np.inf
+    parents = [g.integers(0, sizes[i], sizes[i + 1]) for i in range(3)]
+    factors = [g.random((sizes[i + 1], 3)) for i in range(3)]
+    gains = [g.random((sizes[1], 3)) + 0.5, None, g.random((sizes[3], 3)) + 0.5]
+    got, want = irr.copy(), irr.copy()
+    fg.carry_back(sizes, parents, factors, gains, albedo, got)
+    carry_back_numpy(sizes, parents, factors, gains, albedo, want)
+    np.testing.assert_array_equal(got, want)

@@ -7,6 +7,10 @@ levels hold a few dozen points; the loop's ~40 numpy passes per level cost more 
 
 Materials are read per material row of P (regularized as senders: worker.regularization); a
 point on a material with bitmap textures gets a row of its own with its texels.
+
+Around it, the two steps the final gather runs per tile in numpy before: :func:`near_points`,
+the end points' own near hits (the first level's arrivals), and :func:`carry_level`, one
+level's light carried back to its parents (``np.add.at``: ~1 µs a point).
 """
 from __future__ import annotations
 
@@ -165,3 +169,51 @@ def _material_row(P, row, n, m, atlas, u, v):
         else:
             P[3][dst, 0], P[3][dst, 1], P[3][dst, 2] = r, g, b
     return dst
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def near_points(rows, valid, t, delta, level, segments, u, radius, clamp_d2, max_depth, roulette_level,
+                max_level, out_sel, out_share, out_child) -> int:
+    """worker.final_gather.near_arrivals' choice: of the rays ``rows`` (end point per ray; its
+    hit ``valid``, ``t``, ``delta`` sample, end point compensation ``level`` and ``segments``),
+    those whose hit is nearer than ``radius`` (= √clamp_d2), not a delta sample, of a level > 0
+    with a segment left; from ``roulette_level`` on each goes on where its uniform ``u`` < 1/2
+    (``u`` one per ray, or empty when no level rolls). Writes each chosen ray, its share
+    clip(1 - t²/clamp_d2, 0, 1) (/ 1/2 when rolled) and its child's level (level + 1, 0 past
+    ``max_level``); returns how many."""
+    rolled_any = u.shape[0] > 0
+    n = 0
+    for q in range(rows.shape[0]):
+        lv = level[rows[q]]
+        near = valid[q] and t[q] < radius and not delta[q] and lv > 0
+        if max_depth >= 0:
+            near = near and segments[rows[q]] + 2 <= max_depth
+        rolled = lv >= roulette_level
+        if rolled_any:
+            near = near and (not rolled or u[q] < 0.5)
+        if not near:
+            continue
+        tq = t[q]
+        out_sel[n] = q
+        out_share[n] = min(max(1.0 - tq * tq / clamp_d2, 0.0), 1.0) / (0.5 if rolled else 1.0)
+        out_child[n] = lv + 1 if lv < max_level else 0
+        n += 1
+    return n
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def carry_level(start, parent_base, parent, factor, gain, albedo, irr) -> None:
+    """The points rows start … start + len(parent) - 1 of ``albedo``/``irr`` send factor ×
+    gain × albedo × irradiance, per unit of the parent's albedo (floored at 1e-6; 0 where not
+    finite), to row parent_base + parent[q] of ``irr`` — in point order, as np.add.at adds.
+    ``gain`` (n, 3), or no rows: 1."""
+    use_gain = gain.shape[0] > 0
+    for q in range(parent.shape[0]):
+        i = start + q
+        r = parent_base + parent[q]
+        for c in range(3):
+            radiance = albedo[i, c] * irr[i, c]
+            if use_gain:
+                radiance *= gain[q, c]
+            v = factor[q, c] * radiance / max(albedo[r, c], 1e-6)
+            irr[r, c] += v if np.isfinite(v) else 0.0
