@@ -7,6 +7,7 @@ import numpy as np
 
 from igi.common import bsdf
 from igi.common.geometry import Geometry
+from igi.common.scene import NULL, SPECULAR_KINDS, kind_in
 
 from .kernels import light_paths
 
@@ -32,3 +33,56 @@ def continue_paths(sp: bsdf.SurfacePoints, geom: Geometry, sel: np.ndarray, rows
                                    survival is not None, _NO_SURVIVAL if survival is None else c(survival, np.float64),
                                    int(bounce), *geom.offset_terms(), out)
     return out[:n]
+
+
+_WALK_ROWS: dict = {}
+
+
+def _walk_rows(materials: list) -> tuple:
+    """(P, reflects) per material row (NULL at row len(materials)): the materials' packed
+    parameters as common.bsdf.gather gives them (a bitmap texture's value at uv 0) and whether
+    they leave a VPL (not mirror/glass, not NULL). Kept per materials list."""
+    key = tuple(id(m) for m in materials)
+    hit = _WALK_ROWS.get(key)
+    if hit is None:
+        sp = bsdf.gather(materials, np.arange(len(materials) + 1), None)
+        P, _rows = bsdf.packed_rows(sp)
+        hit = (tuple(materials), (P, ~kind_in(sp.kind, SPECULAR_KINDS) & (sp.kind != NULL)))  # ids stay theirs
+        while len(_WALK_ROWS) >= 8:
+            _WALK_ROWS.pop(next(iter(_WALK_ROWS)), None)
+        _WALK_ROWS[key] = hit
+    return hit[1]
+
+
+def trace_walks(materials: list, geom: Geometry, o: np.ndarray, d: np.ndarray, flux: np.ndarray, u: np.ndarray,
+                max_length: int, roulette_after: int | None, survival: np.ndarray | None, dims_start: int,
+                dims_per_bounce: int) -> tuple | None:
+    """The vertices the light walks leave (worker.vpl._light_walks), in one compiled call
+    (kernels.light_paths.trace_walks): (position, ns, ng, flux, depth, wi, material, uv, walk
+    row), bounce by bounce. ``o``, ``d``, ``flux`` (float64, C order) are overwritten. None
+    where the walks must pass through Geometry.intersect (a benchmark timing or recording
+    rays)."""
+    terms = geom.closest_terms()
+    if terms is None:
+        return None
+    P, reflects = _walk_rows(materials)
+    atlas = bsdf.texture_atlas(materials)
+    n = len(o)
+    if len(atlas[1]):  # a row of P per hit of a bounce for the texels of its own (the coat tables stay shared)
+        P = tuple(f if i in (12, 13) else np.concatenate([f, np.empty((n,) + f.shape[1:], f.dtype)])
+                  for i, f in enumerate(P))
+    c = np.ascontiguousarray
+    # room for 8 vertices a walk on average (walks of roulette end after ~3): past that, all of them
+    for cap in dict.fromkeys((n * min(max(max_length, 1), 8), n * max(max_length, 1))):
+        out = (np.empty((cap, 3)), np.empty((cap, 3)), np.empty((cap, 3)), np.empty((cap, 3)), np.empty(cap, np.int32),
+               np.empty((cap, 3)), np.empty(cap, np.int32), np.empty((cap, 2)), np.empty(cap, np.int64))
+        oo, dd, ff = np.array(o, np.float64, order="C"), np.array(d, np.float64, order="C"), np.array(flux, np.float64,
+                                                                                                      order="C")
+        stored, traced = light_paths.trace_walks(P, reflects, atlas, terms, oo, dd, ff, c(u, np.float64),
+                                                 int(max_length), -1 if roulette_after is None else int(roulette_after),
+                                                 _NO_SURVIVAL if survival is None else c(survival, np.float64),
+                                                 int(dims_start), int(dims_per_bounce), *geom.offset_terms()[1:], out)
+        geom.counters["intersect_rays"] += traced
+        if stored >= 0:
+            return tuple(a[:stored] for a in out)
+    raise AssertionError("trace_walks: room for every bounce of every walk was too small")  # pragma: no cover

@@ -19,7 +19,7 @@ from igi.common.scene import NULL, SPECULAR_KINDS, Scene, kind_in
 from igi.common.sobol_stream import SobolStream, stream_seed
 from igi.common.sobol_stream import rng as make_rng
 
-from .light_paths import continue_paths
+from .light_paths import continue_paths, trace_walks
 from .portals import portal_walks
 
 # Sobol dimensions: direct samples use 3 (emitter, 2 for the point); a walk uses 5 to leave
@@ -190,6 +190,15 @@ def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarr
     is_surface = np.linalg.norm(rays.normal - rays.direction, axis=1) > 1e-9  # area: offset off the emitter
     if is_surface.any():
         o[is_surface] = geom.offset(o[is_surface], rays.normal[is_surface], d[is_surface])
+    walked = trace_walks(scene.materials, geom, o, d, flux, u, max_length, roulette_after, survival, WALK_DIMS_START,
+                         WALK_DIMS_PER_BOUNCE)
+    if walked is not None:  # compiled, in one call: the loop below's vertices bit for bit
+        pos, ns, ng, pw, dp, wi, mat, uv, row = walked
+        if len(row) == 0:
+            return _empty_set(), np.zeros(0, np.int64)
+        sp = bsdf.gather(scene.materials, mat, uv)
+        return VPLSet(np.full(len(row), VPL_SURFACE, np.int8), pos, ns, ng, pw, dp, wi, sp,
+                      bool(np.all(sp.kind == 0))), row
     alive = np.nonzero(np.any(flux > 0, axis=1))[0]
     pos_l, ns_l, ng_l, pw_l, dp_l, wi_l, sp_l, row_l = [], [], [], [], [], [], [], []
     for bounce in range(max_length):

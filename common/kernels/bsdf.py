@@ -41,6 +41,8 @@ from igi.common.scene import (
     THINDIELECTRIC,
 )
 
+from .texture import texel
+
 INV_PI = 1.0 / math.pi
 INV_SQRT_PI = 1.0 / math.sqrt(math.pi)
 TWO_OVER_SQRT_PI = 2.0 / math.sqrt(math.pi)
@@ -839,3 +841,28 @@ def copy_row(P, src, dst) -> None:
     P[14][dst] = P[14][src]
     P[15][dst] = P[15][src]
     P[16][dst] = P[16][src]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def material_row(P, row, dst, atlas, u, v):
+    """The row of P a point on material row ``row`` reads: the material's own, or on a
+    material with bitmap textures (``atlas``: common.bsdf.texture_atlas) row ``dst`` (room past
+    the materials' rows), made from the material's with its textures looked up at (u, v) as
+    common.bsdf.gather looks them up."""
+    pixels, tex, xform, nearest, mat_tex = atlas
+    if mat_tex[row, 0] < 0 and mat_tex[row, 1] < 0 and mat_tex[row, 2] < 0:
+        return row
+    copy_row(P, row, dst)
+    for c in range(3):
+        ti = mat_tex[row, c]
+        if ti < 0:
+            continue
+        r, g, b = texel(pixels, tex[ti, 0], tex[ti, 1], tex[ti, 2], u, v, xform[ti, 0], xform[ti, 1], xform[ti, 2],
+                        xform[ti, 3], nearest[ti])
+        if c == 0:
+            P[1][dst, 0], P[1][dst, 1], P[1][dst, 2] = r, g, b
+        elif c == 1:
+            P[2][dst, 0], P[2][dst, 1], P[2][dst, 2] = r, g, b
+        else:
+            P[3][dst, 0], P[3][dst, 1], P[3][dst, 2] = r, g, b
+    return dst

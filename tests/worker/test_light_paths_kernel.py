@@ -115,3 +115,59 @@ def test_compiled_photon_paths_equal_the_numpy_loop(monkeypatch, name):
     for a, b in zip(got, want):
         for field in ("position", "power", "direction", "normal", "depth"):
             np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=field)
+
+
+def _walk_sets(monkeypatch, name: str, compiled: bool, roulette: bool):
+    from igi.common.lights import LightSampler
+    from igi.worker.vpl import build_vpl_sets
+
+    scene = load_shared(name)
+    geom = Geometry(scene)
+    if not compiled:
+        monkeypatch.setattr(geom, "closest_terms", lambda: None)
+    sets = build_vpl_sets(scene, geom, LightSampler(scene, geom), 5, [0, 3, 7], 4, 60, 4, roulette=roulette)
+    return sets, geom.counters["intersect_rays"]
+
+
+@pytest.mark.parametrize("name", ["cornell-box-glossy", "cornell-box-sphere", "modern-hall", "grey-white-room"])
+@pytest.mark.parametrize("roulette", [False, True])
+def test_compiled_light_walks_equal_the_numpy_loop(monkeypatch, name, roulette):
+    """The walks traced in one compiled call (kernels.light_paths.trace_walks) leave the numpy
+    loop's VPLs bit for bit and in order — positions, normals, flux, depths, incident
+    directions, BSDFs (bitmap-textured floors and walls included) — after the same rays; with
+    Russian roulette past the walk length too."""
+    got, got_rays = _walk_sets(monkeypatch, name, True, roulette)
+    monkeypatch.undo()
+    want, want_rays = _walk_sets(monkeypatch, name, False, roulette)
+    assert got_rays == want_rays
+    assert sum(len(s) for s in got) > 30
+    if roulette:
+        assert max(int(s.depth.max()) for s in got) > 4  # walks went past their length
+    for a, b in zip(got, want):
+        for field in ("kind", "position", "normal", "ng", "power", "depth", "wi_local", "light_pdf"):
+            np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=field)
+        assert a.diffuse_only == b.diffuse_only
+        for pa, pb in zip(a.surface.packed(), b.surface.packed()):  # every BSDF parameter per VPL
+            np.testing.assert_array_equal(pa, pb)
+
+
+def test_walks_that_outgrow_the_first_buffer_are_traced_again_whole(monkeypatch):
+    """More VPLs than eight per walk (a white furnace: every walk bounces to its length of 12)
+    take the second, full-sized buffer: the same VPLs as the numpy loop."""
+    from igi.common.lights import LightSampler
+    from igi.worker.vpl import build_vpl_sets
+    from tests.support.scenes_synthetic import furnace_box
+
+    def walks(compiled):
+        scene = furnace_box(0.9, 1.0, 4, 4)
+        geom = Geometry(scene)
+        if not compiled:
+            monkeypatch.setattr(geom, "closest_terms", lambda: None)
+        return build_vpl_sets(scene, geom, LightSampler(scene, geom), 1, [0], 0, 48, 12)[0]
+
+    got = walks(True)
+    monkeypatch.undo()
+    want = walks(False)
+    assert len(got) > 8 * 48 / 12  # past the first buffer's eight per walk
+    for field in ("position", "power", "depth", "wi_local"):
+        np.testing.assert_array_equal(getattr(got, field), getattr(want, field), err_msg=field)

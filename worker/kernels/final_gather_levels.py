@@ -21,7 +21,6 @@ from igi.common.kernels import bsdf as kb
 from igi.common.kernels import shading_frame
 from igi.common.kernels.bounding_spheres import any_hit
 from igi.common.kernels.ray_packets import closest_surfaces
-from igi.common.kernels.texture import texel
 
 from .bsdf_rays import sample_rays
 
@@ -62,7 +61,7 @@ def find_levels(P, reflects, atlas, closest, rng, center, eps, ulps, reach_all, 
         _put(points, n, a_pos[i, 0], a_pos[i, 1], a_pos[i, 2], a_ns[i, 0], a_ns[i, 1], a_ns[i, 2], a_ng[i, 0],
              a_ng[i, 1], a_ng[i, 2], mat, a_uv[i, 0], a_uv[i, 1], a_t[i], a_d[i, 0], a_d[i, 1], a_d[i, 2], a_seg[i],
              a_parent[i], a_factor[i, 0], a_factor[i, 1], a_factor[i, 2], a_level[i])
-        prow[n] = _material_row(P, row, n, m, atlas, a_uv[i, 0], a_uv[i, 1])
+        prow[n] = kb.material_row(P, row, m + 1 + n, atlas, a_uv[i, 0], a_uv[i, 1])
         n += 1
     level = 0
     p0, p1, r0 = 0, n, 0
@@ -122,7 +121,7 @@ def find_levels(P, reflects, atlas, closest, rng, center, eps, ulps, reach_all, 
                      h_ng[q, 0], h_ng[q, 1], h_ng[q, 2], mat, h_uv[q, 0], h_uv[q, 1], t, r_d[q, 0], r_d[q, 1],
                      r_d[q, 2], p_seg[i] + 1, i - p0, r_w[q, 0] * share, r_w[q, 1] * share, r_w[q, 2] * share,
                      lv + 1 if lv < max_level else 0)
-                prow[n] = _material_row(P, row, n, m, atlas, h_uv[q, 0], h_uv[q, 1])
+                prow[n] = kb.material_row(P, row, m + 1 + n, atlas, h_uv[q, 0], h_uv[q, 1])
                 n += 1
         level += 1
         p0, p1, r0 = p1, n, r1
@@ -145,30 +144,6 @@ def _put(points, n, px, py, pz, nx, ny, nz, gx, gy, gz, mat, u, v, t, dx, dy, dz
     p_factor[n, 0], p_factor[n, 1], p_factor[n, 2] = f0, f1, f2
     p_level[n] = level
     p_wo[n, 0], p_wo[n, 1], p_wo[n, 2] = shading_frame.to_local(-dx, -dy, -dz, nx, ny, nz)
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _material_row(P, row, n, m, atlas, u, v):
-    """The row of P point n reads: its material's, or on a textured material the row m + 1 + n
-    made from it with the textures looked up at (u, v) (as common.bsdf.gather looks them up)."""
-    pixels, tex, xform, nearest, mat_tex = atlas
-    if mat_tex[row, 0] < 0 and mat_tex[row, 1] < 0 and mat_tex[row, 2] < 0:
-        return row
-    dst = m + 1 + n
-    kb.copy_row(P, row, dst)
-    for c in range(3):
-        ti = mat_tex[row, c]
-        if ti < 0:
-            continue
-        r, g, b = texel(pixels, tex[ti, 0], tex[ti, 1], tex[ti, 2], u, v, xform[ti, 0], xform[ti, 1], xform[ti, 2],
-                        xform[ti, 3], nearest[ti])
-        if c == 0:
-            P[1][dst, 0], P[1][dst, 1], P[1][dst, 2] = r, g, b
-        elif c == 1:
-            P[2][dst, 0], P[2][dst, 1], P[2][dst, 2] = r, g, b
-        else:
-            P[3][dst, 0], P[3][dst, 1], P[3][dst, 2] = r, g, b
-    return dst
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

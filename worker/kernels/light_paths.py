@@ -138,3 +138,87 @@ def trace_photons(P, kind, specular, null_kind, closest, o, d, flux, u, max_boun
         live = continue_paths(P, prow, sel[:spec], rows, hpos, hns, hng, d, o, flux, u, emit_dims + bounce_dims * b,
                               np.bool_(False), no_survival, np.int64(0), center, eps, ulps, alive)
     return stored, traced
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def trace_walks(P, reflects, atlas, closest, o, d, flux, u, max_length, roulette_after, survival, dims_start,
+                dims_per_bounce, eps, ulps, out) -> tuple:
+    """Instant radiosity's light walks (worker.vpl._light_walks) from emission to their end, in
+    one call: the walks whose flux carries light go to Embree in packets (``closest``:
+    common.geometry.Geometry.closest_terms) bounce by bounce; every hit on a material row that
+    ``reflects`` (not mirror/glass, not NULL) leaves a VPL — position, ns, ng, the walk's flux,
+    depth b + 1, wi in its shading frame, material, uv, the walk's row — in ``out`` (bounce
+    order, then row order); each hit continues (:func:`continue_paths`, u[row, dims_start +
+    dims_per_bounce·b …], Russian roulette on survival[row, b] from bounce ``roulette_after`` - 1
+    on, none when it is negative) until ``max_length`` bounces. A hit reads its material's row
+    of P, or on a material with bitmap textures (``atlas``: common.bsdf.texture_atlas) a row of
+    its own past the materials' (P holds room for a bounce's hits) with its texels. ``o``,
+    ``d``, ``flux`` (float64, C order) are overwritten. Returns (VPLs, rays traced); (-1, rays)
+    where ``out`` was too small."""
+    center = closest[1]
+    n = o.shape[0]
+    out_p, out_n, out_g, out_w, out_dp, out_wi, out_mat, out_uv, out_src = out
+    cap = out_dp.shape[0]
+    alive, rows, sel, prow = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
+    bo, bd = np.empty((n, 3)), np.empty((n, 3))
+    hits = hit_buffers(n)
+    valid, hpos, hng, hns, huv, hmat = hits[4], hits[5], hits[6], hits[7], hits[8], hits[10]
+    m = reflects.shape[0] - 1  # the NULL row
+    live = 0
+    for r in range(n):
+        if flux[r, 0] > 0.0 or flux[r, 1] > 0.0 or flux[r, 2] > 0.0:
+            alive[live] = r
+            live += 1
+    stored, traced = 0, 0
+    for b in range(max_length):
+        if live == 0:
+            break
+        for t in range(live):
+            r = alive[t]
+            for a in range(3):
+                bo[t, a] = o[r, a]
+                bd[t, a] = d[r, a]
+        closest_surfaces(closest, bo, bd, live, hits)
+        traced += live
+        c = 0  # the hits, compacted in place (c <= t)
+        for t in range(live):
+            if valid[t]:
+                rows[c] = alive[t]
+                hmat[c] = hmat[t]
+                for a in range(2):
+                    huv[c, a] = huv[t, a]
+                for a in range(3):
+                    hpos[c, a] = hpos[t, a]
+                    hns[c, a] = hns[t, a]
+                    hng[c, a] = hng[t, a]
+                c += 1
+        if c == 0:
+            break
+        for j in range(c):
+            mat = hmat[j]
+            row = mat if 0 <= mat < m else m
+            prow[j] = kb.material_row(P, row, m + 1 + j, atlas, huv[j, 0], huv[j, 1])
+            sel[j] = j
+            if not reflects[row]:
+                continue
+            if stored == cap:
+                return -1, traced
+            r = rows[j]
+            for a in range(3):
+                out_p[stored, a] = hpos[j, a]
+                out_n[stored, a] = hns[j, a]
+                out_g[stored, a] = hng[j, a]
+                out_w[stored, a] = flux[r, a]
+            out_wi[stored, 0], out_wi[stored, 1], out_wi[stored, 2] = shading_frame.to_local(
+                -d[r, 0], -d[r, 1], -d[r, 2], hns[j, 0], hns[j, 1], hns[j, 2])
+            out_dp[stored] = b + 1
+            out_mat[stored] = mat
+            out_uv[stored, 0], out_uv[stored, 1] = huv[j, 0], huv[j, 1]
+            out_src[stored] = r
+            stored += 1
+        if b + 1 >= max_length:
+            break
+        roulette = roulette_after >= 0 and b + 1 >= roulette_after
+        live = continue_paths(P, prow, sel[:c], rows, hpos, hns, hng, d, o, flux, u, dims_start + dims_per_bounce * b,
+                              np.bool_(roulette), survival, np.int64(b), center, eps, ulps, alive)
+    return stored, traced
