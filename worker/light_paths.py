@@ -12,6 +12,7 @@ from igi.common.scene import NULL, SPECULAR_KINDS, kind_in
 from .kernels import light_paths
 
 _NO_SURVIVAL = np.zeros((0, 0))
+_NO_KEYS = np.zeros(0, np.uint64)
 
 
 def continue_paths(sp: bsdf.SurfacePoints, geom: Geometry, sel: np.ndarray, rows: np.ndarray, pos: np.ndarray,
@@ -55,13 +56,13 @@ def _walk_rows(materials: list) -> tuple:
 
 
 def trace_walks(materials: list, geom: Geometry, o: np.ndarray, d: np.ndarray, flux: np.ndarray, u: np.ndarray,
-                max_length: int, roulette_after: int | None, survival: np.ndarray | None, dims_start: int,
+                max_length: int, roulette_after: int | None, keys: np.ndarray | None, walks: int, dims_start: int,
                 dims_per_bounce: int) -> tuple | None:
     """The vertices the light walks leave (worker.vpl._light_walks), in one compiled call
     (kernels.light_paths.trace_walks): (position, ns, ng, flux, depth, wi, material, uv, walk
-    row), bounce by bounce. ``o``, ``d``, ``flux`` (float64, C order) are overwritten. None
-    where the walks must pass through Geometry.intersect (a benchmark timing or recording
-    rays)."""
+    row), bounce by bounce; past u's bounces and for the roulette, the numbers of walk
+    (keys[row], row % walks) (kernels.light_paths.walk_uniform). None where the walks must pass
+    through Geometry.intersect (a benchmark timing or recording rays)."""
     terms = geom.closest_terms()
     if terms is None:
         return None
@@ -80,9 +81,22 @@ def trace_walks(materials: list, geom: Geometry, o: np.ndarray, d: np.ndarray, f
                                                                                                       order="C")
         stored, traced = light_paths.trace_walks(P, reflects, atlas, terms, oo, dd, ff, c(u, np.float64),
                                                  int(max_length), -1 if roulette_after is None else int(roulette_after),
-                                                 _NO_SURVIVAL if survival is None else c(survival, np.float64),
+                                                 _NO_KEYS if keys is None else c(keys, np.uint64), max(int(walks), 1),
                                                  int(dims_start), int(dims_per_bounce), *geom.offset_terms()[1:], out)
         geom.counters["intersect_rays"] += traced
         if stored >= 0:
             return tuple(a[:stored] for a in out)
     raise AssertionError("trace_walks: room for every bounce of every walk was too small")  # pragma: no cover
+
+
+def roulette_numbers(keys: np.ndarray, walks: int, first: int, length: int, dims_per_bounce: int) -> tuple:
+    """(u, survival): the numbers :func:`trace_walks` draws past the walks' quasi-random ones,
+    as arrays for the numpy loop — u's columns for bounces ``first`` … ``length`` - 1 and every
+    bounce's survival uniform (kernels.light_paths.roulette_uniforms)."""
+    n = len(keys)
+    u = np.empty((n, dims_per_bounce * max(length - first, 0)))
+    survival = np.empty((n, length))
+    light_paths.roulette_uniforms(np.ascontiguousarray(keys, np.uint64), max(int(walks), 1), int(first),
+                                  int(dims_per_bounce), u, survival)
+    return u, survival
+

@@ -17,9 +17,8 @@ from igi.common.geometry import Geometry
 from igi.common.lights import VPL_SPOT, VPL_SURFACE, LightSampler, PointSamples, to_local
 from igi.common.scene import NULL, SPECULAR_KINDS, Scene, kind_in
 from igi.common.sobol_stream import SobolStream, stream_seed
-from igi.common.sobol_stream import rng as make_rng
 
-from .light_paths import continue_paths, trace_walks
+from .light_paths import continue_paths, roulette_numbers, trace_walks
 from .portals import portal_walks
 
 # Sobol dimensions: direct samples use 3 (emitter, 2 for the point); a walk uses 5 to leave
@@ -34,6 +33,7 @@ WALK_DIMS_PER_BOUNCE = 3
 # of a fixed 4096 rows put every set's first point in the same 1/4096 of the leading dimension:
 # all sets of a frame chose the same emitter and started their walks alike.)
 WALK_STREAM = "light walks"
+ROULETTE_STREAM = "light walk roulette"  # the key of a set's walks past their length
 
 
 @dataclass
@@ -135,17 +135,14 @@ def build_vpl_rows(scene: Scene, geom: Geometry, lights: LightSampler, seed: int
         length = MAX_WALK if roulette else max_length
         dims = WALK_DIMS_START + WALK_DIMS_PER_BOUNCE * max_length
         stream = SobolStream(stream_seed(seed, WALK_STREAM))
-        u = [stream.padded(k, walks, walks, dims) for k in ks]
-        survival = None
+        u = np.concatenate([stream.padded(k, walks, walks, dims) for k in ks])
+        keys = None
         if roulette:
-            # Bounces past max_length are rare: plain pseudo-random numbers serve them, and one
-            # more per bounce decides the walk's Russian roulette.
-            extra = [make_rng(seed, k, "roulette").random((walks, WALK_DIMS_PER_BOUNCE * (length - max_length)
-                                                           + length)) for k in ks]
-            u = [np.concatenate([a, b[:, :-length]], axis=1) for a, b in zip(u, extra)]
-            survival = np.concatenate([b[:, -length:] for b in extra])
-        walked, owner = _light_walks(scene, geom, lights, np.concatenate(u), walks, length,
-                                     max_length if roulette else None, survival, portals)
+            # Bounces past max_length are rare: counter-based numbers of the set's key serve them,
+            # drawn only when a walk gets there, and one more per bounce decides its roulette.
+            keys = np.repeat(np.array([stream_seed(seed, ROULETTE_STREAM, k) for k in ks], np.uint64), walks)
+        walked, owner = _light_walks(scene, geom, lights, u, walks, length, max_length if roulette else None, keys,
+                                     portals)
         base = sum(len(p) for p in parts)
         parts.append(walked)
         for i, r in enumerate(_split(owner // walks, nsets)):
@@ -177,10 +174,10 @@ def emitter_vpls(scene: Scene, s: PointSamples, count: int, emitter_pmf: np.ndar
 
 def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarray,
                  walks: int, max_length: int, roulette_after: int | None = None,
-                 survival: np.ndarray | None = None, portals=None) -> tuple[VPLSet, np.ndarray]:
+                 keys: np.ndarray | None = None, portals=None) -> tuple[VPLSet, np.ndarray]:
     """The vertices of the walks of rows u (flux / ``walks`` each) and the row that left each;
-    ``survival`` (rows, max_length): the uniforms of the walks' Russian roulette past
-    ``roulette_after`` bounces."""
+    past ``roulette_after`` bounces (u's), Russian roulette on the numbers of each row's set
+    key ``keys[row]`` (kernels.light_paths.walk_uniform)."""
     rays = lights.emit_rays(u[:, :WALK_DIMS_START])
     if portals is not None:
         portal_walks(rays, u[:, :WALK_DIMS_START], lights, portals)
@@ -190,8 +187,8 @@ def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarr
     is_surface = np.linalg.norm(rays.normal - rays.direction, axis=1) > 1e-9  # area: offset off the emitter
     if is_surface.any():
         o[is_surface] = geom.offset(o[is_surface], rays.normal[is_surface], d[is_surface])
-    walked = trace_walks(scene.materials, geom, o, d, flux, u, max_length, roulette_after, survival, WALK_DIMS_START,
-                         WALK_DIMS_PER_BOUNCE)
+    walked = trace_walks(scene.materials, geom, o, d, flux, u, max_length, roulette_after, keys, walks,
+                         WALK_DIMS_START, WALK_DIMS_PER_BOUNCE)
     if walked is not None:  # compiled, in one call: the loop below's vertices bit for bit
         pos, ns, ng, pw, dp, wi, mat, uv, row = walked
         if len(row) == 0:
@@ -199,6 +196,10 @@ def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarr
         sp = bsdf.gather(scene.materials, mat, uv)
         return VPLSet(np.full(len(row), VPL_SURFACE, np.int8), pos, ns, ng, pw, dp, wi, sp,
                       bool(np.all(sp.kind == 0))), row
+    survival = None
+    if keys is not None:  # the numbers trace_walks draws as it goes, as arrays
+        extra, survival = roulette_numbers(keys, walks, roulette_after, max_length, WALK_DIMS_PER_BOUNCE)
+        u = np.concatenate([u, extra], axis=1)
     alive = np.nonzero(np.any(flux > 0, axis=1))[0]
     pos_l, ns_l, ng_l, pw_l, dp_l, wi_l, sp_l, row_l = [], [], [], [], [], [], [], []
     for bounce in range(max_length):

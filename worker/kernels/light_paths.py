@@ -140,8 +140,45 @@ def trace_photons(P, kind, specular, null_kind, closest, o, d, flux, u, max_boun
     return stored, traced
 
 
+_MIX_WALK = np.uint64(0x9E3779B97F4A7C15)
+_MIX_BOUNCE = np.uint64(0xC2B2AE3D27D4EB4F)
+_MIX_DIM = np.uint64(0x165667B19E3779F9)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _splitmix(z):
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def walk_uniform(key, walk, bounce, dim):
+    """A uniform in [0, 1) for number ``dim`` of bounce ``bounce`` of walk ``walk`` of the set
+    keyed ``key`` (two splitmix64 rounds): the same in every thread and process, drawn only
+    when a walk gets that far."""
+    z = _splitmix(np.uint64(key) ^ (np.uint64(walk) * _MIX_WALK))
+    z = _splitmix(z ^ (np.uint64(bounce) * _MIX_BOUNCE) ^ (np.uint64(dim + 1) * _MIX_DIM))
+    return np.float64(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+@njit(cache=True, nogil=True)
+def roulette_uniforms(keys, walks, first, dims_per_bounce, u_out, s_out) -> None:
+    """The Russian-roulette walks' numbers past their quasi-random ones, as arrays (the numpy
+    loop's; :func:`trace_walks` draws them as it goes): u_out[r, dims_per_bounce·(b - first) + c]
+    = walk_uniform(keys[r], r % walks, b, c) for bounces b >= ``first``, s_out[r, b] the
+    bounce's survival uniform (number ``dims_per_bounce``) for every b."""
+    for r in range(keys.shape[0]):
+        w = r % walks
+        for b in range(s_out.shape[1]):
+            s_out[r, b] = walk_uniform(keys[r], w, b, dims_per_bounce)
+            if b >= first:
+                for c in range(dims_per_bounce):
+                    u_out[r, dims_per_bounce * (b - first) + c] = walk_uniform(keys[r], w, b, c)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
-def trace_walks(P, reflects, atlas, closest, o, d, flux, u, max_length, roulette_after, survival, dims_start,
+def trace_walks(P, reflects, atlas, closest, o, d, flux, u, max_length, roulette_after, keys, walks, dims_start,
                 dims_per_bounce, eps, ulps, out) -> tuple:
     """Instant radiosity's light walks (worker.vpl._light_walks) from emission to their end, in
     one call: the walks whose flux carries light go to Embree in packets (``closest``:
@@ -149,8 +186,9 @@ def trace_walks(P, reflects, atlas, closest, o, d, flux, u, max_length, roulette
     ``reflects`` (not mirror/glass, not NULL) leaves a VPL — position, ns, ng, the walk's flux,
     depth b + 1, wi in its shading frame, material, uv, the walk's row — in ``out`` (bounce
     order, then row order); each hit continues (:func:`continue_paths`, u[row, dims_start +
-    dims_per_bounce·b …], Russian roulette on survival[row, b] from bounce ``roulette_after`` - 1
-    on, none when it is negative) until ``max_length`` bounces. A hit reads its material's row
+    dims_per_bounce·b …] while u has them, then :func:`walk_uniform` of (keys[row], row % walks);
+    Russian roulette from bounce ``roulette_after`` - 1 on, on walk_uniform number
+    ``dims_per_bounce``; none when it is negative) until ``max_length`` bounces. A hit reads its material's row
     of P, or on a material with bitmap textures (``atlas``: common.bsdf.texture_atlas) a row of
     its own past the materials' (P holds room for a bounce's hits) with its texels. ``o``,
     ``d``, ``flux`` (float64, C order) are overwritten. Returns (VPLs, rays traced); (-1, rays)
@@ -164,6 +202,9 @@ def trace_walks(P, reflects, atlas, closest, o, d, flux, u, max_length, roulette
     hits = hit_buffers(n)
     valid, hpos, hng, hns, huv, hmat = hits[4], hits[5], hits[6], hits[7], hits[8], hits[10]
     m = reflects.shape[0] - 1  # the NULL row
+    quasi = (u.shape[1] - dims_start) // dims_per_bounce  # bounces with numbers of u
+    drawn = np.empty((n, dims_per_bounce))  # a bounce's numbers past those
+    survival = np.empty((n, 1))
     live = 0
     for r in range(n):
         if flux[r, 0] > 0.0 or flux[r, 1] > 0.0 or flux[r, 2] > 0.0:
@@ -219,6 +260,18 @@ def trace_walks(P, reflects, atlas, closest, o, d, flux, u, max_length, roulette
         if b + 1 >= max_length:
             break
         roulette = roulette_after >= 0 and b + 1 >= roulette_after
-        live = continue_paths(P, prow, sel[:c], rows, hpos, hns, hng, d, o, flux, u, dims_start + dims_per_bounce * b,
-                              np.bool_(roulette), survival, np.int64(b), center, eps, ulps, alive)
+        if roulette or b >= quasi:
+            for j in range(c):
+                r = rows[j]
+                survival[r, 0] = walk_uniform(keys[r], r % walks, b, dims_per_bounce) if roulette else 0.0
+                if b >= quasi:
+                    for q in range(dims_per_bounce):
+                        drawn[r, q] = walk_uniform(keys[r], r % walks, b, q)
+        if b < quasi:
+            live = continue_paths(P, prow, sel[:c], rows, hpos, hns, hng, d, o, flux, u,
+                                  dims_start + dims_per_bounce * b, np.bool_(roulette), survival, np.int64(0), center,
+                                  eps, ulps, alive)
+        else:
+            live = continue_paths(P, prow, sel[:c], rows, hpos, hns, hng, d, o, flux, drawn, np.int64(0),
+                                  np.bool_(roulette), survival, np.int64(0), center, eps, ulps, alive)
     return stored, traced
