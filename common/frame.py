@@ -5,6 +5,7 @@ renders task (frame, k, tile) returns the same buffers.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -55,14 +56,9 @@ class Tile:
     sy1: int
 
     def pixels(self, n: int, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
-        """Image coordinates (x, y) of the tile's pixels, row-major, clipped to the image."""
-        kx, ky = self.k % n, self.k // n
-        xs = np.arange(self.sx0, self.sx1) * n + kx
-        ys = np.arange(self.sy0, self.sy1) * n + ky
-        xs = xs[xs < width]
-        ys = ys[ys < height]
-        yy, xx = np.meshgrid(ys, xs, indexing="ij")
-        return xx.ravel(), yy.ravel()
+        """Image coordinates (x, y) of the tile's pixels, row-major, clipped to the image
+        (read-only arrays: a frame's tiles come back every frame, so they are made once)."""
+        return _tile_pixels(self.k, self.sx0, self.sy0, self.sx1, self.sy1, n, width, height)
 
 
 @dataclass
@@ -77,3 +73,19 @@ class TileBuffers:
 
     def __len__(self) -> int:
         return len(self.depth)
+
+
+@functools.lru_cache(maxsize=1024)
+def _tile_pixels(k: int, sx0: int, sy0: int, sx1: int, sy1: int, n: int, width: int,
+                 height: int) -> tuple[np.ndarray, np.ndarray]:
+    kx, ky = k % n, k // n
+    xs = np.arange(sx0, sx1) * n + kx
+    ys = np.arange(sy0, sy1) * n + ky
+    xs = xs[xs < width]
+    ys = ys[ys < height]
+    yy, xx = np.meshgrid(ys, xs, indexing="ij")
+    xx, yy = xx.ravel(), yy.ravel()
+    xx.flags.writeable = False
+    yy.flags.writeable = False
+    return xx, yy
+

@@ -86,8 +86,14 @@ _FIELDS = tuple(Arrivals.__dataclass_fields__)
 
 
 def compensation_enabled(vpls: VPLSet, clamp_d2: float) -> bool:
-    """Whether the clamp took anything: a positive clamp and surface VPLs to clamp."""
-    return clamp_d2 > 0 and bool(np.any(vpls.kind == VPL_SURFACE))
+    """Whether the clamp took anything: a positive clamp and surface VPLs to clamp (whether the
+    set has any: worked out once per set, asked twice per tile)."""
+    if clamp_d2 <= 0:
+        return False
+    surface = vpls.derived.get("has surface VPLs")
+    if surface is None:
+        surface = vpls.derived["has surface VPLs"] = bool(np.any(vpls.kind == VPL_SURFACE))
+    return surface
 
 
 def near_arrivals(end: EndPoints, rays: BSDFRays, level: np.ndarray | int, clamp_d2: float, max_depth: int,
