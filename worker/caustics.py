@@ -17,7 +17,7 @@ import numpy as np
 
 from igi.common import bsdf
 from igi.common.geometry import Geometry
-from igi.common.lights import LightSampler, spot_falloff, to_world, uniform_sphere
+from igi.common.lights import LightSampler, spot_falloff, uniform_sphere
 from igi.common.scene import AREA, NULL, POINT, SPECULAR_KINDS, SPOT, Scene, kind_in
 from igi.common.sobol_stream import SobolStream, stream_seed
 from igi.common.specular import specular_targets
@@ -129,24 +129,20 @@ def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: 
         if e.kind != AREA:
             pos[rows_of[i]] = e.position
             nrm[rows_of[i]] = e.direction / np.linalg.norm(e.direction)
-    if aim:
+    if aim:  # direction, pdf, area emitters' flux and offset origins in one pass
         c = np.ascontiguousarray
-        centres, radii = c(centres, np.float64), c(radii, np.float64)
-        cm, axis = np.empty(shot), np.empty((shot, 3))
-        photon_aim.chosen_cones(pos, c(u[:, 2]), centres, radii, cm, axis)
-        cz = 1 - u[:, 3] * (1 - cm)
-        r = np.sqrt(np.maximum(0, 1 - cz * cz))
-        phi = 2 * np.pi * u[:, 4]
-        local = np.stack([r * np.cos(phi), r * np.sin(phi), cz], axis=1)
-        d = to_world(local, axis)
-        pdf = np.empty(shot)
-        photon_aim.cone_mixture_pdf(pos, d, centres, radii, pdf)
+        d, pdf, flux, o = np.empty((shot, 3)), np.empty(shot), np.empty((shot, 3)), np.empty((shot, 3))
+        is_area = np.zeros(shot, bool)
+        is_area[area] = True
+        photon_aim.aimed_emission(pos, nrm, c(u, np.float64), c(centres, np.float64), c(radii, np.float64), em,
+                                  is_area, lights.area_radiance, c(lights.area_total, np.float64),
+                                  *geom.offset_terms(), d, pdf, flux, o)
     else:
         d = uniform_sphere(u[:, 3:5])
         pdf = np.full(shot, 1 / (4 * np.pi))
-    flux = np.zeros((shot, 3))
-    o = pos.copy()
-    if len(area):
+        flux = np.zeros((shot, 3))
+        o = pos.copy()
+    if len(area) and not aim:
         cos_e = np.einsum("ij,ij->i", d[area], nrm[area])
         radiance = np.array([scene.emitters[i].radiance if scene.emitters[i].kind == AREA else np.zeros(3)
                              for i in range(len(scene.emitters))], np.float64)

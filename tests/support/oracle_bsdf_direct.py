@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 
 from igi.common import bsdf
-from igi.worker.shading import emitter_pdf
 
 
 def bsdf_direct_numpy(lights, rays, albedo: np.ndarray, light_mis) -> np.ndarray:
@@ -22,11 +21,21 @@ def bsdf_direct_numpy(lights, rays, albedo: np.ndarray, light_mis) -> np.ndarray
     le = np.zeros((len(ok), 3))
     v = hits.valid
     if v.any():
-        cos_front = -np.einsum("ij,ij->i", d[v], hits.ns[v])
+        # (the product's sum of three products, left to right: numpy's einsum adds x and z first)
+        dv, nv = d[v], hits.ns[v]
+        cos_front = -(dv[:, 0] * nv[:, 0] + dv[:, 1] * nv[:, 1] + dv[:, 2] * nv[:, 2])
         le[v] = lights.emitted_radiance(hits.emitter[v], cos_front)
     if np.any(env > 0) and (~v).any():
         le[~v] = env
-    pl = emitter_pdf(lights, hits, v, d, light_mis)
+    # emitter_pdf's solid-angle pdf, its cosine summed left to right as above
+    pl = np.zeros(len(d))
+    if v.any():
+        pl[v] = (lights.area_pdf(hits.emitter[v], light_mis.emitter_pmf) * hits.t[v] ** 2
+                 / np.maximum(np.abs(cos_front), 1e-7))
+    if (~v).any() and np.any(env > 0):
+        g = light_mis.env_guide
+        pl[~v] = g.pmf * g.pdf(d[~v]) if g is not None else lights.environment_pdf(light_mis.emitter_pmf)
+    pl = pl * light_mis.direct_count
     w_mis = np.where(delta, 1.0, pdf_b ** 2 / np.maximum(pdf_b ** 2 + pl ** 2, 1e-300))
     contrib = weight * le * w_mis[:, None] / np.maximum(albedo[ok], 1e-6)
     out[ok] = bsdf.finite_or_zero(contrib)

@@ -68,3 +68,30 @@ def test_mixture_pdf_integrates_to_one_over_the_sphere():
     pdf = np.empty(n)
     photon_aim.cone_mixture_pdf(np.zeros((n, 3)), d, centres, radii, pdf)
     assert abs(4 * np.pi * pdf.mean() - 1.0) < 0.01
+
+
+@pytest.mark.parametrize("seed,targets", [(3, 1), (4, 5)])
+def test_aimed_emission_equals_the_numpy_emission(seed, targets):
+    """kernels.photon_aim.aimed_emission: the numpy form's directions, pdfs, area emitters'
+    flux (grazing and back-facing directions included) and offset origins, bit for bit."""
+    from igi.bench.stress_scenes import load_shared
+    from igi.common.geometry import Geometry
+
+    geom = Geometry(load_shared("cornell-box-sphere"))
+    g, centres, radii, pos = _scene(seed, targets, 3000)
+    n = len(pos)
+    nrm = g.normal(size=(n, 3))
+    nrm /= np.linalg.norm(nrm, axis=1)[:, None]
+    u = g.random((n, 5))
+    emitter = g.integers(0, 3, n)
+    area = emitter != 2  # emitter 2 a point light: flux 0 here, origin unmoved
+    radiance = np.array([[5.0, 4.0, 3.0], [1.0, 2.0, 0.5], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    total = np.array([0.3, 1.7, 0.0])
+    d, pdf, flux, o = (np.empty((n, 3)), np.empty(n), np.empty((n, 3)), np.empty((n, 3)))
+    photon_aim.aimed_emission(pos, nrm, u, centres, radii, emitter, area, radiance, total, *geom.offset_terms(), d,
+                              pdf, flux, o)
+    want = oracle.aimed_emission(pos, nrm, u, centres, radii, emitter, area, radiance, total, geom.offset)
+    for got, w, name in zip((d, pdf, flux, o), want, ("direction", "pdf", "flux", "origin")):
+        np.testing.assert_array_equal(got, w, err_msg=name)
+    assert np.any(flux[area] == 0) and np.any(flux[area] > 0)  # back-facing and lit: not vacuous
+    np.testing.assert_array_equal(o[~area], pos[~area])

@@ -13,6 +13,9 @@ import math
 import numpy as np
 from numba import njit
 
+from igi.common.kernels import shading_frame
+from igi.common.kernels.hit_surface import offset_point
+
 _TINY = 1e-300  # distances below this are clamped (a point at a sphere's centre)
 
 
@@ -52,14 +55,55 @@ def cone_mixture_pdf(pos, d, centres, radii, out) -> None:
     """out[n]: the solid-angle pdf of direction d[n] from pos[n] when a target is chosen
     uniformly and the direction uniformly in its cone (the cones that contain d[n] count; from
     inside a sphere its cone is the whole sphere)."""
+    for n in range(pos.shape[0]):
+        out[n] = _mixture_pdf(pos[n, 0], pos[n, 1], pos[n, 2], d[n, 0], d[n, 1], d[n, 2], centres, radii)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _mixture_pdf(px, py, pz, dx, dy, dz, centres, radii):
+    targets = radii.shape[0]
+    two_pi = 2 * np.pi
+    acc = 0.0
+    for t in range(targets):
+        x, y, z, far, cos_max = _cone(px, py, pz, centres[t, 0], centres[t, 1], centres[t, 2], radii[t])
+        cos_d = (dx * x + dy * y + dz * z) / far
+        if cos_max == -1.0 or cos_d >= cos_max:
+            acc += 1.0 / (two_pi * (1.0 - cos_max))
+    return acc / targets
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def aimed_emission(pos, nrm, u, centres, radii, emitter, area, radiance, total, center, eps, ulps, out_d, out_pdf,
+                   out_flux, out_o) -> None:
+    """Photon n's emission aimed at the targets (worker.caustics): :func:`chosen_cones`' cone
+    (target u[n, 2]), the direction uniform in it (u[n, 3], u[n, 4]) in world space, its
+    :func:`cone_mixture_pdf`; for a photon of an area emitter (``area[n]``) the flux
+    radiance[emitter[n]] · max(cos, 0) · total[emitter[n]] / pdf and the origin offset off the
+    emitter toward the direction, else flux 0 and the origin ``pos[n]`` — worker.caustics'
+    numpy form's arithmetic, in its order (its cosine's three products summed left to right,
+    where numpy's einsum added x and z first: the flux of a tilted emitter's photon may differ
+    in the last bit)."""
     targets = radii.shape[0]
     two_pi = 2 * np.pi
     for n in range(pos.shape[0]):
-        acc = 0.0
-        for t in range(targets):
-            x, y, z, far, cos_max = _cone(pos[n, 0], pos[n, 1], pos[n, 2], centres[t, 0], centres[t, 1],
-                                          centres[t, 2], radii[t])
-            cos_d = (d[n, 0] * x + d[n, 1] * y + d[n, 2] * z) / far
-            if cos_max == -1.0 or cos_d >= cos_max:
-                acc += 1.0 / (two_pi * (1.0 - cos_max))
-        out[n] = acc / targets
+        px, py, pz = pos[n, 0], pos[n, 1], pos[n, 2]
+        t = min(int(u[n, 2] * targets), targets - 1)
+        x, y, z, far, cos_max = _cone(px, py, pz, centres[t, 0], centres[t, 1], centres[t, 2], radii[t])
+        cz = 1 - u[n, 3] * (1 - cos_max)
+        r = math.sqrt(max(0.0, 1 - cz * cz))
+        phi = two_pi * u[n, 4]
+        dx, dy, dz = shading_frame.to_world(r * math.cos(phi), r * math.sin(phi), cz, x / far, y / far, z / far)
+        out_d[n, 0], out_d[n, 1], out_d[n, 2] = dx, dy, dz
+        pdf = _mixture_pdf(px, py, pz, dx, dy, dz, centres, radii)
+        out_pdf[n] = pdf
+        if area[n]:
+            e = emitter[n]
+            nx, ny, nz = nrm[n, 0], nrm[n, 1], nrm[n, 2]
+            s = max(dx * nx + dy * ny + dz * nz, 0.0) * total[e] / pdf
+            for c in range(3):
+                out_flux[n, c] = radiance[e, c] * s
+            out_o[n, 0], out_o[n, 1], out_o[n, 2] = offset_point(px, py, pz, nx, ny, nz, dx, dy, dz, center, eps, ulps)
+        else:
+            for c in range(3):
+                out_flux[n, c] = 0.0
+            out_o[n, 0], out_o[n, 1], out_o[n, 2] = px, py, pz
