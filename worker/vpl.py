@@ -140,7 +140,8 @@ def build_vpl_rows(scene: Scene, geom: Geometry, lights: LightSampler, seed: int
         if roulette:
             # Bounces past max_length are rare: counter-based numbers of the set's key serve them,
             # drawn only when a walk gets there, and one more per bounce decides its roulette.
-            keys = np.repeat(np.array([stream_seed(seed, ROULETTE_STREAM, k) for k in ks], np.uint64), walks)
+            base = stream_seed(seed, ROULETTE_STREAM)
+            keys = np.repeat(np.array([_set_key(base, k) for k in ks], np.uint64), walks)
         walked, owner = _light_walks(scene, geom, lights, u, walks, length, max_length if roulette else None, keys,
                                      portals)
         base = sum(len(p) for p in parts)
@@ -149,6 +150,15 @@ def build_vpl_rows(scene: Scene, geom: Geometry, lights: LightSampler, seed: int
             rows[i].append(base + r)
     joined = concat_vpls(parts)
     return joined, [np.concatenate(r) if r and len(joined) else np.zeros(0, np.int64) for r in rows]
+
+
+def _set_key(base: int, k: int) -> int:
+    """Set k's 64-bit key under a frame's ``base`` (splitmix64 of their sum: one generator per
+    batch, not one per set)."""
+    z = (base + 0x9E3779B97F4A7C15 * (k + 1)) & 0xFFFFFFFFFFFFFFFF
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & 0xFFFFFFFFFFFFFFFF
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
+    return z ^ (z >> 31)
 
 
 def _split(label: np.ndarray, n: int) -> list[np.ndarray]:

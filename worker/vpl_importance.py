@@ -278,10 +278,11 @@ def build_importance_vpl_sets(scene: Scene, geom: Geometry, lights: LightSampler
     joined, set_rows = build_vpl_rows(scene, geom, lights, seed, ks, direct_vpls, indirect_vpls * oversample,
                                       max_length, roulette=roulette, portals=portals, emitter_pmf=emitter_pmf)
     cands = sets_of(joined, set_rows)
+    sky = single_environment(scene, lights) >= 0
     for k, end, cand in zip(ks, ends, cands):
         # The sky seen through openings: environment samples drawn where camera points see it
         # (and light walks from the sky started where it enters: the portals).
-        guide = build_guide(scene, geom, lights, end, make_rng(seed, k, "env guide rays"))
+        guide = build_guide(scene, geom, lights, end, make_rng(seed, k, "env guide rays")) if sky else None
         if guide is not None:
             guide_environment_samples(cand, lights, guide, direct_vpls, make_rng(seed, k, "env guide samples"))
             cand.env_guide = guide
