@@ -24,11 +24,12 @@ from igi.common.specular import specular_targets
 
 from .hash_grid import HashGrid
 from .kernels import light_paths, photon_aim, photon_estimate
-from .light_paths import continue_paths
+from .light_paths import continue_paths, roulette_numbers, set_key
 
 PHOTON_STREAM = "caustic photons"
 EMIT_DIMS = 5  # 2 position, 1 target, 2 direction in the cone
 BOUNCE_DIMS = 3
+QUASI_BOUNCES = 2  # bounces with Sobol numbers; past them each number costs what it is used for
 
 
 @dataclass
@@ -102,7 +103,9 @@ def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: 
     if photons_per_light <= 0 or len(radii) == 0 or not lights.has_light:
         return [_empty(float(r)) for r in radii_of]
     stream = SobolStream(stream_seed(seed, PHOTON_STREAM))
-    dims = EMIT_DIMS + BOUNCE_DIMS * max_bounces
+    # Quasi-random numbers for the first QUASI_BOUNCES bounces (into and out of a glass ball);
+    # a chain's further bounces draw counter-based ones of its set's key as they happen.
+    dims = EMIT_DIMS + BOUNCE_DIMS * min(max_bounces, QUASI_BOUNCES)
     # Each light's photons from its own rows of the stream; everything after is per photon,
     # so all lights are emitted in one pass (same values as light by light). Set k's rows are
     # chunk k of the frame's stream: a frame's sets together are one Sobol prefix.
@@ -113,6 +116,8 @@ def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: 
     counts = photon_counts(lights.powers[shooting], photons_per_light)
     per_set = int(counts.sum())
     u = np.concatenate([stream.padded(k, per_set, per_set, dims) for k in ks])
+    base = stream_seed(seed, PHOTON_STREAM, "bounces")
+    keys = np.repeat(np.array([set_key(base, k) for k in ks], np.uint64), per_set)
     nsets = len(ks)
     light = np.tile(np.repeat(np.arange(len(shooting)), counts), nsets)  # row -> shooting light
     em = np.asarray(shooting, np.int64)[light]
@@ -160,7 +165,7 @@ def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: 
     flux /= counts[light][:, None]
     # All sets' and lights' photons in one trace (one Embree batch per bounce), then put back
     # per set in light order: the same photons, in the same order, as tracing light by light.
-    traced = _trace_photons(scene, geom, o, d, flux, u, max_bounces)
+    traced = _trace_photons(scene, geom, o, d, flux, u, max_bounces, keys, per_set)
     out = []
     src = traced[5] if traced is not None else np.zeros(0, np.int64)
     order = np.lexsort((light[src], src // per_set))
@@ -177,10 +182,17 @@ def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: 
     return out
 
 
-def _trace_photons(scene, geom, o, d, flux, u, max_bounces):
-    compiled = _compiled_photons(scene, geom, o, d, flux, u, max_bounces)
+def _trace_photons(scene, geom, o, d, flux, u, max_bounces, keys, per_set):
+    """The photons from emission (o, d, flux) to where they are stored: (position, flux,
+    direction, ns, depth, row), or None when none is. Bounce b reads u[row, EMIT_DIMS +
+    BOUNCE_DIMS·b …] while u has them, then the counter-based numbers of (keys[row], row %
+    per_set)."""
+    compiled = _compiled_photons(scene, geom, o, d, flux, u, max_bounces, keys, per_set)
     if compiled is not None:
         return compiled
+    quasi = (u.shape[1] - EMIT_DIMS) // BOUNCE_DIMS
+    if quasi < max_bounces:  # the numbers the compiled tracer draws as it goes, as arrays
+        u = np.concatenate([u, roulette_numbers(keys, per_set, quasi, max_bounces, BOUNCE_DIMS)[0]], axis=1)
     alive = np.nonzero(np.any(flux > 0, axis=1))[0]
     bounced = np.zeros(len(o), bool)
     out_p, out_w, out_d, out_n, out_dp, out_src = [], [], [], [], [], []
@@ -251,7 +263,7 @@ def gather_photons(end, photons: PhotonSet, albedo: np.ndarray, max_depth: int) 
     return out
 
 
-def _compiled_photons(scene, geom, o, d, flux, u, max_bounces):
+def _compiled_photons(scene, geom, o, d, flux, u, max_bounces, keys, per_set):
     """:func:`_trace_photons` in one compiled call (kernels.light_paths.trace_photons: the same
     rays, bounces and stored photons as its loop; none stored: empty arrays), or None where the
     loop must run: rays that must pass through Geometry.intersect (a benchmark timing or
@@ -270,6 +282,7 @@ def _compiled_photons(scene, geom, o, d, flux, u, max_bounces):
                                                np.array(d, np.float64, order="C"),
                                                np.array(flux, np.float64, order="C"),
                                                np.ascontiguousarray(u, np.float64), int(max_bounces), EMIT_DIMS,
-                                               BOUNCE_DIMS, eps, ulps, out)
+                                               BOUNCE_DIMS, np.ascontiguousarray(keys, np.uint64),
+                                               max(int(per_set), 1), eps, ulps, out)
     geom.counters["intersect_rays"] += traced
     return tuple(a[:stored] for a in out)

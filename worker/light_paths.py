@@ -100,3 +100,13 @@ def roulette_numbers(keys: np.ndarray, walks: int, first: int, length: int, dims
                                   int(dims_per_bounce), u, survival)
     return u, survival
 
+
+def set_key(base: int, k: int) -> int:
+    """Set k's 64-bit key under a frame's ``base`` (splitmix64 of their sum): the key of the
+    counter-based numbers its paths draw past their quasi-random ones
+    (kernels.light_paths.walk_uniform) — one generator per batch, not one per set."""
+    z = (base + 0x9E3779B97F4A7C15 * (k + 1)) & 0xFFFFFFFFFFFFFFFF
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & 0xFFFFFFFFFFFFFFFF
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
+    return z ^ (z >> 31)
+

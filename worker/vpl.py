@@ -18,7 +18,7 @@ from igi.common.lights import VPL_SPOT, VPL_SURFACE, LightSampler, PointSamples,
 from igi.common.scene import NULL, SPECULAR_KINDS, Scene, kind_in
 from igi.common.sobol_stream import SobolStream, stream_seed
 
-from .light_paths import continue_paths, roulette_numbers, trace_walks
+from .light_paths import continue_paths, roulette_numbers, set_key, trace_walks
 from .portals import portal_walks
 
 # Sobol dimensions: direct samples use 3 (emitter, 2 for the point); a walk uses 5 to leave
@@ -141,7 +141,7 @@ def build_vpl_rows(scene: Scene, geom: Geometry, lights: LightSampler, seed: int
             # Bounces past max_length are rare: counter-based numbers of the set's key serve them,
             # drawn only when a walk gets there, and one more per bounce decides its roulette.
             base = stream_seed(seed, ROULETTE_STREAM)
-            keys = np.repeat(np.array([_set_key(base, k) for k in ks], np.uint64), walks)
+            keys = np.repeat(np.array([set_key(base, k) for k in ks], np.uint64), walks)
         walked, owner = _light_walks(scene, geom, lights, u, walks, length, max_length if roulette else None, keys,
                                      portals)
         base = sum(len(p) for p in parts)
@@ -150,15 +150,6 @@ def build_vpl_rows(scene: Scene, geom: Geometry, lights: LightSampler, seed: int
             rows[i].append(base + r)
     joined = concat_vpls(parts)
     return joined, [np.concatenate(r) if r and len(joined) else np.zeros(0, np.int64) for r in rows]
-
-
-def _set_key(base: int, k: int) -> int:
-    """Set k's 64-bit key under a frame's ``base`` (splitmix64 of their sum: one generator per
-    batch, not one per set)."""
-    z = (base + 0x9E3779B97F4A7C15 * (k + 1)) & 0xFFFFFFFFFFFFFFFF
-    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & 0xFFFFFFFFFFFFFFFF
-    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
-    return z ^ (z >> 31)
 
 
 def _split(label: np.ndarray, n: int) -> list[np.ndarray]:

@@ -112,6 +112,8 @@ def test_compiled_photon_paths_equal_the_numpy_loop(monkeypatch, name):
     want, want_rays = _photon_sets(monkeypatch, name, False)
     assert got_rays == want_rays
     assert sum(len(s) for s in got) > 200
+    # chains past the Sobol numbers' bounces (caustics.QUASI_BOUNCES) draw counter-based ones
+    assert max(int(s.depth.max()) for s in got if len(s)) > 3
     for a, b in zip(got, want):
         for field in ("position", "power", "direction", "normal", "depth"):
             np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=field)

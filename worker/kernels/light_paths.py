@@ -61,17 +61,54 @@ def continue_paths(P, prow, sel, rows, pos, ns, ng, d, o, flux, u, col, roulette
     return c
 
 
+_MIX_WALK = np.uint64(0x9E3779B97F4A7C15)
+_MIX_BOUNCE = np.uint64(0xC2B2AE3D27D4EB4F)
+_MIX_DIM = np.uint64(0x165667B19E3779F9)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _splitmix(z):
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def walk_uniform(key, walk, bounce, dim):
+    """A uniform in [0, 1) for number ``dim`` of bounce ``bounce`` of path ``walk`` (a light
+    walk, a photon) of the set keyed ``key`` (two splitmix64 rounds): the same in every thread
+    and process, drawn only when a path gets that far."""
+    z = _splitmix(np.uint64(key) ^ (np.uint64(walk) * _MIX_WALK))
+    z = _splitmix(z ^ (np.uint64(bounce) * _MIX_BOUNCE) ^ (np.uint64(dim + 1) * _MIX_DIM))
+    return np.float64(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+@njit(cache=True, nogil=True)
+def roulette_uniforms(keys, walks, first, dims_per_bounce, u_out, s_out) -> None:
+    """The Russian-roulette walks' numbers past their quasi-random ones, as arrays (the numpy
+    loop's; :func:`trace_walks` draws them as it goes): u_out[r, dims_per_bounce·(b - first) + c]
+    = walk_uniform(keys[r], r % walks, b, c) for bounces b >= ``first``, s_out[r, b] the
+    bounce's survival uniform (number ``dims_per_bounce``) for every b."""
+    for r in range(keys.shape[0]):
+        w = r % walks
+        for b in range(s_out.shape[1]):
+            s_out[r, b] = walk_uniform(keys[r], w, b, dims_per_bounce)
+            if b >= first:
+                for c in range(dims_per_bounce):
+                    u_out[r, dims_per_bounce * (b - first) + c] = walk_uniform(keys[r], w, b, c)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
-def trace_photons(P, kind, specular, null_kind, closest, o, d, flux, u, max_bounces, emit_dims, bounce_dims, eps,
-                  ulps, out) -> tuple:
+def trace_photons(P, kind, specular, null_kind, closest, o, d, flux, u, max_bounces, emit_dims, bounce_dims, keys,
+                  per_set, eps, ulps, out) -> tuple:
     """Caustic photons (worker.caustics) from their emission to where they are stored, in one
     call: the photons whose flux carries light go to Embree in packets (``closest``:
     common.geometry.Geometry.closest_terms), bounce by bounce; a photon that has bounced off a
     mirror or glass (material rows ``specular``) and hits another surface (kind not
     ``null_kind``) is stored — position, flux, direction toward where it came from, ns, depth
     b + 1, its row — in ``out`` (in bounce order, then row order); one on a mirror or glass
-    surface bounces on (:func:`continue_paths` with u[row, emit_dims + bounce_dims·b …]); any
-    other ends. ``o``, ``d``, ``flux`` (float64, C order) are overwritten. Returns (photons
+    surface bounces on (:func:`continue_paths` with u[row, emit_dims + bounce_dims·b …] while u
+    has them, then :func:`walk_uniform` of (keys[row], row % per_set)); any other ends. ``o``, ``d``, ``flux`` (float64, C order) are overwritten. Returns (photons
     stored, rays traced)."""
     center = closest[1]
     n = o.shape[0]
@@ -82,6 +119,8 @@ def trace_photons(P, kind, specular, null_kind, closest, o, d, flux, u, max_boun
     hits = hit_buffers(n)
     valid, hpos, hng, hns, hmat = hits[4], hits[5], hits[6], hits[7], hits[10]
     null_row = specular.shape[0] - 1
+    quasi = (u.shape[1] - emit_dims) // bounce_dims  # bounces with numbers of u
+    drawn = np.empty((n, bounce_dims))  # a bounce's numbers past those
     live = 0
     for r in range(n):
         if flux[r, 0] > 0.0 or flux[r, 1] > 0.0 or flux[r, 2] > 0.0:
@@ -135,46 +174,18 @@ def trace_photons(P, kind, specular, null_kind, closest, o, d, flux, u, max_boun
         for q in range(spec):
             bounced[rows[sel[q]]] = True
         # (typed values, not literals or a global array: either would compile continue_paths once more)
-        live = continue_paths(P, prow, sel[:spec], rows, hpos, hns, hng, d, o, flux, u, emit_dims + bounce_dims * b,
-                              np.bool_(False), no_survival, np.int64(0), center, eps, ulps, alive)
+        if b < quasi:
+            live = continue_paths(P, prow, sel[:spec], rows, hpos, hns, hng, d, o, flux, u,
+                                  emit_dims + bounce_dims * b, np.bool_(False), no_survival, np.int64(0), center, eps,
+                                  ulps, alive)
+        else:
+            for q in range(spec):
+                r = rows[sel[q]]
+                for c in range(bounce_dims):
+                    drawn[r, c] = walk_uniform(keys[r], r % per_set, b, c)
+            live = continue_paths(P, prow, sel[:spec], rows, hpos, hns, hng, d, o, flux, drawn, np.int64(0),
+                                  np.bool_(False), no_survival, np.int64(0), center, eps, ulps, alive)
     return stored, traced
-
-
-_MIX_WALK = np.uint64(0x9E3779B97F4A7C15)
-_MIX_BOUNCE = np.uint64(0xC2B2AE3D27D4EB4F)
-_MIX_DIM = np.uint64(0x165667B19E3779F9)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _splitmix(z):
-    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-    return z ^ (z >> np.uint64(31))
-
-
-@njit(cache=True, nogil=True, inline="always")
-def walk_uniform(key, walk, bounce, dim):
-    """A uniform in [0, 1) for number ``dim`` of bounce ``bounce`` of walk ``walk`` of the set
-    keyed ``key`` (two splitmix64 rounds): the same in every thread and process, drawn only
-    when a walk gets that far."""
-    z = _splitmix(np.uint64(key) ^ (np.uint64(walk) * _MIX_WALK))
-    z = _splitmix(z ^ (np.uint64(bounce) * _MIX_BOUNCE) ^ (np.uint64(dim + 1) * _MIX_DIM))
-    return np.float64(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
-
-
-@njit(cache=True, nogil=True)
-def roulette_uniforms(keys, walks, first, dims_per_bounce, u_out, s_out) -> None:
-    """The Russian-roulette walks' numbers past their quasi-random ones, as arrays (the numpy
-    loop's; :func:`trace_walks` draws them as it goes): u_out[r, dims_per_bounce·(b - first) + c]
-    = walk_uniform(keys[r], r % walks, b, c) for bounces b >= ``first``, s_out[r, b] the
-    bounce's survival uniform (number ``dims_per_bounce``) for every b."""
-    for r in range(keys.shape[0]):
-        w = r % walks
-        for b in range(s_out.shape[1]):
-            s_out[r, b] = walk_uniform(keys[r], w, b, dims_per_bounce)
-            if b >= first:
-                for c in range(dims_per_bounce):
-                    u_out[r, dims_per_bounce * (b - first) + c] = walk_uniform(keys[r], w, b, c)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
