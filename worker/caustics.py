@@ -170,14 +170,17 @@ def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: 
     src = traced[5] if traced is not None else np.zeros(0, np.int64)
     order = np.lexsort((light[src], src // per_set))
     stops = np.cumsum(np.bincount(src // per_set, minlength=nsets))
-    for rows, r in zip(np.split(order, stops[:-1]), radii_of):
+    # put in set order once; each set's photons are then a slice (a view) of each array
+    ordered = [a.take(order, axis=0) for a in traced[:5]] if traced is not None else []
+    for i, r in enumerate(radii_of):
         r = float(r)
-        if len(rows) == 0:
+        s0, s1 = (int(stops[i - 1]) if i else 0), int(stops[i])
+        if s1 == s0:
             empty = _empty(r)
             empty.shot = per_set
             out.append(empty)
             continue
-        pos_s, pw, di, nr, dp = (a[rows] for a in traced[:5])
+        pos_s, pw, di, nr, dp = (a[s0:s1] for a in ordered)
         out.append(PhotonSet(pos_s, pw, di, nr, dp, r, HashGrid(pos_s, r), per_set))
     return out
 
