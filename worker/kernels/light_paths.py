@@ -108,8 +108,8 @@ def trace_photons(P, kind, specular, null_kind, closest, o, d, flux, u, max_boun
     ``null_kind``) is stored — position, flux, direction toward where it came from, ns, depth
     b + 1, its row — in ``out`` (in bounce order, then row order); one on a mirror or glass
     surface bounces on (:func:`continue_paths` with u[row, emit_dims + bounce_dims·b …] while u
-    has them, then :func:`walk_uniform` of (keys[row], row % per_set)); any other ends. ``o``, ``d``, ``flux`` (float64, C order) are overwritten. Returns (photons
-    stored, rays traced)."""
+    has them, then :func:`walk_uniform` of (keys[row], row % per_set)); any other ends. ``o``,
+    ``d``, ``flux`` (float64, C order) are overwritten. Returns (photons stored, rays traced)."""
     center = closest[1]
     n = o.shape[0]
     out_p, out_w, out_d, out_n, out_dp, out_src = out
