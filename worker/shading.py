@@ -67,7 +67,7 @@ class EndPoints:
     @staticmethod
     def concat(parts: "list[EndPoints]") -> "EndPoints":
         """The end points of ``parts`` in order (``pixel`` as each part had it)."""
-        out = {f.name: np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(EndPoints)
+        out = {f.name: np.concatenate([getattr(p, f.name) for p in parts]) for f in _END_FIELDS
                if f.name not in ("sp", "direct_only")}
         out["sp"] = concat_surface([p.sp for p in parts])
         out["direct_only"] = None

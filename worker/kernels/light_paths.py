@@ -61,6 +61,43 @@ def continue_paths(P, prow, sel, rows, pos, ns, ng, d, o, flux, u, col, roulette
     return c
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _carrying(flux, alive) -> int:
+    """The rows whose flux carries light (positive in some channel) into ``alive``; how many."""
+    live = 0
+    for r in range(flux.shape[0]):
+        if flux[r, 0] > 0.0 or flux[r, 1] > 0.0 or flux[r, 2] > 0.0:
+            alive[live] = r
+            live += 1
+    return live
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _closest_hits(closest, o, d, alive, live, bo, bd, hits, rows) -> int:
+    """The closest hits of the paths alive[:live] (rays o, d per row) into ``hits``, compacted
+    to the valid ones in order, their rows in ``rows``; returns how many."""
+    valid, hpos, hng, hns, huv, hmat = hits[4], hits[5], hits[6], hits[7], hits[8], hits[10]
+    for t in range(live):
+        r = alive[t]
+        for a in range(3):
+            bo[t, a] = o[r, a]
+            bd[t, a] = d[r, a]
+    closest_surfaces(closest, bo, bd, live, hits)
+    c = 0  # compacted in place (c <= t)
+    for t in range(live):
+        if valid[t]:
+            rows[c] = alive[t]
+            hmat[c] = hmat[t]
+            for a in range(2):
+                huv[c, a] = huv[t, a]
+            for a in range(3):
+                hpos[c, a] = hpos[t, a]
+                hns[c, a] = hns[t, a]
+                hng[c, a] = hng[t, a]
+            c += 1
+    return c
+
+
 _MIX_WALK = np.uint64(0x9E3779B97F4A7C15)
 _MIX_BOUNCE = np.uint64(0xC2B2AE3D27D4EB4F)
 _MIX_DIM = np.uint64(0x165667B19E3779F9)
@@ -117,37 +154,18 @@ def trace_photons(P, kind, specular, null_kind, closest, o, d, flux, u, max_boun
     bounced = np.zeros(n, np.bool_)
     bo, bd = np.empty((n, 3)), np.empty((n, 3))
     hits = hit_buffers(n)
-    valid, hpos, hng, hns, hmat = hits[4], hits[5], hits[6], hits[7], hits[10]
+    hpos, hng, hns, hmat = hits[5], hits[6], hits[7], hits[10]
     null_row = specular.shape[0] - 1
     quasi = (u.shape[1] - emit_dims) // bounce_dims  # bounces with numbers of u
     drawn = np.empty((n, bounce_dims))  # a bounce's numbers past those
-    live = 0
-    for r in range(n):
-        if flux[r, 0] > 0.0 or flux[r, 1] > 0.0 or flux[r, 2] > 0.0:
-            alive[live] = r
-            live += 1
+    live = _carrying(flux, alive)
     stored, traced = 0, 0
     no_survival = np.zeros((0, 0))
     for b in range(max_bounces + 1):
         if live == 0:
             break
-        for t in range(live):
-            r = alive[t]
-            for a in range(3):
-                bo[t, a] = o[r, a]
-                bd[t, a] = d[r, a]
-        closest_surfaces(closest, bo, bd, live, hits)
+        c = _closest_hits(closest, o, d, alive, live, bo, bd, hits, rows)
         traced += live
-        c = 0  # the hits, compacted in place (c <= t)
-        for t in range(live):
-            if valid[t]:
-                rows[c] = alive[t]
-                hmat[c] = hmat[t]
-                for a in range(3):
-                    hpos[c, a] = hpos[t, a]
-                    hns[c, a] = hns[t, a]
-                    hng[c, a] = hng[t, a]
-                c += 1
         if c == 0:
             break
         spec = 0
@@ -211,39 +229,18 @@ def trace_walks(P, reflects, atlas, closest, o, d, flux, u, max_length, roulette
     alive, rows, sel, prow = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
     bo, bd = np.empty((n, 3)), np.empty((n, 3))
     hits = hit_buffers(n)
-    valid, hpos, hng, hns, huv, hmat = hits[4], hits[5], hits[6], hits[7], hits[8], hits[10]
+    hpos, hng, hns, huv, hmat = hits[5], hits[6], hits[7], hits[8], hits[10]
     m = reflects.shape[0] - 1  # the NULL row
     quasi = (u.shape[1] - dims_start) // dims_per_bounce  # bounces with numbers of u
     drawn = np.empty((n, dims_per_bounce))  # a bounce's numbers past those
     survival = np.empty((n, 1))
-    live = 0
-    for r in range(n):
-        if flux[r, 0] > 0.0 or flux[r, 1] > 0.0 or flux[r, 2] > 0.0:
-            alive[live] = r
-            live += 1
+    live = _carrying(flux, alive)
     stored, traced = 0, 0
     for b in range(max_length):
         if live == 0:
             break
-        for t in range(live):
-            r = alive[t]
-            for a in range(3):
-                bo[t, a] = o[r, a]
-                bd[t, a] = d[r, a]
-        closest_surfaces(closest, bo, bd, live, hits)
+        c = _closest_hits(closest, o, d, alive, live, bo, bd, hits, rows)
         traced += live
-        c = 0  # the hits, compacted in place (c <= t)
-        for t in range(live):
-            if valid[t]:
-                rows[c] = alive[t]
-                hmat[c] = hmat[t]
-                for a in range(2):
-                    huv[c, a] = huv[t, a]
-                for a in range(3):
-                    hpos[c, a] = hpos[t, a]
-                    hns[c, a] = hns[t, a]
-                    hng[c, a] = hng[t, a]
-                c += 1
         if c == 0:
             break
         for j in range(c):
