@@ -37,7 +37,6 @@ from .regularization import regularization_gain, regularized_senders
 from .vpl import VPLSet, concat_surface, subset_vpls
 
 PAIR_CHUNK = 1 << 17  # (end point, VPL) pairs per kernel call: bounds memory, keeps Embree batches large
-SCORED_PAIR_CHUNK = 1 << 21  # the same where the pairs are weighed but not listed (the VPL scoring)
 
 
 @dataclass
@@ -544,8 +543,8 @@ def _chunks(e: int, m: int):
         yield slice(s, min(e, s + chunk))
 
 
-def _range_chunks(lo: np.ndarray, hi: np.ndarray, limit: int = PAIR_CHUNK):
-    """Slices of consecutive rows of about ``limit`` pairs, row i pairing with columns
+def _range_chunks(lo: np.ndarray, hi: np.ndarray):
+    """Slices of consecutive rows of about PAIR_CHUNK pairs, row i pairing with columns
     [lo[i], hi[i]): each run of rows with one range (one VPL set) is cut as :func:`_chunks` cuts
     it alone, then neighbouring pieces are joined while they fit — so a set's pairs meet the
     same chunks, and draw the same samples, alone or in a batch."""
@@ -556,7 +555,7 @@ def _range_chunks(lo: np.ndarray, hi: np.ndarray, limit: int = PAIR_CHUNK):
         m = int(hi[a] - lo[a])
         for sl in _chunks(b - a, max(m, 1)):
             n = (sl.stop - sl.start) * m
-            if pairs and pairs + n > limit:
+            if pairs and pairs + n > PAIR_CHUNK:
                 yield slice(start, a + sl.start)
                 start, pairs = a + sl.start, 0
             pairs += n
@@ -589,9 +588,9 @@ def contribution_per_vpl(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2:
         column_u = rng.random(m)
     if col_range is None:
         col_range = (np.zeros(e, np.int64), np.full(e, m, np.int64))
-    # Sampled, no pair is listed (only the draws, samples per column): many sets per chunk, so
-    # a batch's scoring is a few calls and Embree batches, not one per two sets.
-    for sl in _range_chunks(*col_range, SCORED_PAIR_CHUNK if sampled else PAIR_CHUNK):
+    # (sampled or not, about PAIR_CHUNK pairs a call: the scoring's draws ran ~10% slower a set
+    # with 16 sets per call, their scratch out of cache)
+    for sl in _range_chunks(*col_range):
         eye_weight = albedo[sl] * end.throughput[sl]
         if not sampled:
             pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, receivers,
