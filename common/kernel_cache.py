@@ -95,23 +95,15 @@ def drop_stale(root: str) -> list[str]:
         cache = os.path.join(os.path.dirname(path), "__pycache__")
         stem = os.path.splitext(os.path.basename(path))[0]
         stamp = os.path.join(cache, stem + _STAMP)
-        try:
-            with open(stamp) as f:
-                if f.read().strip() == digest:
-                    continue
-        except OSError:
-            pass
+        if _read(stamp) == digest:
+            continue
         for old in glob.glob(os.path.join(cache, f"{stem}.*.nbi")) + glob.glob(os.path.join(cache, f"{stem}.*.nbc")):
             try:
                 os.remove(old)
             except OSError:  # another process dropped it first
                 pass
         try:
-            os.makedirs(cache, exist_ok=True)
-            tmp = f"{stamp}.{os.getpid()}"
-            with open(tmp, "w") as f:
-                f.write(digest + "\n")
-            os.replace(tmp, stamp)  # atomic: processes starting together agree
+            _write(stamp, digest)
         except OSError:  # sources not writable: numba caches elsewhere, nothing to keep true here
             continue
         dropped.append(m)
@@ -135,16 +127,27 @@ def keep_true() -> None:
             quick = hashlib.sha1(repr(sorted((p, os.stat(p).st_size, os.stat(p).st_mtime_ns)
                                              for p in kernel_modules(root).values())).encode()).hexdigest()
             mark = os.path.join(root, KERNEL_PACKAGES[0], "__pycache__", "igi-sources.quick")
-            try:
-                with open(mark) as f:
-                    if f.read().strip() == quick:
-                        return
-            except OSError:
-                pass
+            if _read(mark) == quick:
+                return
             drop_stale(root)
-            tmp = f"{mark}.{os.getpid()}"
-            with open(tmp, "w") as f:
-                f.write(quick + "\n")
-            os.replace(tmp, mark)
+            _write(mark, quick)
         except (OSError, SyntaxError, UnicodeDecodeError):  # never keep a worker from starting
             pass
+
+
+def _read(path: str) -> str | None:
+    try:
+        with open(path) as f:
+            return f.read().strip()
+    except OSError:
+        return None
+
+
+def _write(path: str, text: str) -> None:
+    """``text`` to ``path`` atomically (processes starting together agree on what is there)."""
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    tmp = f"{path}.{os.getpid()}"
+    with open(tmp, "w") as f:
+        f.write(text + "\n")
+    os.replace(tmp, path)
+
