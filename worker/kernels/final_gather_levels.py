@@ -101,14 +101,10 @@ def find_levels(P, reflects, atlas, closest, rng, center, eps, ulps, reach_all, 
             u = rng.random(c) if rolled_any else np.empty(0)
             for j in range(c):
                 i = p0 + r_row[r0 + j]
-                lv = p_level[i]
                 q = r0 + j
-                near = h_valid[q] and h_tt[q] < radius and not r_delta[q] and lv > 0
-                if max_depth >= 0:
-                    near = near and p_seg[i] + 2 <= max_depth
-                rolled = lv >= roulette_level
-                if rolled_any:
-                    near = near and (not rolled or u[j] < 0.5)
+                near, share, child = _near_hit(h_valid[q], h_tt[q], r_delta[q], p_level[i], p_seg[i],
+                                               u[j] if rolled_any else 1.0, radius, clamp_d2, max_depth,
+                                               roulette_level, max_level)
                 if not near:
                     continue
                 mat = h_mat[q]
@@ -116,11 +112,10 @@ def find_levels(P, reflects, atlas, closest, rng, center, eps, ulps, reach_all, 
                 if not reflects[row]:
                     continue
                 t = h_tt[q]
-                share = min(max(1.0 - t * t / clamp_d2, 0.0), 1.0) / (0.5 if rolled else 1.0)
                 _put(points, n, h_pos[q, 0], h_pos[q, 1], h_pos[q, 2], h_ns[q, 0], h_ns[q, 1], h_ns[q, 2],
                      h_ng[q, 0], h_ng[q, 1], h_ng[q, 2], mat, h_uv[q, 0], h_uv[q, 1], t, r_d[q, 0], r_d[q, 1],
                      r_d[q, 2], p_seg[i] + 1, i - p0, r_w[q, 0] * share, r_w[q, 1] * share, r_w[q, 2] * share,
-                     lv + 1 if lv < max_level else 0)
+                     child)
                 prow[n] = kb.material_row(P, row, m + 1 + n, atlas, h_uv[q, 0], h_uv[q, 1])
                 n += 1
         level += 1
@@ -159,21 +154,33 @@ def near_points(rows, valid, t, delta, level, segments, u, radius, clamp_d2, max
     rolled_any = u.shape[0] > 0
     n = 0
     for q in range(rows.shape[0]):
-        lv = level[rows[q]]
-        near = valid[q] and t[q] < radius and not delta[q] and lv > 0
-        if max_depth >= 0:
-            near = near and segments[rows[q]] + 2 <= max_depth
-        rolled = lv >= roulette_level
-        if rolled_any:
-            near = near and (not rolled or u[q] < 0.5)
+        near, share, child = _near_hit(valid[q], t[q], delta[q], level[rows[q]], segments[rows[q]],
+                                       u[q] if rolled_any else 1.0, radius, clamp_d2, max_depth, roulette_level,
+                                       max_level)
         if not near:
             continue
-        tq = t[q]
         out_sel[n] = q
-        out_share[n] = min(max(1.0 - tq * tq / clamp_d2, 0.0), 1.0) / (0.5 if rolled else 1.0)
-        out_child[n] = lv + 1 if lv < max_level else 0
+        out_share[n] = share
+        out_child[n] = child
         n += 1
     return n
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _near_hit(valid, t, delta, lv, seg, u, radius, clamp_d2, max_depth, roulette_level, max_level):
+    """(near?, share, child's level) of a compensated point's traced ray: its hit nearer than
+    ``radius`` (= √clamp_d2), not a delta sample, a level > 0, a segment left, and from
+    ``roulette_level`` on its uniform ``u`` < 1/2 (u = 1 where no level of the batch rolls:
+    no draw); share clip(1 - t²/clamp_d2, 0, 1) (/ 1/2 when rolled), child level + 1 (0 past
+    ``max_level``)."""
+    near = valid and t < radius and not delta and lv > 0
+    if max_depth >= 0:
+        near = near and seg + 2 <= max_depth
+    rolled = lv >= roulette_level
+    if rolled:
+        near = near and u < 0.5
+    share = min(max(1.0 - t * t / clamp_d2, 0.0), 1.0) / (0.5 if rolled else 1.0)
+    return near, share, lv + 1 if lv < max_level else 0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
