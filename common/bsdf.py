@@ -310,6 +310,12 @@ def material_packed(materials: list[Material]) -> tuple[tuple, np.ndarray]:
     return P, t["textured_mask"]
 
 
+def material_kinds(materials: list) -> np.ndarray:
+    """(m + 1,) int8: each material row's kind, NULL at row m (the materials' table, made once
+    per materials list: read it, do not write it)."""
+    return _material_tables(materials)["kind"]
+
+
 def texture_atlas(materials: list) -> tuple:
     """The materials' bitmap textures for compiled lookups (common.kernels.texture.texel):
     ``(pixels float32 flat, tex int64 (T, 3) = base, height, width, xform float64 (T, 4) =

@@ -25,7 +25,6 @@ that the discontinuity buffer spreads over a whole interleave block.
 """
 from __future__ import annotations
 
-import threading
 from collections.abc import Callable
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
@@ -40,7 +39,7 @@ from igi.common.scene import NULL, SPECULAR_KINDS, Scene, kind_in
 
 from .caustics import PhotonSet, gather_photons
 from .kernels import final_gather_levels as flv
-from .regularization import regularization_gain, regularized_senders
+from .regularization import regularization_gain, regularized_senders, sender_rows
 from .shading import BSDFRays, EndPoints, LightMIS, add_bsdf_direct, gather_vpls, trace_bsdf_rays
 from .vpl import VPLSet
 
@@ -181,7 +180,7 @@ def _compiled_levels(scene: Scene, geom: Geometry, lights: LightSampler, first: 
     terms = geom.closest_terms()
     if terms is None:
         return None
-    P, reflects = _sender_rows(scene.materials, lobe_alpha)
+    P, reflects = sender_rows(scene.materials, lobe_alpha)
     atlas = bsdf.texture_atlas(scene.materials)
     n0 = len(first)
     cap = n0 * (max(COMPENSATION_MAX_LEVEL, 1) + 1) + 1  # each level has at most the points of the one before
@@ -227,29 +226,6 @@ def _compiled_levels(scene: Scene, geom: Geometry, lights: LightSampler, first: 
     per = [slice(int(a), int(b)) for a, b in zip(stops[:-1], stops[1:])]
     return Levels(y, found_rays, sizes, [parent[sl] for sl in per], [factor[sl] for sl in per],
                   [None if gain is None else gain[sl] for sl in per])
-
-
-_SENDER_ROWS: dict = {}
-_SENDER_LOCK = threading.Lock()
-
-
-def _sender_rows(materials: list, lobe_alpha: float) -> tuple:
-    """(P, reflects) per material row (NULL at row len(materials)): the materials' packed
-    parameters as senders (lobes regularized at ``lobe_alpha``; a bitmap texture's value at uv
-    0) and whether they reflect (not mirror/glass, not NULL). Kept for the last few
-    (materials, lobe_alpha): the bound moves with every accumulated frame."""
-    key = (tuple(id(m) for m in materials), float(lobe_alpha))
-    hit = _SENDER_ROWS.get(key)
-    if hit is None:
-        sp = regularized_senders(bsdf.gather(materials, np.arange(len(materials) + 1), None), lobe_alpha)
-        P, _rows = bsdf.packed_rows(sp)
-        rows = (P, ~kind_in(sp.kind, SPECULAR_KINDS) & (sp.kind != NULL))
-        hit = (tuple(materials), rows)  # the materials held: their ids stay theirs
-        with _SENDER_LOCK:  # render threads share the cache
-            while len(_SENDER_ROWS) >= 8:
-                _SENDER_ROWS.pop(next(iter(_SENDER_ROWS)))
-            _SENDER_ROWS[key] = hit
-    return hit[1]
 
 
 def _as_end_points(scene: Scene, arr: Arrivals, lobe_alpha: float) -> tuple[Arrivals, EndPoints, np.ndarray | None]:

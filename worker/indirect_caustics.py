@@ -40,9 +40,9 @@ def lensed_arrivals(scene: Scene, geom: Geometry, lights: LightSampler, end: End
     hits = rays.hits
     if e == 0 or len(rays.rows) == 0 or specular_depth <= 0:
         return out, None
-    kinds, specular = _material_kinds(scene.materials)
+    kinds = bsdf.material_kinds(scene.materials)  # (NULL at the last row: no material)
     mat = np.where(hits.material >= 0, hits.material, len(scene.materials))
-    first = np.flatnonzero(hits.valid & ~rays.delta & specular[mat])
+    first = np.flatnonzero(hits.valid & ~rays.delta & kind_in(kinds, SPECULAR_KINDS)[mat])
     if max_depth >= 0:  # x -> mirror/glass -> something: at least the environment at segment + 2
         first = first[end.segments[rays.rows[first]] + 2 <= max_depth]
     if len(first) == 0:
@@ -120,20 +120,3 @@ def _numpy_chains(scene, geom, kinds, rows, thr, d, pos, ns, ng, mat_i, uv, seg,
         if len(rows) == 0:
             break
     return ends
-
-
-_KINDS: dict = {}
-
-
-def _material_kinds(materials: list) -> tuple[np.ndarray, np.ndarray]:
-    """(kind, mirror/glass?) per material row, -1 and False for no material at row
-    len(materials) (asked per tile: made once per materials list)."""
-    key = tuple(id(m) for m in materials)
-    hit = _KINDS.get(key)
-    if hit is None:
-        kinds = np.array([m.kind for m in materials] + [-1], np.int8)
-        hit = (tuple(materials), (kinds, kind_in(kinds, SPECULAR_KINDS)))  # the materials held: ids stay theirs
-        while len(_KINDS) >= 8:
-            _KINDS.pop(next(iter(_KINDS)), None)
-        _KINDS[key] = hit
-    return hit[1]

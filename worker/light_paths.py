@@ -7,9 +7,9 @@ import numpy as np
 
 from igi.common import bsdf
 from igi.common.geometry import Geometry
-from igi.common.scene import NULL, SPECULAR_KINDS, kind_in
 
 from .kernels import light_paths
+from .regularization import sender_rows
 
 _NO_SURVIVAL = np.zeros((0, 0))
 _NO_KEYS = np.zeros(0, np.uint64)
@@ -36,25 +36,6 @@ def continue_paths(sp: bsdf.SurfacePoints, geom: Geometry, sel: np.ndarray, rows
     return out[:n]
 
 
-_WALK_ROWS: dict = {}
-
-
-def _walk_rows(materials: list) -> tuple:
-    """(P, reflects) per material row (NULL at row len(materials)): the materials' packed
-    parameters as common.bsdf.gather gives them (a bitmap texture's value at uv 0) and whether
-    they leave a VPL (not mirror/glass, not NULL). Kept per materials list."""
-    key = tuple(id(m) for m in materials)
-    hit = _WALK_ROWS.get(key)
-    if hit is None:
-        sp = bsdf.gather(materials, np.arange(len(materials) + 1), None)
-        P, _rows = bsdf.packed_rows(sp)
-        hit = (tuple(materials), (P, ~kind_in(sp.kind, SPECULAR_KINDS) & (sp.kind != NULL)))  # ids stay theirs
-        while len(_WALK_ROWS) >= 8:
-            _WALK_ROWS.pop(next(iter(_WALK_ROWS)), None)
-        _WALK_ROWS[key] = hit
-    return hit[1]
-
-
 def trace_walks(materials: list, geom: Geometry, o: np.ndarray, d: np.ndarray, flux: np.ndarray, u: np.ndarray,
                 max_length: int, roulette_after: int | None, keys: np.ndarray | None, walks: int, dims_start: int,
                 dims_per_bounce: int) -> tuple | None:
@@ -66,7 +47,7 @@ def trace_walks(materials: list, geom: Geometry, o: np.ndarray, d: np.ndarray, f
     terms = geom.closest_terms()
     if terms is None:
         return None
-    P, reflects = _walk_rows(materials)
+    P, reflects = sender_rows(materials, 0.0)  # the materials as they are: no lobe widened
     atlas = bsdf.texture_atlas(materials)
     n = len(o)
     if len(atlas[1]):  # a row of P per hit of a bounce for the texels of its own (the coat tables stay shared)

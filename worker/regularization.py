@@ -22,7 +22,7 @@ from threading import Lock
 import numpy as np
 
 from igi.common import bsdf
-from igi.common.scene import ROUGHCONDUCTOR, ROUGHPLASTIC
+from igi.common.scene import NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, SPECULAR_KINDS, kind_in
 
 MU_BINS = 32  # incident-angle cosines tabulated per lobe
 LOBE_SAMPLES = 256  # quasi-Monte Carlo points per tabulated cosine
@@ -134,3 +134,28 @@ def mu_dirs(mu: np.ndarray) -> np.ndarray:
     """(N, 3) local directions at cosines ``mu`` (in the xz plane: the lobes are isotropic)."""
     mu = np.clip(mu, 0.0, 1.0)
     return np.stack([np.sqrt(1 - mu * mu), np.zeros(len(mu)), mu], axis=1)
+
+
+_SENDER_ROWS: dict = {}
+_SENDER_LOCK = Lock()
+
+
+def sender_rows(materials: list, lobe_alpha: float) -> tuple:
+    """(P, reflects) per material row (NULL at row len(materials)): the materials' packed
+    parameters as senders (lobes regularized at ``lobe_alpha``, as they are at 0; a bitmap
+    texture's value at uv 0) and whether they reflect (not mirror/glass, not NULL): the rows the
+    final gather's level finder and the light walks read. Kept for the last few (materials,
+    lobe_alpha): the bound moves with every accumulated frame."""
+    key = (tuple(id(m) for m in materials), float(lobe_alpha))
+    hit = _SENDER_ROWS.get(key)
+    if hit is None:
+        sp = regularized_senders(bsdf.gather(materials, np.arange(len(materials) + 1), None), lobe_alpha)
+        P, _rows = bsdf.packed_rows(sp)
+        rows = (P, ~kind_in(sp.kind, SPECULAR_KINDS) & (sp.kind != NULL))
+        hit = (tuple(materials), rows)  # the materials held: their ids stay theirs
+        with _SENDER_LOCK:  # render threads share the cache
+            while len(_SENDER_ROWS) >= 8:
+                _SENDER_ROWS.pop(next(iter(_SENDER_ROWS)))
+            _SENDER_ROWS[key] = hit
+    return hit[1]
+
