@@ -22,17 +22,17 @@ def aimed_emission(pos, nrm, u, centres, radii, emitter, area, radiance, total, 
     """worker.caustics' numpy emission before worker.kernels.photon_aim.aimed_emission: (d, pdf,
     flux, origin) of each photon aimed at the targets (``offset``: Geometry.offset)."""
     from igi.common.lights import to_world
-    from igi.worker.kernels import photon_aim
+    from tests.support import photon_aim_steps as steps
 
     n = len(pos)
     cm, axis = np.empty(n), np.empty((n, 3))
-    photon_aim.chosen_cones(pos, np.ascontiguousarray(u[:, 2]), centres, radii, cm, axis)
+    steps.chosen_cones(pos, np.ascontiguousarray(u[:, 2]), centres, radii, cm, axis)
     cz = 1 - u[:, 3] * (1 - cm)
     r = np.sqrt(np.maximum(0, 1 - cz * cz))
     phi = 2 * np.pi * u[:, 4]
     d = to_world(np.stack([r * np.cos(phi), r * np.sin(phi), cz], axis=1), axis)
     pdf = np.empty(n)
-    photon_aim.cone_mixture_pdf(pos, d, centres, radii, pdf)
+    steps.cone_mixture_pdf(pos, d, centres, radii, pdf)
     flux = np.zeros((n, 3))
     o = pos.copy()
     a = np.nonzero(area)[0]

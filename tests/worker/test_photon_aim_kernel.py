@@ -1,6 +1,6 @@
-"""worker.kernels.photon_aim against its numpy original (tests/support/oracle_photon_aim.py):
-one and many targets, emission points inside a sphere, directions on a cone's rim and
-outside every cone."""
+"""worker.kernels.photon_aim (its steps alone: tests/support/photon_aim_steps.py) against its
+numpy original (tests/support/oracle_photon_aim.py): one and many targets, emission points
+inside a sphere, directions on a cone's rim and outside every cone."""
 from __future__ import annotations
 
 import numpy as np
@@ -9,6 +9,7 @@ import pytest
 from igi.common.lights import to_world
 from igi.worker.kernels import photon_aim
 from tests.support import oracle_photon_aim as oracle
+from tests.support import photon_aim_steps as steps
 
 
 def _scene(seed: int, targets: int, n: int):
@@ -26,7 +27,7 @@ def test_chosen_cones_and_mixture_pdf_equal_numpy(seed, targets):
     n = len(pos)
     choice = g.random(n)
     cos_max, axis = np.empty(n), np.empty((n, 3))
-    photon_aim.chosen_cones(pos, choice, centres, radii, cos_max, axis)
+    steps.chosen_cones(pos, choice, centres, radii, cos_max, axis)
     _, want_cos, want_axes = oracle.cone_mixture_pdf(pos, np.zeros((n, 3)), centres, radii)
     t = np.minimum((choice * targets).astype(np.int64), targets - 1)
     np.testing.assert_array_equal(cos_max, want_cos[np.arange(n), t])
@@ -41,7 +42,7 @@ def test_chosen_cones_and_mixture_pdf_equal_numpy(seed, targets):
     d[::5] = g.normal(size=(len(d[::5]), 3))
     d[::5] /= np.linalg.norm(d[::5], axis=1)[:, None]
     pdf = np.empty(n)
-    photon_aim.cone_mixture_pdf(pos, d, centres, radii, pdf)
+    steps.cone_mixture_pdf(pos, d, centres, radii, pdf)
     want, _, _ = oracle.cone_mixture_pdf(pos, d, centres, radii)
     # the same cones contain each direction, so the pdfs agree to rounding — except that a
     # direction exactly on a rim (every 7th) may fall on either side of it, its cosine being
@@ -66,7 +67,7 @@ def test_mixture_pdf_integrates_to_one_over_the_sphere():
     d = g.normal(size=(n, 3))
     d /= np.linalg.norm(d, axis=1)[:, None]
     pdf = np.empty(n)
-    photon_aim.cone_mixture_pdf(np.zeros((n, 3)), d, centres, radii, pdf)
+    steps.cone_mixture_pdf(np.zeros((n, 3)), d, centres, radii, pdf)
     assert abs(4 * np.pi * pdf.mean() - 1.0) < 0.01
 
 

@@ -34,31 +34,6 @@ def _cone(px, py, pz, cx, cy, cz, radius):
     return x, y, z, far, cos_max
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def chosen_cones(pos, choice, centres, radii, out_cos, out_axis) -> None:
-    """Photon n aims at target t = min(⌊choice[n]·T⌋, T - 1): out_cos[n] the cosine of the
-    half-angle of the cone that sphere subtends from pos[n] (-1 from inside it), out_axis[n]
-    the unit direction to its centre."""
-    targets = radii.shape[0]
-    for n in range(pos.shape[0]):
-        t = min(int(choice[n] * targets), targets - 1)
-        x, y, z, far, cos_max = _cone(pos[n, 0], pos[n, 1], pos[n, 2], centres[t, 0], centres[t, 1],
-                                      centres[t, 2], radii[t])
-        out_cos[n] = cos_max
-        out_axis[n, 0] = x / far
-        out_axis[n, 1] = y / far
-        out_axis[n, 2] = z / far
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def cone_mixture_pdf(pos, d, centres, radii, out) -> None:
-    """out[n]: the solid-angle pdf of direction d[n] from pos[n] when a target is chosen
-    uniformly and the direction uniformly in its cone (the cones that contain d[n] count; from
-    inside a sphere its cone is the whole sphere)."""
-    for n in range(pos.shape[0]):
-        out[n] = _mixture_pdf(pos[n, 0], pos[n, 1], pos[n, 2], d[n, 0], d[n, 1], d[n, 2], centres, radii)
-
-
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _mixture_pdf(px, py, pz, dx, dy, dz, centres, radii):
     targets = radii.shape[0]
@@ -75,9 +50,10 @@ def _mixture_pdf(px, py, pz, dx, dy, dz, centres, radii):
 @njit(cache=True, nogil=True, error_model="numpy")
 def aimed_emission(pos, nrm, u, centres, radii, emitter, area, radiance, total, center, eps, ulps, out_d, out_pdf,
                    out_flux, out_o) -> None:
-    """Photon n's emission aimed at the targets (worker.caustics): :func:`chosen_cones`' cone
-    (target u[n, 2]), the direction uniform in it (u[n, 3], u[n, 4]) in world space, its
-    :func:`cone_mixture_pdf`; for a photon of an area emitter (``area[n]``) the flux
+    """Photon n's emission aimed at the targets (worker.caustics): the cone target
+    min(⌊u[n, 2]·T⌋, T - 1) subtends from pos[n] (the whole sphere from inside it), the
+    direction uniform in it (u[n, 3], u[n, 4]) in world space, and its solid-angle pdf under the
+    mixture of all targets' cones (the cones that contain it count); for a photon of an area emitter (``area[n]``) the flux
     radiance[emitter[n]] · max(cos, 0) · total[emitter[n]] / pdf and the origin offset off the
     emitter toward the direction, else flux 0 and the origin ``pos[n]`` — worker.caustics'
     numpy form's arithmetic, in its order (its cosine's three products summed left to right,

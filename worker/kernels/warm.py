@@ -122,7 +122,7 @@ def _direct_calls() -> dict:
     """Tiny calls of the kernels the render does not register: the worker never decodes,
     and helpers that are loaded from the cache inside their caller keep no signature."""
     from igi.common.kernels import shading_frame, texture, wire_decode
-    from igi.worker.kernels import light_paths, photon_aim, photon_query, vpl_gather
+    from igi.worker.kernels import light_paths, photon_query, vpl_gather
 
     z = np.zeros(0, np.uint8)
     out1 = np.zeros(0, np.float32)
@@ -153,11 +153,6 @@ def _direct_calls() -> dict:
         "igi.worker.kernels.photon_query._find": lambda: photon_query._find(np.zeros(1, np.int64), 0),
         # _visit: query's arguments (empty arrays of its types), the rows visited, the outputs
         "igi.worker.kernels.photon_query._visit": _visit_call,
-        # the aim's steps on their own (aimed_emission fuses them; tools and tests call them)
-        "igi.worker.kernels.photon_aim.chosen_cones": lambda: photon_aim.chosen_cones(
-            np.zeros((1, 3)), np.zeros(1), np.ones((1, 3)), np.ones(1), np.empty(1), np.empty((1, 3))),
-        "igi.worker.kernels.photon_aim.cone_mixture_pdf": lambda: photon_aim.cone_mixture_pdf(
-            np.zeros((1, 3)), np.ones((1, 3)), np.ones((1, 3)), np.ones(1), np.empty(1)),
         # what the numpy loops (recorded rays) call alone: compiled paths inline or fuse them
         "igi.common.kernels.shading_frame.to_local_many": lambda: shading_frame.to_local_many(
             np.ones((1, 3)), np.array([[0.0, 0.0, 1.0]]), np.empty((1, 3))),
