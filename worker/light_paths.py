@@ -7,6 +7,7 @@ import numpy as np
 
 from igi.common import bsdf
 from igi.common.geometry import Geometry
+from igi.common.kernels.splitmix import mix64
 
 from .kernels import light_paths
 from .regularization import sender_rows
@@ -86,8 +87,5 @@ def set_key(base: int, k: int) -> int:
     """Set k's 64-bit key under a frame's ``base`` (splitmix64 of their sum): the key of the
     counter-based numbers its paths draw past their quasi-random ones
     (kernels.light_paths.walk_uniform) — one generator per batch, not one per set."""
-    z = (base + 0x9E3779B97F4A7C15 * (k + 1)) & 0xFFFFFFFFFFFFFFFF
-    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & 0xFFFFFFFFFFFFFFFF
-    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
-    return z ^ (z >> 31)
+    return int(mix64(np.uint64((base + 0x9E3779B97F4A7C15 * (k + 1)) & 0xFFFFFFFFFFFFFFFF)))
 

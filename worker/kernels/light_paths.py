@@ -18,6 +18,7 @@ from igi.common.kernels import bsdf as kb
 from igi.common.kernels import shading_frame
 from igi.common.kernels.hit_surface import offset_point
 from igi.common.kernels.ray_packets import closest_surfaces, hit_buffers
+from igi.common.kernels.splitmix import mix64, unit
 
 
 # No reference counting (as common.kernels.bsdf): P's 17 arrays would be counted per path.
@@ -104,20 +105,12 @@ _MIX_DIM = np.uint64(0x165667B19E3779F9)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _splitmix(z):
-    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-    return z ^ (z >> np.uint64(31))
-
-
-@njit(cache=True, nogil=True, inline="always")
 def walk_uniform(key, walk, bounce, dim):
     """A uniform in [0, 1) for number ``dim`` of bounce ``bounce`` of path ``walk`` (a light
     walk, a photon) of the set keyed ``key`` (two splitmix64 rounds): the same in every thread
     and process, drawn only when a path gets that far."""
-    z = _splitmix(np.uint64(key) ^ (np.uint64(walk) * _MIX_WALK))
-    z = _splitmix(z ^ (np.uint64(bounce) * _MIX_BOUNCE) ^ (np.uint64(dim + 1) * _MIX_DIM))
-    return np.float64(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+    z = mix64(np.uint64(key) ^ (np.uint64(walk) * _MIX_WALK))
+    return unit(mix64(z ^ (np.uint64(bounce) * _MIX_BOUNCE) ^ (np.uint64(dim + 1) * _MIX_DIM)))
 
 
 @njit(cache=True, nogil=True)

@@ -34,6 +34,7 @@ from numba import njit
 from igi.common.kernels import bsdf as kb
 from igi.common.kernels import shading_frame
 from igi.common.kernels.ray_packets import LANES, occlude_lanes, packet_lanes
+from igi.common.kernels.splitmix import mix64, unit
 
 INV_PI = 1.0 / math.pi
 
@@ -513,11 +514,7 @@ _MIX_J = np.uint64(0xC2B2AE3D27D4EB4F)
 def pair_uniform(seed, i, j):
     """A uniform in [0, 1) for pair (i, j) under ``seed`` (splitmix64 of the three): the same
     in every thread and process, no generator state."""
-    z = np.uint64(seed) ^ (np.uint64(i) * _GOLDEN) ^ (np.uint64(j) * _MIX_J)
-    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-    z = z ^ (z >> np.uint64(31))
-    return np.float64(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+    return unit(mix64(np.uint64(seed) ^ (np.uint64(i) * _GOLDEN) ^ (np.uint64(j) * _MIX_J)))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
