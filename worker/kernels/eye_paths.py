@@ -57,6 +57,42 @@ def _carries_any(w0, w1, w2) -> bool:
     return w0 > 0.0 or w1 > 0.0 or w2 > 0.0
 
 
+# The per-hit BSDF calls below go through common.kernels.bsdf's array loops, one call per
+# bounce: inlined per hit, each call counted the references of P's 17 arrays (atomic NRT
+# increfs/decrefs LLVM could not prune past the kinds' branches), ~half the eye stage on a
+# glossy scene (docs/benchmarks.md, stop 45); the loops are compiled without reference counts.
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _rows_of(sel, n, table, null_row):
+    """table[sel[:n]] as material rows: out-of-range rows (< 0 or ≥ null_row ≥ 0) the NULL row;
+    ``null_row`` < 0: taken as they are."""
+    out = np.empty(n, np.int64)
+    for q in range(n):
+        m = table[sel[q]]
+        out[q] = m if null_row < 0 or 0 <= m < null_row else null_row
+    return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _rows(a, sel, n):
+    """a[sel[:n]] for an (m, 3) array."""
+    out = np.empty((n, 3))
+    for q in range(n):
+        for c in range(3):
+            out[q, c] = a[sel[q], c]
+    return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _sample_lobes(P, P_lobe, with_pdf, row, wi, u, out_wo, out_w, out_pdf) -> None:
+    """Each point's sampled lobe ray (kb.sample_lobe) and, ``with_pdf``, its lobe pdf under
+    ``P_lobe`` (the MIS weight against the light samples); ``out_pdf`` stays as given otherwise."""
+    kb.sample_lobe_many(P, row, wi, u, out_wo, out_w)
+    if with_pdf:
+        kb.eval_many(P_lobe, row, wi, out_wo, np.empty_like(out_wo), out_pdf)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, max_depth, eps, ulps, env,
               radiance, lobes, unf, depth, normal, ends):
@@ -128,16 +164,8 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
     lobe_wo, lobe_w, lobe_pdf = np.empty((n_lobe, 3)), np.empty((n_lobe, 3)), np.zeros(n_lobe)
     if n_lobe > 0:
         u = rng.random((n_lobe, 2))
-        for q in range(n_lobe):
-            i = lobe[q]
-            m = hmat[i]
-            r = m if 0 <= m < null_row else null_row
-            res = kb.sample_lobe(P, r, wi[i, 0], wi[i, 1], wi[i, 2], u[q, 0], u[q, 1])
-            for a in range(3):
-                lobe_wo[q, a] = res[a]
-                lobe_w[q, a] = res[3 + a]
-            if direct_count > 0:
-                lobe_pdf[q] = kb.eval_pdf(P_lobe, r, wi[i, 0], wi[i, 1], wi[i, 2], res[0], res[1], res[2])[3]
+        _sample_lobes(P, P_lobe, direct_count > 0, _rows_of(lobe, n_lobe, hmat, null_row), _rows(wi, lobe, n_lobe), u,
+                      lobe_wo, lobe_w, lobe_pdf)
         if direct_count > 0:
             for q in range(n_lobe):
                 i = lobe[q]
@@ -151,12 +179,9 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
     # the delta components of each mirror/glass hit, both traced: reflections, then transmissions
     comp = np.empty((n_delta, 12))
     best = np.empty(n_delta, np.int64)
+    kb.specular_many(P, _rows_of(delta, n_delta, hmat, null_row), _rows(wi, delta, n_delta), True, comp[:, 0:3],
+                     comp[:, 3:6], comp[:, 6:9], comp[:, 9:12])
     for q in range(n_delta):
-        i = delta[q]
-        m = hmat[i]
-        res = kb.specular(P, m if 0 <= m < null_row else null_row, wi[i, 0], wi[i, 1], wi[i, 2], True)
-        for c in range(12):
-            comp[q, c] = res[c]
         # np.argmax of (luminance where the component carries light, else -1): NaN wins, ties go first
         lum0 = comp[q, 3] * _WR + comp[q, 4] * _WG + comp[q, 5] * _WB if _carries_any(
             comp[q, 3], comp[q, 4], comp[q, 5]) else -1.0
@@ -331,12 +356,14 @@ def _chains(P, kind, specular, null_kind, rng, closest, rays, live, specular_dep
                 no[j, a] = bo[j, a]
         if n_lobe > 0:
             u = rng.random((n_lobe, 2))
+            l_wo, l_w, l_pdf = np.empty((n_lobe, 3)), np.empty((n_lobe, 3)), np.zeros(n_lobe)
+            _sample_lobes(P, P_lobe, direct_count > 0, _rows_of(lobe, n_lobe, prow, -1), _rows(wi, lobe, n_lobe), u,
+                          l_wo, l_w, l_pdf)
             for q in range(n_lobe):
                 i = lobe[q]
-                res = kb.sample_lobe(P, prow[i], wi[i, 0], wi[i, 1], wi[i, 2], u[q, 0], u[q, 1])
-                pdf = 0.0
+                res = (l_wo[q, 0], l_wo[q, 1], l_wo[q, 2], l_w[q, 0], l_w[q, 1], l_w[q, 2])
+                pdf = l_pdf[q]
                 if direct_count > 0:
-                    pdf = kb.eval_pdf(P_lobe, prow[i], wi[i, 0], wi[i, 1], wi[i, 2], res[0], res[1], res[2])[3]
                     if not _put_end(ends, done, pix[i], i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv,
                                     thr[i, 0], thr[i, 1], thr[i, 2], seg, False, dist[i], LOBE_LIGHTS):
                         return -1, traced
