@@ -866,3 +866,11 @@ def material_row(P, row, dst, atlas, u, v):
         else:
             P[3][dst, 0], P[3][dst, 1], P[3][dst, 2] = r, g, b
     return dst
+
+
+@njit(**_KERNEL)
+def material_rows(P, rows, dst0, atlas, uv, out) -> None:
+    """out[j] = :func:`material_row` of material row ``rows[j]`` at uv[j], a textured one made
+    in row dst0 + j."""
+    for j in range(rows.shape[0]):
+        out[j] = material_row(P, rows[j], dst0 + j, atlas, uv[j, 0], uv[j, 1])
