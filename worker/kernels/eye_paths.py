@@ -29,26 +29,24 @@ LAYER, LOBE_LIGHTS = 1, 2
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _put_end(ends, k, pix, i, pos, ns, ng, wx, wy, wz, mat, uv, t0, t1, t2, seg, main, dist, code) -> bool:
-    """End point k from row i of the hit arrays; False (nothing written) where ends is full."""
+def _put_end(ends, k, pix, i, pos, ns, ng, wx, wy, wz, mat, uv, t0, t1, t2, seg, main, dist, code) -> None:
+    """End point k (< the room of ``ends``: the caller checks) from row i of the hit arrays.
+    Straight-line on purpose, no branch and no loop: inlined per end point, its arguments' 17
+    arrays are reference-counted, and numba's refcount pruning drops those counts only within
+    one basic block (an early return here left 34 atomic operations per end point)."""
     e_pix, e_pos, e_ns, e_ng, e_wi, e_mat, e_uv, e_thr, e_seg, e_main, e_dist, e_code = ends
-    if k >= e_pix.shape[0]:
-        return False
     e_pix[k] = pix
     e_mat[k] = mat[i]
     e_seg[k] = seg
     e_main[k] = main
     e_dist[k] = dist
     e_code[k] = code
-    for a in range(3):
-        e_pos[k, a] = pos[i, a]
-        e_ns[k, a] = ns[i, a]
-        e_ng[k, a] = ng[i, a]
+    e_pos[k, 0], e_pos[k, 1], e_pos[k, 2] = pos[i, 0], pos[i, 1], pos[i, 2]
+    e_ns[k, 0], e_ns[k, 1], e_ns[k, 2] = ns[i, 0], ns[i, 1], ns[i, 2]
+    e_ng[k, 0], e_ng[k, 1], e_ng[k, 2] = ng[i, 0], ng[i, 1], ng[i, 2]
     e_wi[k, 0], e_wi[k, 1], e_wi[k, 2] = wx, wy, wz
     e_thr[k, 0], e_thr[k, 1], e_thr[k, 2] = t0, t1, t2
-    e_uv[k, 0] = uv[i, 0]
-    e_uv[k, 1] = uv[i, 1]
-    return True
+    e_uv[k, 0], e_uv[k, 1] = uv[i, 0], uv[i, 1]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -118,6 +116,7 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
     valid, hpos, hng, hns, huv, htt, hmat, hem = (hits[4], hits[5], hits[6], hits[7], hits[8], hits[9], hits[10],
                                                   hits[11])
     e_pix, e_main, e_dist, e_ns = ends[0], ends[9], ends[10], ends[2]
+    room = e_pix.shape[0]
     null_row = specular.shape[0] - 1
     no_emitter = radiance.shape[0] - 1
     chains = specular_depth > 0 and (max_depth < 0 or 2 <= max_depth)
@@ -156,9 +155,10 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
             if kind[r] == ROUGHCONDUCTOR:  # all lobe: its sampled ray alone
                 continue
             code = LAYER
-        if not _put_end(ends, done, i, i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv, 1.0, 1.0, 1.0, 1,
-                        True, htt[i], code):
+        if done >= room:
             return -1, p
+        _put_end(ends, done, i, i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv, 1.0, 1.0, 1.0, 1,
+                 True, htt[i], code)
         done += 1
     # the split lobes: one sampled ray each (u2 drawn for all of them), their light-sample points
     lobe_wo, lobe_w, lobe_pdf = np.empty((n_lobe, 3)), np.empty((n_lobe, 3)), np.zeros(n_lobe)
@@ -169,9 +169,10 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
         if direct_count > 0:
             for q in range(n_lobe):
                 i = lobe[q]
-                if not _put_end(ends, done, i, i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv, 1.0, 1.0,
-                                1.0, 1, False, htt[i], LOBE_LIGHTS):
+                if done >= room:
                     return -1, p
+                _put_end(ends, done, i, i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv, 1.0, 1.0,
+                         1.0, 1, False, htt[i], LOBE_LIGHTS)
                 done += 1
     first = done
     if not chains or (n_delta == 0 and n_lobe == 0):
@@ -238,11 +239,11 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _emission_mis(lobes, mis_pdf, valid, emitter, t, cos_front) -> float:
+def _emission_mis(direct_count, area_pdf, env_pdf, mis_pdf, valid, emitter, t, cos_front) -> float:
     """worker.shading._mis_emission's weight of emission met by a ray of sampling pdf
     ``mis_pdf`` (1 where 0) against the set's light samples: an area emitter's area pdf over
-    t²/|cos| (a valid hit), the environment's pdf (a miss), × the light samples per set."""
-    direct_count, area_pdf, env_pdf = lobes[3], lobes[4], lobes[5]
+    t²/|cos| (a valid hit), the environment's pdf (a miss), × the light samples per set.
+    (Not handed ``lobes`` whole: an inlined call per ray counted the references of its arrays.)"""
     if not mis_pdf > 0.0:
         return 1.0
     if valid:
@@ -269,7 +270,7 @@ def _chains(P, kind, specular, null_kind, rng, closest, rays, live, specular_dep
     on: the delta samples', then the lobes'. Returns (ends written in all, rays traced); -1 for
     the first where ``ends`` was too small."""
     center = closest[1]
-    split, smooth, P_lobe, direct_count = lobes[0], lobes[1], lobes[2], lobes[3]
+    split, smooth, P_lobe, direct_count, area_pdf, env_pdf = lobes
     cur = rays
     n = cur[0].shape[0]
     nxt = (np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_),
@@ -279,6 +280,7 @@ def _chains(P, kind, specular, null_kind, rng, closest, rays, live, specular_dep
     hits = hit_buffers(n)
     valid, hpos, hng, hns, huv, htt, hmat, hem = (hits[4], hits[5], hits[6], hits[7], hits[8], hits[9], hits[10],
                                                   hits[11])
+    room = ends[0].shape[0]
     no_seg, prow, di, lobe = np.zeros(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
     lobe_main = np.empty(n, np.bool_)
     wi = np.empty((n, 3))
@@ -297,14 +299,14 @@ def _chains(P, kind, specular, null_kind, rng, closest, rays, live, specular_dep
             if sky:
                 for i in range(live):
                     if not valid[i]:
-                        w = _emission_mis(lobes, mis[i], False, -1, htt[i], 0.0)
+                        w = _emission_mis(direct_count, area_pdf, env_pdf, mis[i], False, -1, htt[i], 0.0)
                         for a in range(3):
                             unf[pix[i], a] += thr[i, a] * env[a] * w
             for i in range(live):
                 e = hem[i]
                 if valid[i] and e >= 0:
                     cos_front = -(d[i, 0] * hns[i, 0] + d[i, 1] * hns[i, 1] + d[i, 2] * hns[i, 2])
-                    w = _emission_mis(lobes, mis[i], True, e, htt[i], cos_front)
+                    w = _emission_mis(direct_count, area_pdf, env_pdf, mis[i], True, e, htt[i], cos_front)
                     row = e if e < no_emitter else no_emitter
                     for a in range(3):
                         le = 0.0 if cos_front <= 0 else radiance[row, a]
@@ -332,9 +334,10 @@ def _chains(P, kind, specular, null_kind, rng, closest, rays, live, specular_dep
                 if kind[r] == ROUGHCONDUCTOR:
                     continue
                 code = LAYER
-            if not _put_end(ends, done, pix[i], i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv, thr[i, 0],
-                            thr[i, 1], thr[i, 2], seg, main[i], dist[i], code):
+            if done >= room:
                 return -1, traced
+            _put_end(ends, done, pix[i], i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv, thr[i, 0],
+                     thr[i, 1], thr[i, 2], seg, main[i], dist[i], code)
             done += 1
         if (n_di == 0 and n_lobe == 0) or not (max_depth < 0 or seg + 1 <= max_depth):
             break
@@ -364,9 +367,10 @@ def _chains(P, kind, specular, null_kind, rng, closest, rays, live, specular_dep
                 res = (l_wo[q, 0], l_wo[q, 1], l_wo[q, 2], l_w[q, 0], l_w[q, 1], l_w[q, 2])
                 pdf = l_pdf[q]
                 if direct_count > 0:
-                    if not _put_end(ends, done, pix[i], i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv,
-                                    thr[i, 0], thr[i, 1], thr[i, 2], seg, False, dist[i], LOBE_LIGHTS):
+                    if done >= room:
                         return -1, traced
+                    _put_end(ends, done, pix[i], i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv,
+                             thr[i, 0], thr[i, 1], thr[i, 2], seg, False, dist[i], LOBE_LIGHTS)
                     done += 1
                 if not kb.carries(res[3], res[4], res[5]):
                     continue
