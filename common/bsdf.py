@@ -108,6 +108,7 @@ class SurfacePoints:
         d = self.__dict__
         if "_tables" in d and name in _TABLE_COLUMN and name not in d["_held"]:
             d["_held"] += (name,)
+        d.pop("_packed_rows", None)
         d[name] = value
 
     def __len__(self) -> int:
@@ -288,7 +289,9 @@ def packed_rows(sp: SurfacePoints) -> tuple[tuple, np.ndarray]:
     """``(P, row)``: the kernels' packed parameters holding point j's at row ``row[j]``.
     Material-backed points that hold no field of their own read their material's row of one P
     per materials list (built once): no per-point copy of the 17 parameter arrays. Otherwise
-    ``(pack(sp), arange)``. The values are the same either way."""
+    ``(pack(sp), arange)``, kept on the points until a field of theirs is set (a tile's end
+    points are packed for their albedo, their BSDF rays and their gather). The values are the
+    same either way."""
     d = sp.__dict__
     if "_tables" in d and not d["_held"]:
         t = d["_tables"]
@@ -297,7 +300,10 @@ def packed_rows(sp: SurfacePoints) -> tuple[tuple, np.ndarray]:
             m = len(t["kind"]) - 1
             P = t["packed"] = pack(SurfacePoints._backed(t, np.arange(m + 1, dtype=np.int64), {}))
         return P, d["_rows"]
-    return pack(sp), np.arange(len(sp), dtype=np.int64)
+    hit = d.get("_packed_rows")
+    if hit is None:
+        hit = d["_packed_rows"] = (pack(sp), np.arange(len(sp), dtype=np.int64))
+    return hit
 
 
 def material_packed(materials: list[Material]) -> tuple[tuple, np.ndarray]:

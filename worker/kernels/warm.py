@@ -250,6 +250,9 @@ def _bsdf_calls() -> dict:
         "albedo_many": lambda: kb.albedo_many(P, r1, w1, o3.copy()),
         "specular_many": lambda: kb.specular_many(P, r1, w1, True, o3.copy(), o3.copy(), o3.copy(), o3.copy()),
         "coat_columns": lambda: bsdf.pack(bsdf.SurfacePoints.constant(Material("warm-up", DIFFUSE), 1)),
+        "material_rows": lambda: kb.material_rows(*bsdf.material_packed([Material("warm-up", DIFFUSE)])[:1], r1, 1,
+                                                  bsdf.texture_atlas([Material("warm-up", DIFFUSE)]), w2,
+                                                  np.zeros(1, np.int64)),
     }
     return {f"igi.common.kernels.bsdf.{name}": call for name, call in calls.items()}
 
