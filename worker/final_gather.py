@@ -172,6 +172,14 @@ def find_levels(scene: Scene, geom: Geometry, lights: LightSampler, first: Arriv
                   [len(y) for y in ends], [a.parent for a in arrivals], [a.factor for a in arrivals], gains)
 
 
+def _room_after(f: np.ndarray, rows: int) -> np.ndarray:
+    """``f`` with ``rows`` rows of room after it, left untouched (np.concatenate with an empty
+    array copied every row of room: ~15 arrays of a tile's capacity, mostly never written)."""
+    out = np.empty((len(f) + rows,) + f.shape[1:], f.dtype)
+    out[:len(f)] = f
+    return out
+
+
 def _compiled_levels(scene: Scene, geom: Geometry, lights: LightSampler, first: Arrivals, compensate: bool,
                      clamp_d2: float, max_depth: int, rng: np.random.Generator, lobe_alpha: float) -> Levels | None:
     """:func:`find_levels` in one compiled call (kernels.final_gather_levels.find_levels); None
@@ -185,8 +193,7 @@ def _compiled_levels(scene: Scene, geom: Geometry, lights: LightSampler, first: 
     n0 = len(first)
     cap = n0 * (max(COMPENSATION_MAX_LEVEL, 1) + 1) + 1  # each level has at most the points of the one before
     if len(atlas[1]):  # a row of P per point for the texels of its own (the coat tables, 12 and 13, are shared)
-        P = tuple(f if i in (12, 13) else np.concatenate([f, np.empty((cap,) + f.shape[1:], f.dtype)])
-                  for i, f in enumerate(P))
+        P = tuple(f if i in (12, 13) else _room_after(f, cap) for i, f in enumerate(P))
     points = (np.empty((cap, 3)), np.empty((cap, 3)), np.empty((cap, 3)), np.empty(cap, np.int32),
               np.empty((cap, 2)), np.empty(cap), np.empty((cap, 3)), np.empty(cap, np.int64), np.empty(cap, np.int64),
               np.empty((cap, 3)), np.empty(cap, np.int64), np.empty((cap, 3)))
