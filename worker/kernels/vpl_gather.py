@@ -413,18 +413,24 @@ def gather_packets(scene, x, ns, ng, off, side, row, vmax,
             np.empty((cap, 3), np.float32), np.empty(cap, np.bool_), np.empty((cap, 3)))
     traced = 0
     k = 0
+    live = np.empty(rows_per_block, np.int64)
     for b0 in range(0, n, rows_per_block):
         nb = min(rows_per_block, n - b0)
         _weigh(b0, nb, weighed, staging)
         count = 0  # pairs held
         for a in range(width):
+            # the column's live rows listed first, without a branch: most pairs are dead or
+            # dropped by the roulette, in no pattern a branch predictor could follow (a row past
+            # its own width reads a stale weight, never used)
+            nl = 0
             for b in range(nb):
                 i = b0 + b
-                if a >= col_hi[i] - col_lo[i]:
-                    continue
+                live[nl] = b
+                nl += (a < col_hi[i] - col_lo[i]) & (not (sw[b, a] < 0.0))
+            for t in range(nl):
+                b = live[t]
+                i = b0 + b
                 w = sw[b, a]
-                if w < 0.0:
-                    continue
                 j = max(col_lo[i], 0) + a  # (as _stage: j >= 0 known, no wraparound per access)
                 d0, d1, d2_ = _to_vpl(x[i, 0], x[i, 1], x[i, 2], vpos, vnormal, directional, j)
                 _dd, inv_d = _length(d0, d1, d2_)
