@@ -85,6 +85,7 @@ class Links:
         self.monitor = None  # CURVE handshake failures (common/curve_log.py)
         self.endpoint: str | None = None
         self.workers: dict[bytes, Worker] = {}
+        self.departed: set[bytes] = set()  # told BYE by say_bye: what they still send is expected
         self.faults = scheduler.FaultLedger()
         self.counters = collections.Counter()
         self.rl = RateLimitedLog(log)  # one line per kind of junk per interval, counted
@@ -167,6 +168,7 @@ class Links:
         bye = P.encode(P.BYE, {"reason": "master shutting down"})
         for w in list(self.workers.values()):
             self.send(w, bye, expire_on_fail=False)
+        self.departed.update(self.workers)
         self.workers.clear()
 
     # ------------------------------------------------------------------ receiving
@@ -210,6 +212,9 @@ class Links:
     def _from_stranger(self, ident: bytes, kind: str) -> None:
         if kind in (P.BYE, P.REFUSE):
             return
+        if ident in self.departed:  # a result or heartbeat that crossed our BYE: no fault of theirs
+            self.counters["after_bye"] += 1
+            return
         self._drop(ident, f"{kind} from an unregistered peer; asked it to send HELLO")
         self.send_raw(ident, P.encode(P.ERROR, {"code": "unregistered",
                                                 "message": "unknown worker: send HELLO"}))
@@ -231,6 +236,7 @@ class Links:
         self.rl.warning(kind, msg, *args)
 
     def _on_hello(self, ident: bytes, body: dict) -> None:
+        self.departed.discard(ident)
         old = self.workers.get(ident)
         if old is not None:
             self.tasks.re_registered(old)

@@ -143,6 +143,23 @@ def test_silent_worker_expires_and_its_tasks_move():
         b.close()
 
 
+def test_a_result_that_crosses_the_masters_bye_is_neither_dropped_nor_answered(broker):
+    """Shutting down, the master says BYE and forgets its workers; a result already on its way
+    is expected, not a stranger's message: no warning, no ERROR asking for HELLO (a stranger
+    still gets one: test_silent_worker_expires_and_its_tasks_move)."""
+    a = FakeWorker(broker.endpoint, "a", credit=2)
+    hello_ok(a)
+    broker.submit_frame(broker.frame_spec(0, IL3))
+    got = a.tasks(1)
+    broker._call(broker._links.say_bye)  # the first half of stop(), its socket still open
+    assert a.recv_kind(P.BYE, timeout=3) is not None
+    a.result(got[0])
+    assert wait_until(lambda: broker._call(lambda: broker._links.counters["after_bye"]) == 1, 5)
+    assert a.recv_kind(P.ERROR, timeout=0.5) is None
+    assert broker.stats()["messages_dropped"] == 0
+    a.close()
+
+
 def test_scene_blob_sent_once_and_edits_broadcast(broker):
     a = FakeWorker(broker.endpoint, "a")
     first = hello_ok(a, expect_blob=True)
