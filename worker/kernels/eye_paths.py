@@ -364,22 +364,21 @@ def _chains(P, kind, specular, null_kind, rng, closest, rays, live, specular_dep
                           l_wo, l_w, l_pdf)
             for q in range(n_lobe):
                 i = lobe[q]
-                res = (l_wo[q, 0], l_wo[q, 1], l_wo[q, 2], l_w[q, 0], l_w[q, 1], l_w[q, 2])
-                pdf = l_pdf[q]
+                w0, w1, w2 = l_w[q, 0], l_w[q, 1], l_w[q, 2]
                 if direct_count > 0:
                     if done >= room:
                         return -1, traced
                     _put_end(ends, done, pix[i], i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv,
                              thr[i, 0], thr[i, 1], thr[i, 2], seg, False, dist[i], LOBE_LIGHTS)
                     done += 1
-                if not kb.carries(res[3], res[4], res[5]):
+                if not kb.carries(w0, w1, w2):
                     continue
-                dx, dy, dz = shading_frame.to_world(res[0], res[1], res[2], hns[i, 0], hns[i, 1], hns[i, 2])
+                dx, dy, dz = shading_frame.to_world(l_wo[q, 0], l_wo[q, 1], l_wo[q, 2], hns[i, 0], hns[i, 1], hns[i, 2])
                 npix[c] = pix[i]
                 nmain[c] = lobe_main[q]
                 ndist[c] = dist[i]
-                nmis[c] = pdf
-                nthr[c, 0], nthr[c, 1], nthr[c, 2] = thr[i, 0] * res[3], thr[i, 1] * res[4], thr[i, 2] * res[5]
+                nmis[c] = l_pdf[q]
+                nthr[c, 0], nthr[c, 1], nthr[c, 2] = thr[i, 0] * w0, thr[i, 1] * w1, thr[i, 2] * w2
                 nd[c, 0], nd[c, 1], nd[c, 2] = dx, dy, dz
                 no[c, 0], no[c, 1], no[c, 2] = offset_point(hpos[i, 0], hpos[i, 1], hpos[i, 2], hng[i, 0], hng[i, 1],
                                                             hng[i, 2], dx, dy, dz, center, eps, ulps)
