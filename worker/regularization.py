@@ -85,7 +85,8 @@ def _table(sp: bsdf.SurfacePoints, key: np.ndarray, row: int, alpha: float) -> n
 
 
 def _at(table: np.ndarray, mu: np.ndarray) -> np.ndarray:
-    """(N, 3) the table linearly interpolated at cosines ``mu`` (held constant past the ends)."""
+    """(N, C) the (MU_BINS, C) table linearly interpolated at cosines ``mu`` (held constant past
+    the ends)."""
     x = np.clip(mu * MU_BINS - 0.5, 0.0, MU_BINS - 1.0)
     i = np.minimum(x.astype(np.int64), MU_BINS - 2)
     f = (x - i)[:, None]
@@ -116,8 +117,11 @@ def regularization_gain(surface: bsdf.SurfacePoints, regularized: bsdf.SurfacePo
     s_reg = np.empty((len(rows), 3))
     for c, r0 in enumerate(first):
         sel = np.nonzero(inverse == c)[0] if len(first) > 1 else slice(None)
-        s_orig[sel] = _at(_table(orig, keys[r0], int(r0), float(orig.alpha[r0])), mu[sel])
-        s_reg[sel] = _at(_table(orig, keys[r0], int(r0), float(alpha[r0])), mu[sel])
+        # both tables side by side: one interpolation pass over the points, not two
+        both = np.concatenate([_table(orig, keys[r0], int(r0), float(orig.alpha[r0])),
+                               _table(orig, keys[r0], int(r0), float(alpha[r0]))], axis=1)
+        s = _at(both, mu[sel])
+        s_orig[sel], s_reg[sel] = s[:, :3], s[:, 3:]
     spec = np.asarray(orig.specular, dtype=np.float64)
     lost = spec * np.maximum(s_orig - s_reg, 0.0)
     # A conductor is all lobe; a plastic's smooth albedo estimate is its diffuse layer plus its
