@@ -871,6 +871,6 @@ def material_row(P, row, dst, atlas, u, v):
 @njit(**_KERNEL)
 def material_rows(P, rows, dst0, atlas, uv, out) -> None:
     """out[j] = :func:`material_row` of material row ``rows[j]`` at uv[j], a textured one made
-    in row dst0 + j."""
+    in row dst0 + j. ``out`` may be ``rows`` itself (row j is read before it is written)."""
     for j in range(rows.shape[0]):
         out[j] = material_row(P, rows[j], dst0 + j, atlas, uv[j, 0], uv[j, 1])

@@ -62,27 +62,6 @@ def _carries_any(w0, w1, w2) -> bool:
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _rows_of(sel, n, table, null_row):
-    """table[sel[:n]] as material rows: out-of-range rows (< 0 or ≥ null_row ≥ 0) the NULL row;
-    ``null_row`` < 0: taken as they are."""
-    out = np.empty(n, np.int64)
-    for q in range(n):
-        m = table[sel[q]]
-        out[q] = m if null_row < 0 or 0 <= m < null_row else null_row
-    return out
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _rows(a, sel, n):
-    """a[sel[:n]] for an (m, 3) array."""
-    out = np.empty((n, 3))
-    for q in range(n):
-        for c in range(3):
-            out[q, c] = a[sel[q], c]
-    return out
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _sample_lobes(P, P_lobe, with_pdf, row, wi, u, out_wo, out_w, out_pdf) -> None:
     """Each point's sampled lobe ray (kb.sample_lobe) and, ``with_pdf``, its lobe pdf under
     ``P_lobe`` (the MIS weight against the light samples); ``out_pdf`` stays as given otherwise."""
@@ -122,7 +101,7 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
     chains = specular_depth > 0 and (max_depth < 0 or 2 <= max_depth)
     split_here = split and chains
     wi = np.empty((p, 3))
-    delta, lobe = np.empty(p, np.int64), np.empty(p, np.int64)
+    delta, lobe, prow = np.empty(p, np.int64), np.empty(p, np.int64), np.empty(p, np.int64)
     n_delta, n_lobe, done = 0, 0, 0
     for i in range(p):
         depth[i] = htt[i]
@@ -142,6 +121,7 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
                                                               hns[i, 2])
         m = hmat[i]
         r = m if 0 <= m < null_row else null_row
+        prow[i] = r
         if specular[r]:
             delta[n_delta] = i
             n_delta += 1
@@ -164,8 +144,8 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
     lobe_wo, lobe_w, lobe_pdf = np.empty((n_lobe, 3)), np.empty((n_lobe, 3)), np.zeros(n_lobe)
     if n_lobe > 0:
         u = rng.random((n_lobe, 2))
-        _sample_lobes(P, P_lobe, direct_count > 0, _rows_of(lobe, n_lobe, hmat, null_row), _rows(wi, lobe, n_lobe), u,
-                      lobe_wo, lobe_w, lobe_pdf)
+        sel = lobe[:n_lobe]
+        _sample_lobes(P, P_lobe, direct_count > 0, prow[sel], wi[sel], u, lobe_wo, lobe_w, lobe_pdf)
         if direct_count > 0:
             for q in range(n_lobe):
                 i = lobe[q]
@@ -180,8 +160,8 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
     # the delta components of each mirror/glass hit, both traced: reflections, then transmissions
     comp = np.empty((n_delta, 12))
     best = np.empty(n_delta, np.int64)
-    kb.specular_many(P, _rows_of(delta, n_delta, hmat, null_row), _rows(wi, delta, n_delta), True, comp[:, 0:3],
-                     comp[:, 3:6], comp[:, 6:9], comp[:, 9:12])
+    sel = delta[:n_delta]
+    kb.specular_many(P, prow[sel], wi[sel], True, comp[:, 0:3], comp[:, 3:6], comp[:, 6:9], comp[:, 9:12])
     for q in range(n_delta):
         # np.argmax of (luminance where the component carries light, else -1): NaN wins, ties go first
         lum0 = comp[q, 3] * _WR + comp[q, 4] * _WG + comp[q, 5] * _WB if _carries_any(
@@ -360,8 +340,8 @@ def _chains(P, kind, specular, null_kind, rng, closest, rays, live, specular_dep
         if n_lobe > 0:
             u = rng.random((n_lobe, 2))
             l_wo, l_w, l_pdf = np.empty((n_lobe, 3)), np.empty((n_lobe, 3)), np.zeros(n_lobe)
-            _sample_lobes(P, P_lobe, direct_count > 0, _rows_of(lobe, n_lobe, prow, -1), _rows(wi, lobe, n_lobe), u,
-                          l_wo, l_w, l_pdf)
+            sel = lobe[:n_lobe]
+            _sample_lobes(P, P_lobe, direct_count > 0, prow[sel], wi[sel], u, l_wo, l_w, l_pdf)
             for q in range(n_lobe):
                 i = lobe[q]
                 w0, w1, w2 = l_w[q, 0], l_w[q, 1], l_w[q, 2]

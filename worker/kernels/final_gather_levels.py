@@ -25,18 +25,6 @@ from igi.common.kernels.ray_packets import closest_surfaces
 from .bsdf_rays import sample_rays
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _material_rows(P, atlas, mat, uv, null_row, n0, n1, prow) -> None:
-    """prow[n0:n1]: the rows of P points n0..n1-1 read (kb.material_row: a textured one its own
-    row past the materials', m + 1 + n), in one call: per point, the inlined call counted the
-    references of P's 17 arrays and the atlas' (docs/benchmarks.md, stop 45)."""
-    rows = np.empty(n1 - n0, np.int64)
-    for n in range(n0, n1):
-        k = mat[n]
-        rows[n - n0] = k if 0 <= k < null_row else null_row
-    kb.material_rows(P, rows, null_row + 1 + n0, atlas, uv[n0:n1], prow[n0:n1])
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
 def find_levels(P, reflects, atlas, closest, rng, center, eps, ulps, reach_all, emitter_c, emitter_r2, clamp_d2,
                 short, max_depth, roulette_level, max_level, first, points, prow, level_stop, rays, hits,
@@ -73,8 +61,11 @@ def find_levels(P, reflects, atlas, closest, rng, center, eps, ulps, reach_all, 
         _put(points, n, a_pos[i, 0], a_pos[i, 1], a_pos[i, 2], a_ns[i, 0], a_ns[i, 1], a_ns[i, 2], a_ng[i, 0],
              a_ng[i, 1], a_ng[i, 2], mat, a_uv[i, 0], a_uv[i, 1], a_t[i], a_d[i, 0], a_d[i, 1], a_d[i, 2], a_seg[i],
              a_parent[i], a_factor[i, 0], a_factor[i, 1], a_factor[i, 2], a_level[i])
+        prow[n] = row
         n += 1
-    _material_rows(P, atlas, p_mat, p_uv, m, 0, n, prow)
+    # the level's rows of P in one call (kb.material_rows, in place): inlined per point, the
+    # call counted the references of P's 17 arrays and the atlas' (docs/benchmarks.md, stop 46)
+    kb.material_rows(P, prow[:n], m + 1, atlas, p_uv[:n], prow[:n])
     level = 0
     p0, p1, r0 = 0, n, 0
     while p1 > p0:
@@ -128,8 +119,9 @@ def find_levels(P, reflects, atlas, closest, rng, center, eps, ulps, reach_all, 
                      h_ng[q, 0], h_ng[q, 1], h_ng[q, 2], mat, h_uv[q, 0], h_uv[q, 1], t, r_d[q, 0], r_d[q, 1],
                      r_d[q, 2], p_seg[i] + 1, i - p0, r_w[q, 0] * share, r_w[q, 1] * share, r_w[q, 2] * share,
                      child)
+                prow[n] = row
                 n += 1
-            _material_rows(P, atlas, p_mat, p_uv, m, p1, n, prow)
+            kb.material_rows(P, prow[p1:n], m + 1 + p1, atlas, p_uv[p1:n], prow[p1:n])
         level += 1
         p0, p1, r0 = p1, n, r1
     return level
