@@ -16,6 +16,7 @@ from embreex import rtcore as rtc
 from embreex import rtcore_scene as rtcs
 from embreex.mesh_construction import TriangleMesh
 
+from . import hull_culling
 from .kernels import hit_surface, triangle_sampling
 from .ray_packets import PacketScene, packet_scene
 from .scene import Scene, SceneError
@@ -23,6 +24,10 @@ from .scene import Scene, SceneError
 log = logging.getLogger("igi.geometry")
 
 _OFFSET_ULPS = float(4 * np.finfo(np.float32).eps)  # (np.finfo costs µs: asked per tile and kernel call)
+# A point counts as on the inner side of a supporting plane up to this fraction of the scene's
+# diagonal: ~16 float32 ulps of its coordinates, so a VPL on a wall is not put outside it by
+# rounding (the ray still ends ~1e-4 of its length short of the VPL, the wall behind it).
+_PLANE_SLACK = 1e-6
 
 
 @dataclass
@@ -173,6 +178,7 @@ class Geometry:
         self._device = rtc.EmbreeDevice()
         self._local = local
         self._shadow = None  # shadow_bvh(): made on first use (the master's picking never needs it)
+        self._interior = None  # interior_bvh(): likewise
         self._build_lock = threading.Lock()
         # Closest hits: a robust BVH (no ray slips through an edge), through Embree's C API
         # where at hand (common.ray_packets: the same answers without embreex's per-call
@@ -222,6 +228,28 @@ class Geometry:
                     self._shadow = scene
         return self._shadow
 
+    def interior_bvh(self) -> tuple:
+        """``(BVH, planes)``: the shadow BVH without the triangles that lie in a supporting
+        plane of the scene (common.hull_culling: a room's walls, floor and ceiling when nothing
+        lies beyond them), for shadow rays between two points on the planes' inner side, and
+        those planes in the centred frame (float32 (K, 4), n·x + d > 0: outside, a few float32
+        ulps of slack folded into d). With no such plane, or no packet queries: the shadow BVH
+        itself and no planes."""
+        if self._interior is None:
+            shadow = self.shadow_bvh()
+            with self._build_lock:
+                if self._interior is None:
+                    planes, culled = hull_culling.supporting_planes(self.vertices, self.faces, self.area,
+                                                                    self.diagonal)
+                    inner = packet_scene(self._local[~culled], robust=False) if culled.any() else None
+                    if inner is None or not isinstance(getattr(shadow, "inner", shadow), PacketScene):
+                        self._interior = (shadow, np.zeros((0, 4), np.float32))
+                    else:
+                        inner.run(*_ONE_RAY, query="OCCLUDED", dists=np.zeros(1, np.float32))
+                        self._interior = (inner, hull_culling.centred_planes(planes, self.center,
+                                                                             _PLANE_SLACK * self.diagonal))
+        return self._interior
+
     def packet_handle(self) -> int | None:
         """The shadow BVH's RTCScene handle for compiled code that queries it in packets
         itself (worker.kernels.vpl_gather.gather_packets), or None where its rays must pass
@@ -257,7 +285,7 @@ class Geometry:
         if self.record is not None:
             # Embree writes each hit's distance into ``dist``: keep the ray's own tmax
             self.record.append(("intersect", (origins - self.center).astype(np.float32),
-                                directions.astype(np.float32), None if dist is None else dist.copy()))
+                                directions.astype(np.float32), None if dist is None else dist.copy(), None))
         if self._packets is not None:
             valid, prim, u, v, t = self._packets.closest(origins, directions, dist, self.center)
             return self._surface(origins, directions, valid, prim, u, v, t)
@@ -275,8 +303,11 @@ class Geometry:
         return self.occluded_local((origins - self.center).astype(np.float32), directions.astype(np.float32),
                                    np.minimum(tmax, 3.0e38))
 
-    def occluded_local(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray) -> np.ndarray:
-        """occluded() for origins already in the centred float32 frame (hot path)."""
+    def occluded_local(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray,
+                       interior: np.ndarray | None = None) -> np.ndarray:
+        """occluded() for origins already in the centred float32 frame (hot path). ``interior``
+        (per ray, optional): rays that may skip the triangles of the supporting planes
+        (:meth:`interior_bvh`); a benchmark recording the rays traces them all on the full BVH."""
         if len(o) == 0:
             return np.zeros(0, bool)
         self.counters["occluded_rays"] += len(o)
@@ -284,10 +315,19 @@ class Geometry:
         o = np.ascontiguousarray(o, dtype=np.float32)
         d = np.ascontiguousarray(d, dtype=np.float32)
         if self.record is None and hasattr(shadow, "occluded"):
+            if interior is not None and interior.any():
+                inner = self.interior_bvh()[0]
+                out = np.empty(len(o), bool)
+                sub = (o[interior], d[interior], tmax[interior])
+                out[interior] = (shadow._timed("occluded_seconds", inner.occluded, *sub) if isinstance(shadow, _TimedEmbree)
+                                 else inner.occluded(*sub))
+                rest = ~interior
+                out[rest] = shadow.occluded(o[rest], d[rest], tmax[rest])
+                return out
             return shadow.occluded(o, d, tmax)  # packets: the kernel clamps tmax, answers in bools
         dist = np.ascontiguousarray(np.minimum(tmax, np.float32(3.0e38)), dtype=np.float32)
         if self.record is not None:
-            self.record.append(("occluded", o, d, dist))
+            self.record.append(("occluded", o, d, dist, None if interior is None else interior.copy()))
         return shadow.run(o, d, query="OCCLUDED", dists=dist) != -1
 
     def visible(self, x: np.ndarray, nx: np.ndarray, y: np.ndarray, ny: np.ndarray | None) -> np.ndarray:
@@ -320,20 +360,31 @@ class Geometry:
         side[side == 0] = 1.0
         return p + ng * (side * scale)[:, None]
 
-    def replay(self, batches: list) -> float:
-        """Trace recorded batches on raw Embree (each kind on its own BVH); returns the seconds
-        it took."""
+    def replay(self, batches: list, own: bool = False) -> float:
+        """Trace recorded batches on raw Embree (each kind on its own BVH: the full scene's, or
+        with ``own`` the shadow rays the gather may send there on :meth:`interior_bvh`'s);
+        returns the seconds it took."""
         import time
 
         embree = getattr(self._embree, "inner", self._embree)  # never the timing wrapper
         shadow = self.shadow_bvh()
         shadow = getattr(shadow, "inner", shadow)
-        t0 = time.perf_counter()
-        for kind, o, d, dist in batches:
+        inner = self.interior_bvh()[0]
+        calls = []  # (BVH, query, o, d, dist): split before the clock starts
+        for kind, o, d, dist, interior in batches:
             if kind == "intersect":
-                embree.run(o, d, output=1) if dist is None else embree.run(o, d, dists=dist, output=1)
+                calls.append((embree, None, o, d, dist))
+            elif own and interior is not None:
+                calls.append((inner, "OCCLUDED", o[interior], d[interior], dist[interior]))
+                calls.append((shadow, "OCCLUDED", o[~interior], d[~interior], dist[~interior]))
             else:
-                shadow.run(o, d, query="OCCLUDED", dists=dist)
+                calls.append((shadow, "OCCLUDED", o, d, dist))
+        t0 = time.perf_counter()
+        for bvh, query, o, d, dist in calls:
+            if query is None:
+                bvh.run(o, d, output=1) if dist is None else bvh.run(o, d, dists=dist, output=1)
+            else:
+                bvh.run(o, d, query=query, dists=dist)
         return time.perf_counter() - t0
 
     def time_embree(self, on: bool = True) -> None:

@@ -528,11 +528,11 @@ def _gather_packets(geom: Geometry, end: EndPoints, cols: "_VPLColumns", max_dep
                    cols.vwi, cols.vnormal)
     n, m = len(x), len(cols.depth)
     geom.counters["occluded_rays"] += vg.gather_packets(
-        scene, x, ns, ng, off, side, row, end.vpl_depth_limit(max_depth), cols.pos, cols.normal, cols.directional,
+        scene, geom.interior_bvh()[0].handle, x, ns, ng, off, side, row, end.vpl_depth_limit(max_depth), cols.pos, cols.normal, cols.directional,
         cols.min_d2, cols.cos_y_factor, cols.side, cols.spot_cutoff, cols.spot_beam, cols.depth, cols.mis,
         cols.light_pdf, cols.area, cols.direct_count, np.float32(2 * geom.eps), tables, row_tab, inv_tavg,
         np.zeros(n, np.int64), np.full(n, m, np.int64), cols.lum, float(roulette[0]) if roulette else 0.0,
-        int(roulette[1]) if roulette else 0, 0, cols.color, irr, factors)
+        int(roulette[1]) if roulette else 0, 0, cols.planes, cols.col_out, cols.color, irr, factors)
     return True
 
 
@@ -752,6 +752,12 @@ class _VPLColumns:
         self.min_d2 = np.where(surface, f32(clamp_d2), f32(1e-30)).astype(f32)
         self.depth = vpls.depth.astype(np.int64)
         self.direct_count = int(vpls.direct_count)
+        # Shadow-ray culling (common.hull_culling): the supporting planes and the prefix count
+        # of columns a ray may leave their inner side toward (directional ones, lights beyond
+        # the geometry).
+        self.planes = geom.interior_bvh()[1]
+        outside = self.directional | np.any(self.pos @ self.planes[:, :3].T + self.planes[:, 3] > 0, axis=1)
+        self.col_out = np.concatenate([[0], np.cumsum(outside)]).astype(np.int64)
 
 
 def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,
@@ -760,8 +766,8 @@ def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, c
     """The chunk's live (end point, VPL) pairs after Embree's occlusion test: (row, column,
     scalar weight, blocked, per-pair RGB factor or an empty (0, 3) array). ``roulette``:
     (fraction, seed) of the shadow rays' Russian roulette, None for none."""
-    pi, pj, w, row, pl, o, d, t = _pair_rays(geom, end, sl, vpls, cols, max_depth, col_range, roulette)
-    blocked = geom.occluded_local(o, d, t) if len(pi) else np.zeros(0, bool)
+    pi, pj, w, row, pl, o, d, t, inner = _pair_rays(geom, end, sl, vpls, cols, max_depth, col_range, roulette)
+    blocked = geom.occluded_local(o, d, t, inner) if len(pi) else np.zeros(0, bool)
     factor = _bsdf_factors(sl, cols, row, pi, pj, pl, d, blocked, receivers)
     return pi, pj, w, blocked, factor
 
@@ -812,7 +818,8 @@ def _receivers(geom: Geometry, end: EndPoints, sl: slice) -> tuple:
 def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,
                max_depth: int, col_range: tuple | None = None, roulette: tuple | None = None) -> tuple:
     """The chunk's live (end point, VPL) pairs and their shadow rays, untraced: (row, column,
-    scalar weight, receiver row kind, light pdf, origins, directions, tfar) — the rays in the
+    scalar weight, receiver row kind, light pdf, origins, directions, tfar, whether the ray may
+    skip the supporting planes' triangles (Geometry.interior_bvh)) — the rays in the
     centred float32 frame for Embree. ``col_range`` (lo, hi) per end point: its VPLs (None:
     all). ``roulette`` (fraction, seed): the shadow rays' Russian roulette, applied per row as
     the pairs are written (kernels.vpl_gather.roulette_row)."""
@@ -831,14 +838,15 @@ def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _V
     o = np.empty((cap, 3), f32)
     d = np.empty((cap, 3), f32)
     t = np.empty(cap, f32)
+    inner = np.empty(cap, bool)
     k = vg.pair_weights(x, ns, ng, off, side, row, end.vpl_depth_limit(max_depth)[sl],
                         cols.pos, cols.normal, cols.directional, cols.min_d2, cols.cos_y_factor,
                         cols.side, cols.spot_cutoff, cols.spot_beam, cols.depth, cols.mis,
                         cols.light_pdf, cols.area, cols.direct_count, f32(2 * geom.eps),
                         tables, row_tab, inv_tavg, lo, hi, cols.lum,
                         float(roulette[0]) if roulette else 0.0, int(roulette[1]) if roulette else 0, sl.start,
-                        pi, pj, w, pl, o, d, t)
-    return pi[:k], pj[:k], w[:k], row, pl[:k], o[:k], d[:k], t[:k]
+                        cols.planes, cols.col_out, pi, pj, w, pl, o, d, t, inner)
+    return pi[:k], pj[:k], w[:k], row, pl[:k], o[:k], d[:k], t[:k], inner[:k]
 
 
 def _bsdf_factors(sl: slice, cols: _VPLColumns, row: np.ndarray, pi: np.ndarray, pj: np.ndarray,

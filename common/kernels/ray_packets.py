@@ -57,20 +57,20 @@ _rtcOccluded16 = types.ExternalFunction("rtcOccluded16", types.void(types.uintp,
                                                                      types.uintp))
 
 LANES = 16
-_FIELDS = 12  # RTCRay16's 16-lane fields
+FIELDS = 12  # RTCRay16's 16-lane fields
 _TFAR_MAX = np.float32(3.0e38)  # longer segments are clamped (as Geometry.occluded's callers did)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _packet(floats: int):
-    """A packet buffer of ``floats`` float32 (its uint32 view too) and a 16-lane valid mask,
-    both 64-byte aligned as Embree's 16-wide calls require."""
+def _packet(floats: int, masks: int = 1):
+    """A packet buffer of ``floats`` float32 (its uint32 view too) and ``masks`` 16-lane valid
+    masks side by side, all 64-byte aligned as Embree's 16-wide calls require."""
     buf = np.empty(floats + LANES, np.float32)
     a = ((64 - buf.ctypes.data % 64) % 64) // 4
     ray = buf[a:a + floats]
-    vbuf = np.empty(2 * LANES, np.int32)
+    vbuf = np.empty((masks + 1) * LANES, np.int32)
     b = ((64 - vbuf.ctypes.data % 64) % 64) // 4
-    return ray, ray.view(np.uint32), vbuf[b:b + LANES]
+    return ray, ray.view(np.uint32), vbuf[b:b + masks * LANES]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -92,17 +92,20 @@ def _put_ray(ray, bits, k, ox, oy, oz, dx, dy, dz, tfar) -> None:
 
 
 @njit(cache=True, nogil=True, inline="always")
-def packet_lanes():
-    """An occlusion packet (ray, its uint32 view, valid mask) whose fixed fields are set —
-    tnear and time 0, mask all ones, id and flags 0 — for callers that write the origins,
-    directions and tfar of its lanes themselves (Embree's occlusion query changes only tfar)."""
-    ray, bits, valid = _packet(LANES * _FIELDS)
-    for k in range(LANES):
-        ray[3 * LANES + k] = 0.0
-        ray[7 * LANES + k] = 0.0
-        bits[9 * LANES + k] = 0xFFFFFFFF
-        bits[10 * LANES + k] = 0
-        bits[11 * LANES + k] = 0
+def packet_lanes(packets=1):
+    """``packets`` occlusion packets side by side (rays, their uint32 view, valid masks; packet
+    p's fields from p × 192 on, its mask from p × 16) whose fixed fields are set — tnear and
+    time 0, mask all ones, id and flags 0 — for callers that write the origins, directions and
+    tfar of their lanes themselves (Embree's occlusion query changes only tfar)."""
+    ray, bits, valid = _packet(packets * LANES * FIELDS, packets)
+    for p in range(packets):
+        at = p * LANES * FIELDS
+        for k in range(LANES):
+            ray[at + 3 * LANES + k] = 0.0
+            ray[at + 7 * LANES + k] = 0.0
+            bits[at + 9 * LANES + k] = 0xFFFFFFFF
+            bits[at + 10 * LANES + k] = 0
+            bits[at + 11 * LANES + k] = 0
     return ray, bits, valid
 
 
@@ -126,7 +129,7 @@ def occluded(scene, o, d, tfar, out) -> None:
     """out[i] = whether something blocks ray i (origin o[i], direction d[i], 0 < t <
     min(tfar[i], 3e38), float32) in the Embree ``scene`` (an RTCScene handle), 16 rays per
     Embree call."""
-    ray, bits, valid = _packet(LANES * _FIELDS)  # (_put_ray writes every field of a lane)
+    ray, bits, valid = _packet(LANES * FIELDS)  # (_put_ray writes every field of a lane)
     n = o.shape[0]
     for s in range(0, n, LANES):
         m = min(LANES, n - s)

@@ -105,8 +105,18 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
     # Receiver: Lambertian rows take cos/π (per unit albedo), glossy rows their BSDF.
     recv = np.where(lam[:, None], np.maximum(cos_x, 0) * f32(1 / np.pi), f32(0))
     gi = np.nonzero(gl)[0]
+    # The pairs' unit directions from the offset shadow-ray origins (the rays aim from there,
+    # so they end short of the VPL; the glossy ends' BSDFs take the same directions). Live
+    # pairs lie on the side of the surface the eye sees (cos_x > 0, reflective BSDFs), so one
+    # offset origin per end point serves all its shadow rays.
+    o_rows = x + end.ng[sl].astype(f32) * (_offset_scale(geom, end.position[sl]).astype(f32) * side)[:, None]
+    ovec = cols.pos[None, :, :] - o_rows[:, None, :]
+    if cols.directional.any():
+        ovec[:, cols.directional] = -cols.normal[cols.directional][None]
+    inv_o = f32(1) / np.sqrt(np.maximum(np.einsum("ijk,ijk->ij", ovec, ovec), f32(1e-30)))
+    udir = ovec * inv_o[:, :, None]
     if len(gi):
-        wo_x = (dvec[gi] * inv_d[gi][:, :, None]).reshape(-1, 3).astype(np.float64)
+        wo_x = udir[gi].reshape(-1, 3).astype(np.float64)
         nx = np.repeat(end.ns[sl][gi], m, axis=0)
         rows = np.arange(sl.start, sl.stop)[gi]
         spx = end.sp.subset(np.repeat(rows, m))
@@ -137,18 +147,13 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
     # Shadow rays for the live pairs only, in one Embree batch.
     ii, jj = np.nonzero(live)
     if len(ii):
-        # Everything in Embree's centred float32 frame: no float64 round trip per pair. Live
-        # pairs lie on the side of the surface the eye sees (cos_x > 0, reflective BSDFs), so
-        # one offset origin per end point serves all its shadow rays.
-        ng = end.ng[sl].astype(f32)
-        scale = _offset_scale(geom, end.position[sl]).astype(f32) * side
-        o_rows = x + ng * scale[:, None]
-        id_ = inv_d[ii, jj]
-        wij = dvec[ii, jj] * id_[:, None]
+        # Everything in Embree's centred float32 frame: no float64 round trip per pair.
+        id_ = inv_o[ii, jj]
+        wij = udir[ii, jj]
         ox = o_rows[ii]
         tmax = (1.0 / id_) * f32(1 - 1e-4) - f32(2 * geom.eps)
         tmax[cols.directional[jj]] = np.inf
-        blocked = geom.occluded_local(ox, wij, np.maximum(tmax, f32(0)))
+        blocked = geom.occluded_local(ox, wij, np.maximum(tmax, f32(0)), _interior_rows(geom, cols, o_rows)[ii])
         live[ii[blocked], jj[blocked]] = False
     weight = np.where(live, weight, f32(0))  # not `*=`: NaN * False stays NaN
     out = weight @ cols.color.astype(f32) if not len(gi) else np.zeros((n, 3), f32)
@@ -162,7 +167,7 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
         # left as raw flux for them).
         gj = np.nonzero(cols.glossy)[0]
         sub = vpls.surface.subset(np.searchsorted(cols.surf_rows, gj))
-        wo_y = -(dvec[:, gj] * inv_d[:, gj][:, :, None]).reshape(-1, 3).astype(np.float64)
+        wo_y = -udir[:, gj].reshape(-1, 3).astype(np.float64)
         ny = np.tile(vpls.normal[gj], (n, 1))
         spy = sub.subset(np.tile(np.arange(len(gj)), n))
         wi_y = np.tile(vpls.wi_local[gj], (n, 1))
@@ -217,6 +222,16 @@ def shadow_origins_numpy(geom, end, sl):
     side = np.where(end.wi[sl, 2] >= 0, f32(1), f32(-1))
     off = (_offset_scale(geom, pos).astype(f32) * side).astype(f32)
     return x, ns, ng, side, off
+
+
+def _interior_rows(geom, cols, o_rows):
+    """Rows whose shadow rays may skip the supporting planes' triangles (the BVH choice the
+    compiled gather makes, common.hull_culling): the origin and every column (none
+    directional) on the inner side of every plane."""
+    planes = geom.interior_bvh()[1]
+    out_col = cols.directional | np.any(cols.pos @ planes[:, :3].T + planes[:, 3] > 0, axis=1)
+    inside = ~np.any(o_rows @ planes[:, :3].T + planes[:, 3] > 0, axis=1)
+    return inside & ~out_col.any()
 
 
 def _offset_scale(geom, p):

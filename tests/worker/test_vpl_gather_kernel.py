@@ -204,12 +204,16 @@ def test_roulette_while_writing_the_pairs_equals_the_separate_pass(name):
     cols = shading.vpl_columns(vpls, r.geom, c2)
     sl = slice(5, len(end))  # a chunk not starting at row 0: base offsets the pair uniforms
     plain = shading._pair_rays(r.geom, end, sl, vpls, cols, -1)
-    pi, pj, w, row, pl, o, d, t = (a.copy() for a in plain)
+    pi, pj, w, row, pl, o, d, t, inner = (a.copy() for a in plain)
     k = shadow_roulette(len(pi), pi, pj, w, pl, o, d, t, row, cols.lum, 0.5, 11, sl.start)
     fused = shading._pair_rays(r.geom, end, sl, vpls, cols, -1, roulette=(0.5, 11))
     assert 0 < k < len(plain[0])  # some pairs were dropped: not vacuous
     for a, b in zip((pi[:k], pj[:k], w[:k], row, pl[:k], o[:k], d[:k], t[:k]), fused):
         np.testing.assert_array_equal(a, b)
+    # the BVH choice is the row's (Geometry.interior_bvh): a kept pair keeps its row's
+    by_row = np.zeros(len(row), bool)
+    by_row[plain[0]] = plain[8]
+    np.testing.assert_array_equal(fused[8], by_row[fused[0]])
 
 
 @pytest.mark.parametrize("name", ["cornell-box", "cornell-box-glossy"])
@@ -251,7 +255,7 @@ def test_glossy_rows_trace_no_shadow_ray_below_their_horizon():
     c2 = CLAMP * r.geom.diagonal ** 2
     cols = shading.vpl_columns(vpls, r.geom, c2)
     sl = slice(0, len(end))
-    pi, pj, w, row, pl, o, d, t = shading._pair_rays(r.geom, end, sl, vpls, cols, -1)
+    pi, pj, w, row, pl, o, d, t, _inner = shading._pair_rays(r.geom, end, sl, vpls, cols, -1)
     glossy = row[pi] == vg.ROW_GLOSSY
     assert glossy.sum() > 100  # the sphere and floor are glossy rows: not vacuous
     side = np.where(end.wi[pi, 2] >= 0, 1.0, -1.0)
@@ -394,3 +398,21 @@ def test_receiver_rows_equal_the_numpy_form_for_every_kind_side_and_nan_eye():
     np.testing.assert_array_equal(row, want)
     assert layers == int(np.sum((kind == ROUGHPLASTIC_DIFFUSE) & front)) > 0
     assert set(np.unique(row)) == {vg.ROW_NONE, vg.ROW_LAMBERT, vg.ROW_GLOSSY}  # every outcome met
+
+
+def test_a_row_takes_the_inner_bvh_only_from_inside_toward_inside_columns():
+    """vpl_gather.interior_row: the origin on the inner side of every supporting plane and no
+    column of the row's range outside one (a directional one, a light beyond a wall): an origin
+    pushed out through a wall seen from outside, or a range holding such a column, keeps the
+    full BVH; NaN origins make no pair, whichever BVH they name."""
+    from igi.worker.kernels import vpl_gather as vg
+
+    planes = np.array([[0, 1, 0, -1], [0, -1, 0, 0]], np.float32)  # 0 <= y <= 1
+    col_out = np.array([0, 0, 1, 1], np.int64)  # column 1 lies outside
+    assert vg.interior_row(planes, col_out, 0.0, 0.5, 0.0, 2, 3)
+    assert vg.interior_row(planes, col_out, 0.0, 0.5, 0.0, 0, 1)
+    assert not vg.interior_row(planes, col_out, 0.0, 0.5, 0.0, 0, 3)  # the range holds column 1
+    assert not vg.interior_row(planes, col_out, 0.0, 1.01, 0.0, 2, 3)  # outside y <= 1
+    assert not vg.interior_row(planes, col_out, 0.0, -0.01, 0.0, 2, 3)
+    assert vg.interior_row(planes, col_out, 0.0, 0.5, 0.0, 3, 3)  # no column at all
+    assert vg.interior_row(np.zeros((0, 4), np.float32), np.zeros(4, np.int64), 9.0, 9.0, 9.0, 0, 3)

@@ -18,7 +18,7 @@ def _oracle_draws(geom, end, sl, vpls, cols, col_range, eye_weight, samples, col
     np.unique's distinct pairs in first-drawn order."""
     from igi.worker import shading
 
-    pi, pj, w, row, pl, _o, _d, _t = shading._pair_rays(geom, end, sl, vpls, cols, -1, col_range)
+    pi, pj, w, row, pl, _o, _d, _t, _inner = shading._pair_rays(geom, end, sl, vpls, cols, -1, col_range)
     plain = np.empty(len(pi))
     vs.pair_luminance(pi, pj, w, np.zeros(0, bool), np.zeros((0, 3)), cols.color, eye_weight, plain)
     draw, share = oracle.systematic_pairs_sorted(pj, plain, len(vpls), samples, column_u)

@@ -33,7 +33,7 @@ from numba import njit
 
 from igi.common.kernels import bsdf as kb
 from igi.common.kernels import shading_frame
-from igi.common.kernels.ray_packets import LANES, occlude_lanes, packet_lanes
+from igi.common.kernels.ray_packets import FIELDS, LANES, occlude_lanes, packet_lanes
 from igi.common.kernels.splitmix import mix64, unit
 
 INV_PI = 1.0 / math.pi
@@ -80,20 +80,39 @@ def _length(d0, d1, d2):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _ray_end(d0, d1, d2, inv_d, directional_j, eps2):
+    """A shadow ray's unit direction and tfar toward the VPL (d: unnormalized, from the
+    origin): just short of the VPL (a directional one: unbounded)."""
+    if directional_j:
+        t = np.float32(3.0e38)
+    else:
+        t = max((np.float32(1.0) / inv_d) * np.float32(1 - 1e-4) - eps2, np.float32(0.0))
+    return d0 * inv_d, d1 * inv_d, d2 * inv_d, t
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _write_ray(k, o0, o1, o2, d0, d1, d2, inv_d, directional_j, eps2, out_o, out_d, out_t):
-    """Shadow ray k from the offset origin toward the VPL: unit direction, tfar just short of
-    the VPL (a directional one: unbounded)."""
+    """Shadow ray k from the offset origin toward the VPL (:func:`_ray_end`) into the arrays."""
     out_o[k, 0] = o0
     out_o[k, 1] = o1
     out_o[k, 2] = o2
-    out_d[k, 0] = d0 * inv_d
-    out_d[k, 1] = d1 * inv_d
-    out_d[k, 2] = d2 * inv_d
-    if directional_j:
-        out_t[k] = np.float32(3.0e38)
-    else:
-        t = (np.float32(1.0) / inv_d) * np.float32(1 - 1e-4) - eps2
-        out_t[k] = max(t, np.float32(0.0))
+    out_d[k, 0], out_d[k, 1], out_d[k, 2], out_t[k] = _ray_end(d0, d1, d2, inv_d, directional_j, eps2)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def interior_row(planes, col_out, o0, o1, o2, lo, hi) -> bool:
+    """Whether a row's shadow rays (origin o, columns [lo, hi)) may go to the BVH without the
+    triangles of the supporting ``planes`` (common.hull_culling; float32 (K, 4) in the centred
+    frame, their slack folded into d): the origin on the inner side of every plane and none of
+    the columns outside one (``col_out``: the prefix count of such columns, a directional one
+    among them). A row goes to one BVH whole, so its pairs are summed in column order either
+    way."""
+    if col_out[max(hi, lo)] - col_out[lo] != 0:
+        return False
+    for p in range(planes.shape[0]):
+        if planes[p, 0] * o0 + planes[p, 1] * o1 + planes[p, 2] * o2 + planes[p, 3] > 0.0:
+            return False
+    return True
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -150,10 +169,12 @@ def pair_rays(x, ng, off, vpos, vnormal, directional, eps2, pi, pj, out_o, out_d
     for k in range(pi.shape[0]):
         i = pi[k]
         j = pj[k]
-        d0, d1, d2 = _to_vpl(x[i, 0], x[i, 1], x[i, 2], vpos, vnormal, directional, j)
+        o0 = x[i, 0] + ng[i, 0] * off[i]
+        o1 = x[i, 1] + ng[i, 1] * off[i]
+        o2 = x[i, 2] + ng[i, 2] * off[i]
+        d0, d1, d2 = _to_vpl(o0, o1, o2, vpos, vnormal, directional, j)
         _dd, inv_d = _length(d0, d1, d2)
-        _write_ray(k, x[i, 0] + ng[i, 0] * off[i], x[i, 1] + ng[i, 1] * off[i], x[i, 2] + ng[i, 2] * off[i],
-                   d0, d1, d2, inv_d, directional[j], eps2, out_o, out_d, out_t)
+        _write_ray(k, o0, o1, o2, d0, d1, d2, inv_d, directional[j], eps2, out_o, out_d, out_t)
 
 
 # Rows staged per block: their pairs are weighed row by row, then emitted. The gather's rays
@@ -168,10 +189,12 @@ _NO_RAY = np.float32(-1.0)  # a staged pair that traces no ray (dead, or dropped
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi,
            vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf,
-           area, direct_count, lum, fraction, seed, base, sw, spl, so, vx, vy, vz, wx, wy, wz) -> None:
+           area, direct_count, lum, fraction, seed, base, planes, col_out, sw, spl, so, sin, vx, vy, vz, wx, wy,
+           wz) -> None:
     """Weigh the pairs of rows [b0, b0 + nb) (the arguments as :func:`pair_weights` takes
     them): sw[b, a] the weight of row b0 + b with column col_lo + a (_NO_RAY: no pair), spl the
-    MIS light pdf of glossy-row pairs, so the row's offset shadow-ray origin. Lambertian and
+    MIS light pdf of glossy-row pairs, so the row's offset shadow-ray origin, sin whether the
+    row's rays may skip the triangles of the supporting ``planes`` (:func:`interior_row`). Lambertian and
     plastic-layer rows then go through :func:`roulette_row` (``fraction`` > 0). vx … wz: the
     columns' positions and normals per coordinate (:func:`_columns_soa`; empty: every row
     weighed pair by pair), for the Lambertian rows' branch-free loop."""
@@ -190,6 +213,7 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
         if r == ROW_NONE:
             for a in range(width):
                 sw[b, a] = _NO_RAY
+            sin[b] = False
             continue
         xi0, xi1, xi2 = x[i, 0], x[i, 1], x[i, 2]
         n0, n1, n2 = ns[i, 0], ns[i, 1], ns[i, 2]
@@ -198,6 +222,7 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
         so[b, 0] = xi0 + ng[i, 0] * off[i]
         so[b, 1] = xi1 + ng[i, 1] * off[i]
         so[b, 2] = xi2 + ng[i, 2] * off[i]
+        sin[b] = interior_row(planes, col_out, so[b, 0], so[b, 1], so[b, 2], lo, col_hi[i])
         q = 0
         total = 0.0
         if r == ROW_LAMBERT and vector:
@@ -307,30 +332,31 @@ def _staging(n, col_lo, col_hi, vpos, vnormal, spot_cutoff):
     rows = max(1, min(BLOCK, n))
     vx, vy, vz, wx, wy, wz = _columns_soa(vpos, vnormal, spot_cutoff)
     return rows, (np.empty((rows, width), np.float32), np.empty((rows, width), np.float32),
-                  np.empty((rows, 3), np.float32), vx, vy, vz, wx, wy, wz)
+                  np.empty((rows, 3), np.float32), np.empty(rows, np.bool_), vx, vy, vz, wx, wy, wz)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _weigh(b0, nb, weighed, staging) -> None:
     """:func:`_stage` of a block, its arguments as the callers hold them: (rows, columns,
     roulette) tuples and the staging (numba inlines no call of more than 30 single arguments)."""
-    rows, columns, roulette = weighed
+    rows, columns, roulette, cull = weighed
     x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi = rows
     (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf, area,
      direct_count) = columns
     lum, fraction, seed, base = roulette
-    sw, spl, so, vx, vy, vz, wx, wy, wz = staging
+    planes, col_out = cull
+    sw, spl, so, sin, vx, vy, vz, wx, wy, wz = staging
     _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi, vpos, vnormal,
            directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf, area,
-           direct_count, lum, fraction, seed, base, sw, spl, so, vx, vy, vz, wx, wy, wz)
+           direct_count, lum, fraction, seed, base, planes, col_out, sw, spl, so, sin, vx, vy, vz, wx, wy, wz)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def pair_weights(x, ns, ng, off, side, row, vmax,
                  vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam,
                  vdepth, mis, light_pdf, area, direct_count, eps2,
-                 tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base,
-                 out_i, out_j, out_w, out_pl, out_o, out_d, out_t):
+                 tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base, planes, col_out,
+                 out_i, out_j, out_w, out_pl, out_o, out_d, out_t, out_in):
     """Fill the live pairs of rows x (n, 3) × VPL columns [col_lo[i], col_hi[i]), row by row
     (row-major); returns how many were written (the out arrays hold at least Σ (col_hi - col_lo)).
 
@@ -343,14 +369,16 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
     1/t_avg ``inv_tavg[i]``. out_pl: the MIS light pdf of glossy-row pairs (0 elsewhere) — their BSDF pdf
     is the caller's, so their MIS weight is applied by the caller. ``fraction`` > 0: each row's
     pairs go through :func:`roulette_row` (``lum``, ``seed``, ``base``) once the row is
-    weighed (0: every live pair is kept).
+    weighed (0: every live pair is kept). out_in: whether the pair's ray may skip the triangles
+    of the supporting ``planes`` (:func:`interior_row`; ``col_out`` its prefix count of columns
+    outside them).
     """
     n = x.shape[0]
     rows_per_block, staging = _staging(n, col_lo, col_hi, vpos, vnormal, spot_cutoff)
-    sw, spl, so = staging[0], staging[1], staging[2]
+    sw, spl, so, sin = staging[0], staging[1], staging[2], staging[3]
     weighed = ((x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi),
                (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis,
-                light_pdf, area, direct_count), (lum, fraction, seed, base))
+                light_pdf, area, direct_count), (lum, fraction, seed, base), (planes, col_out))
     k = 0
     for b0 in range(0, n, rows_per_block):
         nb = min(rows_per_block, n - b0)
@@ -367,7 +395,8 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
                 out_j[k] = j
                 out_w[k] = w
                 out_pl[k] = spl[b, a] if row[i] == ROW_GLOSSY else np.float32(0.0)
-                d0, d1, d2_ = _to_vpl(x[i, 0], x[i, 1], x[i, 2], vpos, vnormal, directional, j)
+                out_in[k] = sin[b]
+                d0, d1, d2_ = _to_vpl(so[b, 0], so[b, 1], so[b, 2], vpos, vnormal, directional, j)
                 _dd, inv_d = _length(d0, d1, d2_)
                 _write_ray(k, so[b, 0], so[b, 1], so[b, 2], d0, d1, d2_, inv_d, directional[j], eps2, out_o, out_d,
                            out_t)
@@ -376,15 +405,18 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def gather_packets(scene, x, ns, ng, off, side, row, vmax,
+def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
                    vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam,
                    vdepth, mis, light_pdf, area, direct_count, eps2,
-                   tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base, color, out, factors):
+                   tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base, planes, col_out, color, out,
+                   factors):
     """Steps 1-3 of the module in one pass: :func:`pair_weights`' pairs go 16 at a time straight
     into an Embree packet (``scene``: the shadow BVH's RTCScene handle, see
-    common.kernels.ray_packets), a block's column by column, and the unoccluded ones are summed
-    into ``out`` (n, 3) as :func:`accumulate` sums them: each row's pairs in column order, so the
-    same sums bit for bit, with no pair or ray arrays. Returns the number of shadow rays traced.
+    common.kernels.ray_packets; ``inner``: the BVH without the triangles of the supporting
+    ``planes``, for the rows :func:`interior_row` allows), a block's column by column, and the
+    unoccluded ones are summed into ``out`` (n, 3) as :func:`accumulate` sums them: each row's
+    pairs in column order, so the same sums bit for bit, with no pair or ray arrays. Returns the
+    number of shadow rays traced.
 
     ``factors`` None: no pair needs a BSDF factor (no ROW_GLOSSY row, no glossy column);
     else :func:`pair_factors`' arguments past ``base`` (P_end, end_row, wi, ns, albedo,
@@ -392,27 +424,20 @@ def gather_packets(scene, x, ns, ng, off, side, row, vmax,
     before they are summed."""
     n = x.shape[0]
     rows_per_block, staging = _staging(n, col_lo, col_hi, vpos, vnormal, spot_cutoff)
-    sw, spl, so = staging[0], staging[1], staging[2]
+    sw, spl, so, sin = staging[0], staging[1], staging[2], staging[3]
     weighed = ((x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi),
                (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis,
-                light_pdf, area, direct_count), (lum, fraction, seed, base))
-    ray, _bits, valid = packet_lanes()
-    # (lane, axis) views of the packet's SoA origin, direction and tfar fields: _write_ray fills
-    # a lane as it fills a row of the array path's rays
-    lane_o = ray[0:3 * LANES].reshape((3, LANES)).T
-    lane_d = ray[4 * LANES:7 * LANES].reshape((3, LANES)).T
-    lane_t = ray[8 * LANES:9 * LANES]
-    lane_i = np.empty(LANES, np.int64)
-    lane_j = np.empty(LANES, np.int64)
-    lane_w = np.empty(LANES, np.float32)
-    lane_pl = np.empty(LANES, np.float32)
+                light_pdf, area, direct_count), (lum, fraction, seed, base), (planes, col_out))
+    # one 16-ray packet per BVH, side by side: [0] the full scene's, [1] the inner one's
+    ray, lane_i, lane_j, lane_w, lane_pl, valid = _two_packets()
+    handles = (scene, inner)
+    fill = np.zeros(2, np.int64)  # lanes filled per packet
     width = sw.shape[1]
     # factors: a block's traced pairs, kept until its factors are known
     cap = rows_per_block * width if factors is not None else 0
     held = (np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.float32), np.empty(cap, np.float32),
             np.empty((cap, 3), np.float32), np.empty(cap, np.bool_), np.empty((cap, 3)))
     traced = 0
-    k = 0
     live = np.empty(rows_per_block, np.int64)
     for b0 in range(0, n, rows_per_block):
         nb = min(rows_per_block, n - b0)
@@ -430,41 +455,65 @@ def gather_packets(scene, x, ns, ng, off, side, row, vmax,
             for t in range(nl):
                 b = live[t]
                 i = b0 + b
-                w = sw[b, a]
                 j = max(col_lo[i], 0) + a  # (as _stage: j >= 0 known, no wraparound per access)
-                d0, d1, d2_ = _to_vpl(x[i, 0], x[i, 1], x[i, 2], vpos, vnormal, directional, j)
+                s = 1 if sin[b] else 0
+                k = fill[s]
+                # aimed from the offset origin: the ray ends short of the VPL, never past its surface
+                d0, d1, d2_ = _to_vpl(so[b, 0], so[b, 1], so[b, 2], vpos, vnormal, directional, j)
                 _dd, inv_d = _length(d0, d1, d2_)
-                _write_ray(k, so[b, 0], so[b, 1], so[b, 2], d0, d1, d2_, inv_d, directional[j], eps2, lane_o, lane_d,
-                           lane_t)
-                lane_i[k] = i
-                lane_j[k] = j
-                lane_w[k] = w
-                lane_pl[k] = spl[b, a] if row[i] == ROW_GLOSSY else np.float32(0.0)
+                r = ray[s]
+                r[k] = so[b, 0]
+                r[LANES + k] = so[b, 1]
+                r[2 * LANES + k] = so[b, 2]
+                r[4 * LANES + k], r[5 * LANES + k], r[6 * LANES + k], r[8 * LANES + k] = _ray_end(
+                    d0, d1, d2_, inv_d, directional[j], eps2)
+                lane_i[s, k] = i
+                lane_j[s, k] = j
+                lane_w[s, k] = sw[b, a]
+                lane_pl[s, k] = spl[b, a] if row[i] == ROW_GLOSSY else np.float32(0.0)
                 k += 1
                 if k == LANES:
+                    pk = (ray[s], lane_i[s], lane_j[s], lane_w[s], lane_pl[s], valid[s])
                     if factors is None:
-                        _flush(scene, ray, valid, LANES, lane_i, lane_j, lane_w, color, out)
+                        _flush(handles[s], pk, LANES, color, out)
                     else:
-                        count = _hold(scene, ray, valid, LANES, lane_i, lane_j, lane_w, lane_pl, held, count)
+                        count = _hold(handles[s], pk, LANES, held, count)
                     traced += LANES
                     k = 0
+                fill[s] = k
         if factors is not None:
-            if k > 0:  # a block's pairs are summed with the block: its last packet goes now
-                count = _hold(scene, ray, valid, k, lane_i, lane_j, lane_w, lane_pl, held, count)
-                traced += k
-                k = 0
+            for s in range(2):
+                if fill[s] > 0:  # a block's pairs are summed with the block: its last packets go now
+                    pk = (ray[s], lane_i[s], lane_j[s], lane_w[s], lane_pl[s], valid[s])
+                    count = _hold(handles[s], pk, fill[s], held, count)
+                    traced += fill[s]
+                    fill[s] = 0
             _sum_held(count, held, row, factors, color, out)
-    if k > 0:
-        _flush(scene, ray, valid, k, lane_i, lane_j, lane_w, color, out)
-        traced += k
+    for s in range(2):
+        if fill[s] > 0:
+            _flush(handles[s], (ray[s], lane_i[s], lane_j[s], lane_w[s], lane_pl[s], valid[s]), fill[s], color, out)
+            traced += fill[s]
     _finite_rows(n, out)
     return traced
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _two_packets():
+    """Two occlusion packets side by side, their fixed fields set (common.kernels.ray_packets
+    .packet_lanes): (rays (2, 192) float32, then per packet and lane the pair's row, column,
+    weight and light pdf, and the valid masks (2, 16)), each packet 64-byte aligned."""
+    ray, _bits, valid = packet_lanes(2)
+    return (ray.reshape((2, FIELDS * LANES)), np.empty((2, LANES), np.int64), np.empty((2, LANES), np.int64),
+            np.empty((2, LANES), np.float32), np.empty((2, LANES), np.float32), valid.reshape((2, LANES)))
+
+
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _hold(scene, ray, valid, count, lane_i, lane_j, lane_w, lane_pl, held, at):
-    """Trace the packet's first ``count`` lanes and keep each pair (row, column, weight, light
-    pdf, direction, blocked) in ``held`` from position ``at`` on; returns the next position."""
+def _hold(scene, pk, count, held, at):
+    """Trace the first ``count`` lanes of packet ``pk`` (ray, row, column, weight, light
+    pdf, valid mask: one of :func:`_two_packets`) and keep each pair (row,
+    column, weight, light pdf, direction, blocked) in ``held`` from position ``at`` on; returns
+    the next position."""
+    ray, lane_i, lane_j, lane_w, lane_pl, valid = pk
     hi, hj, hw, hpl, hd, hb, _hf = held
     tfar = occlude_lanes(scene, ray, valid, count)
     for q in range(count):
@@ -498,9 +547,10 @@ def _sum_held(count, held, row, factors, color, acc) -> None:
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _flush(scene, ray, valid, count, lane_i, lane_j, lane_w, color, acc) -> None:
-    """Trace the packet's first ``count`` lanes and add each unoccluded pair's weight × VPL
-    colour to its row of ``acc``."""
+def _flush(scene, pk, count, color, acc) -> None:
+    """Trace the first ``count`` lanes of packet ``pk`` (as :func:`_hold` takes it) and add each unoccluded
+    pair's weight × VPL colour to its row of ``acc``."""
+    ray, lane_i, lane_j, lane_w, _pl, valid = pk
     tfar = occlude_lanes(scene, ray, valid, count)
     for k in range(count):
         if tfar[k] < 0.0:  # blocked

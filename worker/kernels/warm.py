@@ -203,8 +203,9 @@ def _stage_call(vpl_gather) -> None:
 
     a = _empty_args(vpl_scoring.scored_draws)
     staging = np.zeros((1, 0), np.float32)
-    vpl_gather._stage(0, 0, *a[0:7], *a[20:25], *a[7:20], a[25], 0.0, 0, 0, staging, staging.copy(),
-                      np.zeros((1, 3), np.float32), *(np.zeros(0, np.float32) for _ in range(6)))
+    vpl_gather._stage(0, 0, *a[0:7], *a[20:25], *a[7:20], a[25], 0.0, 0, 0, np.zeros((0, 4), np.float32),
+                      np.zeros(1, np.int64), staging, staging.copy(), np.zeros((1, 3), np.float32),
+                      np.zeros(1, np.bool_), *(np.zeros(0, np.float32) for _ in range(6)))
 
 
 def _pair_weights_call(vpl_gather) -> None:
@@ -215,8 +216,9 @@ def _pair_weights_call(vpl_gather) -> None:
     a = _empty_args(vpl_scoring.scored_draws)
     i64, f32 = np.zeros(0, np.int64), np.zeros(0, np.float32)
     f32x3 = np.zeros((0, 3), np.float32)
-    vpl_gather.pair_weights(*a[0:20], np.float32(0.0), *a[20:26], 0.0, 0, 0, i64, i64.copy(), f32, f32.copy(),
-                            f32x3, f32x3.copy(), f32.copy())
+    vpl_gather.pair_weights(*a[0:20], np.float32(0.0), *a[20:26], 0.0, 0, 0, np.zeros((0, 4), np.float32),
+                            np.zeros(1, np.int64), i64, i64.copy(), f32, f32.copy(), f32x3, f32x3.copy(), f32.copy(),
+                            np.zeros(0, np.bool_))
 
 
 def _bsdf_calls() -> dict:
