@@ -156,6 +156,7 @@ class Renderer:
         self.scene_version = scene_version
         self.geom = Geometry(scene)
         self.geom.shadow_bvh()  # built now, not inside the first frame
+        self.geom.interior_bvh()  # (and the one without the walls: common.hull_culling)
         self.lights = LightSampler(scene, self.geom)
         # The plan decides which passes run; use_plan=False forces every pass on (benchmarks).
         self.plan = analyze(scene, self.geom, self.lights) if use_plan else None

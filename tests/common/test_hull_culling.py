@@ -70,6 +70,15 @@ def test_geometry_beyond_a_wall_keeps_that_wall():
     assert culled[12:].all()  # the ground itself is a face of the hull
 
 
+def test_planes_holding_little_of_the_area_are_not_worth_a_second_bvh():
+    v, f, area, diag = _mesh(_cube([0, 0, 0], [1, 1, 1]), _cube([0.4, 0.4, 0.4], [0.5, 0.5, 0.5]))
+    share = area[:12].sum() / area.sum()  # the room's faces: 0.99 of the area
+    planes, culled = supporting_planes(v, f, area, diag, min_share=share - 1e-3)
+    assert len(planes) == 6 and culled[:12].all() and not culled[12:].any()
+    planes, culled = supporting_planes(v, f, area, diag, min_share=share + 1e-3)
+    assert planes.shape == (0, 4) and not culled.any()
+
+
 def test_a_flat_scene_has_no_supporting_plane_to_cull():
     quad = (np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float), np.array([[0, 1, 2], [0, 2, 3]]))
     v, f, area, diag = _mesh(quad)
