@@ -7,8 +7,9 @@ point and a VPL, both on the scene's surfaces — is such a segment, so the tria
 such a plane never block it: the gather traces its rays against a BVH without them (the walls
 are large triangles whose boxes every ray of a room enters). A ray that may leave the region
 (a directional VPL's, a point light's outside the geometry, an origin pushed out through a
-wall seen from outside) keeps the full BVH. The answers are the full BVH's: only triangles
-that cannot be hit are left out.
+wall seen from outside) keeps the full BVH. The answers are the full BVH's but where a ray
+ends or starts within a few float32 ulps of a wall (the slack of the inner-side test, ~1e-6
+of the scene's diagonal): a self-intersection the full BVH reports and the inner one does not.
 """
 from __future__ import annotations
 
@@ -24,11 +25,11 @@ _COPLANAR = 1e-9  # a triangle lies in a plane within this fraction of the scene
 def supporting_planes(vertices: np.ndarray, faces: np.ndarray, area: np.ndarray, diagonal: float,
                       max_planes: int = MAX_PLANES, min_share: float = MIN_AREA_SHARE
                       ) -> tuple[np.ndarray, np.ndarray]:
-    """``(planes, culled)``: up to ``max_planes`` face planes of the convex hull of
-    ``vertices`` (float64 (K, 4): unit normal n pointing out of the hull and d, so n·x + d <= 0
-    for every vertex) that hold triangles of ``faces``, the planes holding the most triangle
-    ``area`` first, and (F,) bool: the triangles lying in one of them (every vertex within
-    1e-9 of the ``diagonal`` of the plane). A scene with no volume (all vertices in one plane,
+    """``(planes, culled)``: face planes of the convex hull of ``vertices`` (float64 (K, 4):
+    unit normal n pointing out of the hull and d, so n·x + d <= 0 for every vertex) that hold
+    triangles of ``faces`` — of the ``max_planes`` planes with the largest hull faces, those
+    holding the most triangle ``area`` first — and (F,) bool: the triangles lying in one of them
+    (every vertex within 1e-9 of the ``diagonal`` of the plane). A scene with no volume (all vertices in one plane,
     or fewer than four), or whose planes hold less than ``min_share`` of its triangle area, has
     none: ``((0, 4), all False)``."""
     f = len(faces)
@@ -44,15 +45,22 @@ def supporting_planes(vertices: np.ndarray, faces: np.ndarray, area: np.ndarray,
         return none
     eq = hull.equations
     tol = _COPLANAR * diagonal
-    # qhull splits a face into triangles: one plane per face, up to rounding
+    total = float(np.sum(area))
+    # qhull splits a face into triangles: one plane per face, up to rounding. The faces' own
+    # areas rank the planes (a bound of what a plane's triangles can cover), so the triangles
+    # are matched against max_planes planes only: a finely tessellated convex shape has
+    # thousands of hull faces
     key = np.round(np.column_stack([eq[:, :3] * 1e9, eq[:, 3] / max(tol, 1e-300)])).astype(np.int64)
-    _u, first = np.unique(key, axis=0, return_index=True)
-    planes = eq[np.sort(first)]
+    _u, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    s = v[hull.simplices]
+    facet = 0.5 * np.linalg.norm(np.cross(s[:, 1] - s[:, 0], s[:, 2] - s[:, 0]), axis=1)
+    top = np.argsort(-np.bincount(inv.ravel(), weights=facet, minlength=len(first)), kind="stable")[:max_planes]
+    planes = eq[first[top]]
     plane_of = _plane_of(v[faces], planes, tol)
     weight = np.bincount(plane_of[plane_of >= 0], weights=np.asarray(area)[plane_of >= 0], minlength=len(planes))
-    keep = [p for p in np.argsort(-weight, kind="stable")[:max_planes] if weight[p] > 0]
+    keep = [p for p in np.argsort(-weight, kind="stable") if weight[p] > 0]
     culled = np.isin(plane_of, keep) & (plane_of >= 0)
-    if not float(np.sum(np.asarray(area)[culled])) >= min_share * float(np.sum(area)):
+    if not float(np.sum(np.asarray(area)[culled])) >= min_share * total:
         return none
     return planes[keep].reshape(-1, 4), culled
 

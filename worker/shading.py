@@ -680,8 +680,9 @@ def vpl_columns(vpls: VPLSet, geom: Geometry, clamp_d2: float, force_general: bo
     the glossy senders' regularization gain and packed BSDFs cost ~0.5 ms a call, and a set
     serves every tile of its k and each compensation level. Read-only once made, and made only
     once the set is final (its builders change a set in place before any gather reads it)."""
-    key = ("columns", tuple(np.asarray(geom.center, np.float64).tolist()), float(clamp_d2), bool(force_general),
-           float(lobe_alpha))
+    # (the culling planes too: the columns' inside/outside flags are the geometry's)
+    key = ("columns", tuple(np.asarray(geom.center, np.float64).tolist()), geom.interior_bvh()[1].tobytes(),
+           float(clamp_d2), bool(force_general), float(lobe_alpha))
     cols = vpls.derived.get(key)
     if cols is None:
         cols = vpls.derived[key] = _VPLColumns(vpls, geom, clamp_d2, force_general, lobe_alpha)
@@ -756,7 +757,7 @@ class _VPLColumns:
         # of columns a ray may leave their inner side toward (directional ones, lights beyond
         # the geometry).
         self.planes = geom.interior_bvh()[1]
-        outside = self.directional | np.any(self.pos @ self.planes[:, :3].T + self.planes[:, 3] > 0, axis=1)
+        outside = self.directional | np.any(~(self.pos @ self.planes[:, :3].T + self.planes[:, 3] <= 0), axis=1)
         self.col_out = np.concatenate([[0], np.cumsum(outside)]).astype(np.int64)
 
 

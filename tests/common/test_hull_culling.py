@@ -9,7 +9,8 @@ import pytest
 from igi.bench.stress_scenes import eye_end_points, load_shared
 from igi.common.hull_culling import centred_planes, supporting_planes
 from igi.common.lights import VPL_DIRECTIONAL
-from igi.common.scene import POINT, Emitter
+from igi.common.ray_packets import packet_scene
+from igi.common.scene import CONSTANT, POINT, Emitter
 from igi.worker.renderer import Renderer
 from igi.worker.shading import gather_vpls, vpl_columns
 from igi.worker.vpl import build_vpl_set, subset_vpls
@@ -125,25 +126,42 @@ def test_the_gathers_rays_get_the_full_bvhs_answers_on_the_inner_bvh(name):
 
 
 def test_a_light_beyond_the_ceiling_stays_blocked():
-    """A point light above the closed Cornell box lies outside the ceiling's plane: every row's
-    rays toward it keep the full BVH, so the ceiling blocks it as before — the gather with the
-    light equals the gather without it, and each equals the gather with no culling at all."""
+    """A point light above the closed Cornell box lies outside the ceiling's plane. The
+    Geometry then builds no inner BVH (every row's range holds the light's columns); and where
+    one is forced on it anyway, the light's columns keep every row on the full BVH, so the
+    ceiling blocks the light as before: the gather with the light equals the gather without
+    it."""
     scene = load_shared("cornell-box")
     lo, hi = scene.bounds()
     scene.emitters.append(Emitter(POINT, intensity=np.full(3, 50.0), position=np.array(
         [0.5 * (lo[0] + hi[0]), hi[1] + 0.5, 0.5 * (lo[2] + hi[2])]), name="above the ceiling"))
     r = Renderer(scene)
+    geom = r.geom
+    assert len(geom.interior_bvh()[1]) == 0
+    planes, culled = supporting_planes(geom.vertices, geom.faces, geom.area, geom.diagonal)
+    inner = packet_scene(geom._local[~culled])
+    if inner is None:
+        pytest.skip("Embree's C API is not at hand")
+    geom._interior = (inner, centred_planes(planes, geom.center, 1e-6 * geom.diagonal))  # forced on
     end = eye_end_points(r, 32, 24)
-    vpls = build_vpl_set(r.scene, r.geom, r.lights, 0, 2, 16, 0, 4)
-    cols = vpl_columns(vpls, r.geom, 1e-3 * r.geom.diagonal ** 2)
+    vpls = build_vpl_set(r.scene, geom, r.lights, 0, 2, 16, 0, 4)
+    c2 = 1e-3 * geom.diagonal ** 2
+    cols = vpl_columns(vpls, geom, c2)
     assert cols.col_out[-1] > 0 and not np.any(vpls.kind == VPL_DIRECTIONAL)  # the point light's columns
-    c2 = 1e-3 * r.geom.diagonal ** 2
-    _a, lit = gather_vpls(r.geom, end, vpls, c2, -1)
+    _a, lit = gather_vpls(geom, end, vpls, c2, -1)
     point = vpls.position[:, 1] > hi[1]
     assert point.any() and (~point).any()
-    only_area = subset_vpls(vpls, np.flatnonzero(~point))
-    _a2, area_alone = gather_vpls(r.geom, end, only_area, c2, -1)
+    _a2, area_alone = gather_vpls(geom, end, subset_vpls(vpls, np.flatnonzero(~point)), c2, -1)
+    assert np.any(area_alone > 0)
     np.testing.assert_allclose(lit, area_alone, rtol=1e-6, atol=1e-9)
-    r.geom._interior = (r.geom.shadow_bvh(), np.zeros((0, 4), np.float32))  # no culling
-    _a3, unculled = gather_vpls(r.geom, end, vpls, c2, -1)
-    np.testing.assert_array_equal(lit, unculled)
+
+
+def test_no_inner_bvh_for_a_scene_lit_from_outside_by_sky_or_sun():
+    """Directional and constant emitters put a column outside every plane in each set, so no
+    row could use a second BVH: none is built."""
+    scene = load_shared("cornell-box")
+    assert len(Renderer(scene).geom.interior_bvh()[1]) > 0
+    scene.emitters.append(Emitter(CONSTANT, radiance=np.full(3, 0.1), name="sky"))
+    geom = Renderer(scene).geom
+    inner, planes = geom.interior_bvh()
+    assert len(planes) == 0 and inner is geom.shadow_bvh()

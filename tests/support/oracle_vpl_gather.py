@@ -229,8 +229,8 @@ def _interior_rows(geom, cols, o_rows):
     compiled gather makes, common.hull_culling): the origin and every column (none
     directional) on the inner side of every plane."""
     planes = geom.interior_bvh()[1]
-    out_col = cols.directional | np.any(cols.pos @ planes[:, :3].T + planes[:, 3] > 0, axis=1)
-    inside = ~np.any(o_rows @ planes[:, :3].T + planes[:, 3] > 0, axis=1)
+    out_col = cols.directional | np.any(~(cols.pos @ planes[:, :3].T + planes[:, 3] <= 0), axis=1)
+    inside = np.all(o_rows @ planes[:, :3].T + planes[:, 3] <= 0, axis=1)
     return inside & ~out_col.any()
 
 

@@ -404,7 +404,7 @@ def test_a_row_takes_the_inner_bvh_only_from_inside_toward_inside_columns():
     """vpl_gather.interior_row: the origin on the inner side of every supporting plane and no
     column of the row's range outside one (a directional one, a light beyond a wall): an origin
     pushed out through a wall seen from outside, or a range holding such a column, keeps the
-    full BVH; NaN origins make no pair, whichever BVH they name."""
+    full BVH, as does a NaN origin (it makes no pair anyway)."""
     from igi.worker.kernels import vpl_gather as vg
 
     planes = np.array([[0, 1, 0, -1], [0, -1, 0, 0]], np.float32)  # 0 <= y <= 1
@@ -416,3 +416,4 @@ def test_a_row_takes_the_inner_bvh_only_from_inside_toward_inside_columns():
     assert not vg.interior_row(planes, col_out, 0.0, -0.01, 0.0, 2, 3)
     assert vg.interior_row(planes, col_out, 0.0, 0.5, 0.0, 3, 3)  # no column at all
     assert vg.interior_row(np.zeros((0, 4), np.float32), np.zeros(4, np.int64), 9.0, 9.0, 9.0, 0, 3)
+    assert not vg.interior_row(planes, col_out, np.nan, 0.5, 0.0, 2, 3)

@@ -110,7 +110,7 @@ def interior_row(planes, col_out, o0, o1, o2, lo, hi) -> bool:
     if col_out[max(hi, lo)] - col_out[lo] != 0:
         return False
     for p in range(planes.shape[0]):
-        if planes[p, 0] * o0 + planes[p, 1] * o1 + planes[p, 2] * o2 + planes[p, 3] > 0.0:
+        if not planes[p, 0] * o0 + planes[p, 1] * o1 + planes[p, 2] * o2 + planes[p, 3] <= 0.0:  # (NaN: outside)
             return False
     return True
 
