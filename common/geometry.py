@@ -19,7 +19,7 @@ from embreex.mesh_construction import TriangleMesh
 from . import hull_culling
 from .kernels import hit_surface, triangle_sampling
 from .ray_packets import PacketScene, packet_scene
-from .scene import CONSTANT, DIRECTIONAL, POINT, SPOT, Scene, SceneError
+from .scene import Scene, SceneError
 
 log = logging.getLogger("igi.geometry")
 
@@ -179,10 +179,6 @@ class Geometry:
         self._local = local
         self._shadow = None  # shadow_bvh(): made on first use (the master's picking never needs it)
         self._interior = None  # interior_bvh(): likewise
-        # the lights that decide whether interior_bvh is worth building
-        self._far_lights = any(e.kind in (DIRECTIONAL, CONSTANT) for e in scene.emitters)
-        self._light_points = np.array([e.position for e in scene.emitters if e.kind in (POINT, SPOT)],
-                                      np.float64).reshape(-1, 3)
         self._build_lock = threading.Lock()
         # Closest hits: a robust BVH (no ray slips through an edge), through Embree's C API
         # where at hand (common.ray_packets: the same answers without embreex's per-call
@@ -237,21 +233,17 @@ class Geometry:
         plane of the scene (common.hull_culling: a room's walls, floor and ceiling when nothing
         lies beyond them), for shadow rays between two points on the planes' inner side, and
         those planes in the centred frame (float32 (K, 4), n·x + d > 0: outside, a few float32
-        ulps of slack folded into d). With no such plane, no packet queries, or a light every
-        row's rays may leave toward (directional, constant, a point or spot beyond a wall: the
-        gather's rows take every VPL of a set): the shadow BVH itself and no planes."""
+        ulps of slack folded into d). With no such plane, or no packet queries: the shadow BVH
+        itself and no planes."""
         if self._interior is None:
             shadow = self.shadow_bvh()
             shadow = getattr(shadow, "inner", shadow)  # (never the benchmarks' timing wrapper)
             with self._build_lock:
                 if self._interior is None:
                     planes, culled = np.zeros((0, 4)), np.zeros(len(self.faces), bool)
-                    if isinstance(shadow, PacketScene) and not self._far_lights:
+                    if isinstance(shadow, PacketScene):
                         planes, culled = hull_culling.supporting_planes(self.vertices, self.faces, self.area,
                                                                         self.diagonal)
-                        if len(self._light_points) and np.any(
-                                ~(self._light_points @ planes[:, :3].T + planes[:, 3] <= 0.0)):
-                            culled[:] = False  # a light beyond a wall: no row would use it
                     inner = packet_scene(self._local[~culled], robust=False) if culled.any() else None
                     if inner is None:
                         self._interior = (shadow, np.zeros((0, 4), np.float32))

@@ -499,6 +499,9 @@ def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
     return albedo, irr
 
 
+_NO_ROWS = np.zeros(0, bool)
+
+
 def _gather_pairs(geom: Geometry, end: EndPoints, vpls: VPLSet, cols: "_VPLColumns", max_depth: int,
                   receivers: "_Receivers", roulette: tuple | None, irr: np.ndarray) -> None:
     """The gather's irradiance into ``irr`` through pair lists (kernels.vpl_gather steps 1-3
@@ -506,8 +509,10 @@ def _gather_pairs(geom: Geometry, end: EndPoints, vpls: VPLSet, cols: "_VPLColum
     Geometry.occluded_local (see :func:`_gather_packets`)."""
     e = len(end)
     for sl in _chunks(e, len(vpls)):
-        pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, receivers, roulette)
-        vg.accumulate(sl.stop - sl.start, pi, pj, w, blocked, cols.color, factor, irr[sl])
+        pi, pj, w, blocked, factor, inner = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, receivers,
+                                                              roulette)
+        vg.accumulate(sl.stop - sl.start, pi, pj, w, blocked, cols.color, factor,
+                      inner if len(cols.planes) else _NO_ROWS, irr[sl])
 
 
 def _gather_packets(geom: Geometry, end: EndPoints, cols: "_VPLColumns", max_depth: int, roulette: tuple | None,
@@ -593,7 +598,7 @@ def contribution_per_vpl(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2:
     for sl in _range_chunks(*col_range):
         eye_weight = albedo[sl] * end.throughput[sl]
         if not sampled:
-            pi, pj, w, blocked, factor = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, receivers,
+            pi, pj, w, blocked, factor, _inner = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, receivers,
                                                            col_range=col_range)
             out += np.bincount(pj, weights=_pair_luminance(cols, eye_weight, pi, pj, w, blocked, factor),
                                minlength=m)
@@ -765,12 +770,13 @@ def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, c
                       max_depth: int, receivers: _Receivers, roulette: tuple | None = None,
                       col_range: tuple | None = None) -> tuple:
     """The chunk's live (end point, VPL) pairs after Embree's occlusion test: (row, column,
-    scalar weight, blocked, per-pair RGB factor or an empty (0, 3) array). ``roulette``:
+    scalar weight, blocked, per-pair RGB factor or an empty (0, 3) array, traced on the inner
+    BVH (Geometry.interior_bvh)). ``roulette``:
     (fraction, seed) of the shadow rays' Russian roulette, None for none."""
     pi, pj, w, row, pl, o, d, t, inner = _pair_rays(geom, end, sl, vpls, cols, max_depth, col_range, roulette)
     blocked = geom.occluded_local(o, d, t, inner) if len(pi) else np.zeros(0, bool)
     factor = _bsdf_factors(sl, cols, row, pi, pj, pl, d, blocked, receivers)
-    return pi, pj, w, blocked, factor
+    return pi, pj, w, blocked, factor, inner
 
 
 def _shadow_origins(geom: Geometry, end: EndPoints, sl: slice) -> tuple:

@@ -126,23 +126,16 @@ def test_the_gathers_rays_get_the_full_bvhs_answers_on_the_inner_bvh(name):
 
 
 def test_a_light_beyond_the_ceiling_stays_blocked():
-    """A point light above the closed Cornell box lies outside the ceiling's plane. The
-    Geometry then builds no inner BVH (every row's range holds the light's columns); and where
-    one is forced on it anyway, the light's columns keep every row on the full BVH, so the
-    ceiling blocks the light as before: the gather with the light equals the gather without
-    it."""
+    """A point light above the closed Cornell box lies outside the ceiling's plane: its
+    columns keep the full BVH for every pair, so the ceiling blocks it as before — the gather
+    with the light equals the gather without it."""
     scene = load_shared("cornell-box")
     lo, hi = scene.bounds()
     scene.emitters.append(Emitter(POINT, intensity=np.full(3, 50.0), position=np.array(
         [0.5 * (lo[0] + hi[0]), hi[1] + 0.5, 0.5 * (lo[2] + hi[2])]), name="above the ceiling"))
     r = Renderer(scene)
     geom = r.geom
-    assert len(geom.interior_bvh()[1]) == 0
-    planes, culled = supporting_planes(geom.vertices, geom.faces, geom.area, geom.diagonal)
-    inner = packet_scene(geom._local[~culled])
-    if inner is None:
-        pytest.skip("Embree's C API is not at hand")
-    geom._interior = (inner, centred_planes(planes, geom.center, 1e-6 * geom.diagonal))  # forced on
+    assert len(geom.interior_bvh()[1]) == 6
     end = eye_end_points(r, 32, 24)
     vpls = build_vpl_set(r.scene, geom, r.lights, 0, 2, 16, 0, 4)
     c2 = 1e-3 * geom.diagonal ** 2
@@ -156,12 +149,34 @@ def test_a_light_beyond_the_ceiling_stays_blocked():
     np.testing.assert_allclose(lit, area_alone, rtol=1e-6, atol=1e-9)
 
 
-def test_no_inner_bvh_for_a_scene_lit_from_outside_by_sky_or_sun():
-    """Directional and constant emitters put a column outside every plane in each set, so no
-    row could use a second BVH: none is built."""
-    scene = load_shared("cornell-box")
-    assert len(Renderer(scene).geom.interior_bvh()[1]) > 0
-    scene.emitters.append(Emitter(CONSTANT, radiance=np.full(3, 0.1), name="sky"))
-    geom = Renderer(scene).geom
-    inner, planes = geom.interior_bvh()
-    assert len(planes) == 0 and inner is geom.shadow_bvh()
+def test_a_room_lit_through_a_window_culls_its_walls_for_the_vpls_inside():
+    """The bundled window room (sun and sky through a window): the sky's and the sun's columns
+    keep the full BVH, the VPLs inside take the inner one, in the same rows — the packet gather
+    still equals the pair-list path bit for bit (each BVH's pairs summed apart in column order),
+    and equals the gather with no culling up to the order of the sums."""
+    from igi.common import bundled
+    from igi.common.loader import load_scene
+    from igi.worker.shading import _pair_rays
+
+    r = Renderer(load_scene(bundled.resolve("window-room")))
+    geom = r.geom
+    if geom.packet_handle() is None:
+        pytest.skip("Embree's C API is not at hand")
+    assert len(geom.interior_bvh()[1]) >= 4
+    end = eye_end_points(r, 48, 36)
+    vpls = build_vpl_set(r.scene, geom, r.lights, 0, 1, 8, 24, 4)
+    assert np.any(vpls.kind == VPL_DIRECTIONAL) and np.any(vpls.kind != VPL_DIRECTIONAL)
+    c2 = 1e-3 * geom.diagonal ** 2
+    cols = vpl_columns(vpls, geom, c2)
+    inner = _pair_rays(geom, end, slice(0, len(end)), vpls, cols, -1)[8]
+    assert 0 < inner.mean() < 1  # both BVHs in use (most pairs here are the sky's and the sun's)
+    _a1, fused = gather_vpls(geom, end, vpls, c2, -1, shadow_roulette=1.0, seed=5)
+    r2 = Renderer(load_scene(bundled.resolve("window-room")))
+    r2.geom.packet_handle = lambda: None  # the pair-list path
+    _a2, listed = gather_vpls(r2.geom, end, vpls, c2, -1, shadow_roulette=1.0, seed=5)
+    assert fused.sum() > 0
+    np.testing.assert_array_equal(fused, listed)
+    r3 = Renderer(load_scene(bundled.resolve("window-room")))
+    r3.geom._interior = (r3.geom.shadow_bvh(), np.zeros((0, 4), np.float32))  # no culling
+    _a3, unculled = gather_vpls(r3.geom, end, vpls, c2, -1, shadow_roulette=1.0, seed=5)
+    np.testing.assert_allclose(fused, unculled, rtol=1e-9, atol=1e-12)

@@ -153,7 +153,7 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
         ox = o_rows[ii]
         tmax = (1.0 / id_) * f32(1 - 1e-4) - f32(2 * geom.eps)
         tmax[cols.directional[jj]] = np.inf
-        blocked = geom.occluded_local(ox, wij, np.maximum(tmax, f32(0)), _interior_rows(geom, cols, o_rows)[ii])
+        blocked = geom.occluded_local(ox, wij, np.maximum(tmax, f32(0)), _interior_pairs(geom, cols, o_rows)[ii, jj])
         live[ii[blocked], jj[blocked]] = False
     weight = np.where(live, weight, f32(0))  # not `*=`: NaN * False stays NaN
     out = weight @ cols.color.astype(f32) if not len(gi) else np.zeros((n, 3), f32)
@@ -224,14 +224,16 @@ def shadow_origins_numpy(geom, end, sl):
     return x, ns, ng, side, off
 
 
-def _interior_rows(geom, cols, o_rows):
-    """Rows whose shadow rays may skip the supporting planes' triangles (the BVH choice the
-    compiled gather makes, common.hull_culling): the origin and every column (none
-    directional) on the inner side of every plane."""
+def _interior_pairs(geom, cols, o_rows):
+    """(rows, columns): the pairs whose shadow rays may skip the supporting planes' triangles
+    (the BVH choice the compiled gather makes, common.hull_culling): the row's origin and the
+    column (not directional) on the inner side of every plane; none without planes."""
     planes = geom.interior_bvh()[1]
-    out_col = cols.directional | np.any(~(cols.pos @ planes[:, :3].T + planes[:, 3] <= 0), axis=1)
-    inside = np.all(o_rows @ planes[:, :3].T + planes[:, 3] <= 0, axis=1)
-    return inside & ~out_col.any()
+    if not len(planes):
+        return np.zeros((len(o_rows), len(cols.pos)), bool)
+    in_col = ~cols.directional & np.all(cols.pos @ planes[:, :3].T + planes[:, 3] <= 0, axis=1)
+    in_row = np.all(o_rows @ planes[:, :3].T + planes[:, 3] <= 0, axis=1)
+    return in_row[:, None] & in_col[None, :]
 
 
 def _offset_scale(geom, p):

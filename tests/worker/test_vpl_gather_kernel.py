@@ -400,20 +400,18 @@ def test_receiver_rows_equal_the_numpy_form_for_every_kind_side_and_nan_eye():
     assert set(np.unique(row)) == {vg.ROW_NONE, vg.ROW_LAMBERT, vg.ROW_GLOSSY}  # every outcome met
 
 
-def test_a_row_takes_the_inner_bvh_only_from_inside_toward_inside_columns():
-    """vpl_gather.interior_row: the origin on the inner side of every supporting plane and no
-    column of the row's range outside one (a directional one, a light beyond a wall): an origin
-    pushed out through a wall seen from outside, or a range holding such a column, keeps the
-    full BVH, as does a NaN origin (it makes no pair anyway)."""
+def test_a_pair_takes_the_inner_bvh_only_from_inside_toward_inside_columns():
+    """vpl_gather.interior_origin / interior_column: the origin on the inner side of every
+    supporting plane (an origin pushed out through a wall seen from outside, or NaN, is not;
+    with no plane nothing is) and a column not outside one (a directional one, a light beyond a
+    wall)."""
     from igi.worker.kernels import vpl_gather as vg
 
     planes = np.array([[0, 1, 0, -1], [0, -1, 0, 0]], np.float32)  # 0 <= y <= 1
+    assert vg.interior_origin(planes, 0.0, 0.5, 0.0)
+    assert not vg.interior_origin(planes, 0.0, 1.01, 0.0)  # outside y <= 1
+    assert not vg.interior_origin(planes, 0.0, -0.01, 0.0)
+    assert not vg.interior_origin(planes, np.nan, 0.5, 0.0)
+    assert not vg.interior_origin(np.zeros((0, 4), np.float32), 0.0, 0.5, 0.0)
     col_out = np.array([0, 0, 1, 1], np.int64)  # column 1 lies outside
-    assert vg.interior_row(planes, col_out, 0.0, 0.5, 0.0, 2, 3)
-    assert vg.interior_row(planes, col_out, 0.0, 0.5, 0.0, 0, 1)
-    assert not vg.interior_row(planes, col_out, 0.0, 0.5, 0.0, 0, 3)  # the range holds column 1
-    assert not vg.interior_row(planes, col_out, 0.0, 1.01, 0.0, 2, 3)  # outside y <= 1
-    assert not vg.interior_row(planes, col_out, 0.0, -0.01, 0.0, 2, 3)
-    assert vg.interior_row(planes, col_out, 0.0, 0.5, 0.0, 3, 3)  # no column at all
-    assert vg.interior_row(np.zeros((0, 4), np.float32), np.zeros(4, np.int64), 9.0, 9.0, 9.0, 0, 3)
-    assert not vg.interior_row(planes, col_out, np.nan, 0.5, 0.0, 2, 3)
+    assert [vg.interior_column(col_out, j) for j in range(3)] == [True, False, True]

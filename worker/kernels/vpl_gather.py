@@ -100,19 +100,24 @@ def _write_ray(k, o0, o1, o2, d0, d1, d2, inv_d, directional_j, eps2, out_o, out
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def interior_row(planes, col_out, o0, o1, o2, lo, hi) -> bool:
-    """Whether a row's shadow rays (origin o, columns [lo, hi)) may go to the BVH without the
-    triangles of the supporting ``planes`` (common.hull_culling; float32 (K, 4) in the centred
-    frame, their slack folded into d): the origin on the inner side of every plane and none of
-    the columns outside one (``col_out``: the prefix count of such columns, a directional one
-    among them). A row goes to one BVH whole, so its pairs are summed in column order either
-    way."""
-    if col_out[max(hi, lo)] - col_out[lo] != 0:
+def interior_origin(planes, o0, o1, o2) -> bool:
+    """Whether shadow rays from origin o may go to the BVH without the triangles of the
+    supporting ``planes`` (common.hull_culling; float32 (K, 4) in the centred frame, their slack
+    folded into d) — those toward a column on the planes' inner side too
+    (:func:`interior_column`): o on the inner side of every plane (NaN: not). No plane: no."""
+    if planes.shape[0] == 0:
         return False
     for p in range(planes.shape[0]):
-        if not planes[p, 0] * o0 + planes[p, 1] * o1 + planes[p, 2] * o2 + planes[p, 3] <= 0.0:  # (NaN: outside)
+        if not planes[p, 0] * o0 + planes[p, 1] * o1 + planes[p, 2] * o2 + planes[p, 3] <= 0.0:
             return False
     return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def interior_column(col_out, j) -> bool:
+    """Column j on the planes' inner side (``col_out``: the prefix count of columns outside
+    one, a directional one among them)."""
+    return col_out[j + 1] == col_out[j]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -193,8 +198,8 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
            wz) -> None:
     """Weigh the pairs of rows [b0, b0 + nb) (the arguments as :func:`pair_weights` takes
     them): sw[b, a] the weight of row b0 + b with column col_lo + a (_NO_RAY: no pair), spl the
-    MIS light pdf of glossy-row pairs, so the row's offset shadow-ray origin, sin whether the
-    row's rays may skip the triangles of the supporting ``planes`` (:func:`interior_row`). Lambertian and
+    MIS light pdf of glossy-row pairs, so the row's offset shadow-ray origin, sin whether it
+    lies on the inner side of the supporting ``planes`` (:func:`interior_origin`). Lambertian and
     plastic-layer rows then go through :func:`roulette_row` (``fraction`` > 0). vx … wz: the
     columns' positions and normals per coordinate (:func:`_columns_soa`; empty: every row
     weighed pair by pair), for the Lambertian rows' branch-free loop."""
@@ -222,7 +227,7 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
         so[b, 0] = xi0 + ng[i, 0] * off[i]
         so[b, 1] = xi1 + ng[i, 1] * off[i]
         so[b, 2] = xi2 + ng[i, 2] * off[i]
-        sin[b] = interior_row(planes, col_out, so[b, 0], so[b, 1], so[b, 2], lo, col_hi[i])
+        sin[b] = interior_origin(planes, so[b, 0], so[b, 1], so[b, 2])
         q = 0
         total = 0.0
         if r == ROW_LAMBERT and vector:
@@ -370,8 +375,8 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
     is the caller's, so their MIS weight is applied by the caller. ``fraction`` > 0: each row's
     pairs go through :func:`roulette_row` (``lum``, ``seed``, ``base``) once the row is
     weighed (0: every live pair is kept). out_in: whether the pair's ray may skip the triangles
-    of the supporting ``planes`` (:func:`interior_row`; ``col_out`` its prefix count of columns
-    outside them).
+    of the supporting ``planes`` (its origin and column on their inner side:
+    :func:`interior_origin`, :func:`interior_column`).
     """
     n = x.shape[0]
     rows_per_block, staging = _staging(n, col_lo, col_hi, vpos, vnormal, spot_cutoff)
@@ -395,7 +400,7 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
                 out_j[k] = j
                 out_w[k] = w
                 out_pl[k] = spl[b, a] if row[i] == ROW_GLOSSY else np.float32(0.0)
-                out_in[k] = sin[b]
+                out_in[k] = sin[b] and interior_column(col_out, j)
                 d0, d1, d2_ = _to_vpl(so[b, 0], so[b, 1], so[b, 2], vpos, vnormal, directional, j)
                 _dd, inv_d = _length(d0, d1, d2_)
                 _write_ray(k, so[b, 0], so[b, 1], so[b, 2], d0, d1, d2_, inv_d, directional[j], eps2, out_o, out_d,
@@ -413,10 +418,11 @@ def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
     """Steps 1-3 of the module in one pass: :func:`pair_weights`' pairs go 16 at a time straight
     into an Embree packet (``scene``: the shadow BVH's RTCScene handle, see
     common.kernels.ray_packets; ``inner``: the BVH without the triangles of the supporting
-    ``planes``, for the rows :func:`interior_row` allows), a block's column by column, and the
-    unoccluded ones are summed into ``out`` (n, 3) as :func:`accumulate` sums them: each row's
-    pairs in column order, so the same sums bit for bit, with no pair or ray arrays. Returns the
-    number of shadow rays traced.
+    ``planes``, for the pairs whose origin and column lie on their inner side), a block's column
+    by column, and the unoccluded ones are summed into ``out`` (n, 3) as :func:`accumulate` sums
+    them: each row's pairs in column order per BVH, the inner BVH's pairs apart and added last,
+    so the same sums bit for bit, with no pair or ray arrays. Returns the number of shadow rays
+    traced.
 
     ``factors`` None: no pair needs a BSDF factor (no ROW_GLOSSY row, no glossy column);
     else :func:`pair_factors`' arguments past ``base`` (P_end, end_row, wi, ns, albedo,
@@ -432,11 +438,13 @@ def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
     ray, lane_i, lane_j, lane_w, lane_pl, valid = _two_packets()
     handles = (scene, inner)
     fill = np.zeros(2, np.int64)  # lanes filled per packet
+    # the sums per BVH: a row's pairs go to either, each BVH's in column order
+    sums = (out, np.zeros((n if planes.shape[0] > 0 else 0, 3)))
     width = sw.shape[1]
     # factors: a block's traced pairs, kept until its factors are known
     cap = rows_per_block * width if factors is not None else 0
     held = (np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.float32), np.empty(cap, np.float32),
-            np.empty((cap, 3), np.float32), np.empty(cap, np.bool_), np.empty((cap, 3)))
+            np.empty((cap, 3), np.float32), np.empty(cap, np.bool_), np.empty((cap, 3)), np.empty(cap, np.int64))
     traced = 0
     live = np.empty(rows_per_block, np.int64)
     for b0 in range(0, n, rows_per_block):
@@ -456,7 +464,7 @@ def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
                 b = live[t]
                 i = b0 + b
                 j = max(col_lo[i], 0) + a  # (as _stage: j >= 0 known, no wraparound per access)
-                s = 1 if sin[b] else 0
+                s = 1 if sin[b] and interior_column(col_out, j) else 0
                 k = fill[s]
                 # aimed from the offset origin: the ray ends short of the VPL, never past its surface
                 d0, d1, d2_ = _to_vpl(so[b, 0], so[b, 1], so[b, 2], vpos, vnormal, directional, j)
@@ -475,9 +483,9 @@ def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
                 if k == LANES:
                     pk = (ray[s], lane_i[s], lane_j[s], lane_w[s], lane_pl[s], valid[s])
                     if factors is None:
-                        _flush(handles[s], pk, LANES, color, out)
+                        _flush(handles[s], pk, LANES, color, sums[s])
                     else:
-                        count = _hold(handles[s], pk, LANES, held, count)
+                        count = _hold(handles[s], s, pk, LANES, held, count)
                     traced += LANES
                     k = 0
                 fill[s] = k
@@ -485,16 +493,26 @@ def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
             for s in range(2):
                 if fill[s] > 0:  # a block's pairs are summed with the block: its last packets go now
                     pk = (ray[s], lane_i[s], lane_j[s], lane_w[s], lane_pl[s], valid[s])
-                    count = _hold(handles[s], pk, fill[s], held, count)
+                    count = _hold(handles[s], s, pk, fill[s], held, count)
                     traced += fill[s]
                     fill[s] = 0
-            _sum_held(count, held, row, factors, color, out)
+            _sum_held(count, held, row, factors, color, sums)
     for s in range(2):
         if fill[s] > 0:
-            _flush(handles[s], (ray[s], lane_i[s], lane_j[s], lane_w[s], lane_pl[s], valid[s]), fill[s], color, out)
+            _flush(handles[s], (ray[s], lane_i[s], lane_j[s], lane_w[s], lane_pl[s], valid[s]), fill[s], color,
+                   sums[s])
             traced += fill[s]
+    _add_rows(sums[1], out)
     _finite_rows(n, out)
     return traced
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _add_rows(part, out) -> None:
+    """out += part, where ``part`` has rows (the inner BVH's sums: added after the full one's)."""
+    for i in range(part.shape[0]):
+        for c in range(3):
+            out[i, c] += part[i, c]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -508,13 +526,13 @@ def _two_packets():
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _hold(scene, pk, count, held, at):
+def _hold(scene, stream, pk, count, held, at):
     """Trace the first ``count`` lanes of packet ``pk`` (ray, row, column, weight, light
     pdf, valid mask: one of :func:`_two_packets`) and keep each pair (row,
     column, weight, light pdf, direction, blocked) in ``held`` from position ``at`` on; returns
     the next position."""
     ray, lane_i, lane_j, lane_w, lane_pl, valid = pk
-    hi, hj, hw, hpl, hd, hb, _hf = held
+    hi, hj, hw, hpl, hd, hb, _hf, hs = held
     tfar = occlude_lanes(scene, ray, valid, count)
     for q in range(count):
         hi[at] = lane_i[q]
@@ -524,15 +542,16 @@ def _hold(scene, pk, count, held, at):
         for c in range(3):
             hd[at, c] = ray[(4 + c) * LANES + q]
         hb[at] = tfar[q] < 0.0
+        hs[at] = stream
         at += 1
     return at
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _sum_held(count, held, row, factors, color, acc) -> None:
+def _sum_held(count, held, row, factors, color, sums) -> None:
     """Add the held unoccluded pairs' weight × VPL colour × BSDF factor (:func:`pair_factors`)
-    to their rows of ``acc``, in the order held."""
-    hi, hj, hw, hpl, hd, hb, hf = held
+    to their rows of ``sums[stream]`` (the BVH each was traced on), in the order held."""
+    hi, hj, hw, hpl, hd, hb, hf, hs = held
     P_end, end_row, wi, ns, albedo, glossy_col, P_vpl, vpl_row, vwi, vnormal = factors
     pair_factors(hi[:count], hj[:count], hd[:count], hpl[:count], hb[:count], row, np.int64(0), P_end, end_row, wi, ns,
                  albedo, glossy_col, P_vpl, vpl_row, vwi, vnormal, hf[:count])
@@ -542,6 +561,7 @@ def _sum_held(count, held, row, factors, color, acc) -> None:
         i = hi[q]
         j = hj[q]
         wq = np.float64(hw[q])
+        acc = sums[hs[q]]
         for c in range(3):
             acc[i, c] += wq * color[j, c] * hf[q, c]
 
@@ -604,9 +624,13 @@ def roulette_row(sw, b, width, lo, q, total, lum, fraction, seed, row_id) -> Non
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def accumulate(n, pi, pj, w, blocked, color, factor, out):
-    """out[i] += w · colour_j (· factor, when factor has rows) over the unoccluded pairs."""
+def accumulate(n, pi, pj, w, blocked, color, factor, inner, out):
+    """out[i] += w · colour_j (· factor, when factor has rows) over the unoccluded pairs; those
+    traced on the inner BVH (``inner``, when it has rows) summed apart and added last, as
+    :func:`gather_packets` sums them."""
     use_factor = factor.shape[0] > 0
+    apart = inner.shape[0] > 0
+    part = np.zeros((n if apart else 0, 3))
     for k in range(pi.shape[0]):
         if blocked[k]:
             continue
@@ -617,7 +641,11 @@ def accumulate(n, pi, pj, w, blocked, color, factor, out):
             v = wk * color[j, c]
             if use_factor:
                 v *= factor[k, c]
-            out[i, c] += v
+            if apart and inner[k]:
+                part[i, c] += v
+            else:
+                out[i, c] += v
+    _add_rows(part, out)
     _finite_rows(n, out)
 
 

@@ -142,7 +142,7 @@ def _direct_calls() -> dict:
         # the gather's array path (benchmark replays, no Embree C API): the render takes the packets
         "igi.worker.kernels.vpl_gather.accumulate": lambda: vpl_gather.accumulate(
             0, np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, bool),
-            np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3))),
+            np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, bool), np.zeros((0, 3))),
         # _stage and the array path's pair_weights: the scoring's rows and columns (empty
         # arrays of the types scored_draws takes) in their order
         "igi.worker.kernels.vpl_gather._stage": lambda: _stage_call(vpl_gather),
