@@ -5,12 +5,13 @@ Per scene: one frame is rendered through ``Renderer.render_tile`` (the first fra
 renderer: sets are built here, ``first_frame_seconds``), then ``--frames`` steady frames (the
 same seed: the sets are cached, as while the camera moves) with the Geometry recording every
 ray batch, then ``--frames`` accumulating frames (new seeds: every set rebuilt,
-``set_share_accumulating`` is the sets' share of such a frame); the batches are then replayed on the bare Embree scene:
-its full BVHs (``pipeline_over_raw``), embreex's one ray per call for the shadow rays
-(``pipeline_over_raw_embreex``), and the BVHs the product's gather takes — the shadow BVH without
-the walls for the pairs inside them, common.hull_culling (``pipeline_over_raw_own_bvh``).
-The ratio says how much of the pipeline's time is ray tracing (1.0 would be a renderer that is
-all Embree; above 1 where the gather's culling beats Embree on the full scene). Those frames run with the hooks below on, which send every shadow ray through
+``set_share_accumulating`` is the sets' share of such a frame); the batches are then replayed
+on the bare Embree scene: its full BVHs (``pipeline_over_raw``), embreex's one ray per call for
+the shadow rays (``pipeline_over_raw_embreex``), and the BVHs the product's gather takes — the
+shadow BVH without the walls for the pairs inside them, common.hull_culling
+(``pipeline_over_raw_own_bvh``). The ratio says how much of the pipeline's time is ray tracing
+(1.0 would be a renderer that is all Embree; above 1 where the gather's culling beats Embree on
+the full scene). Those frames run with the hooks below on, which send every shadow ray through
 Python-visible batches; the headline times (``frame_seconds``, the pipeline's rays/s,
 ``accumulating_frame_seconds``) are of the same kinds of frames rendered again with every hook
 off — the product's path, where the VPL gather traces its shadow rays inside its kernel.

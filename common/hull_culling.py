@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-MAX_PLANES = 16  # planes tested per ray origin: the ones holding the most triangle area
+MAX_PLANES = 16  # planes tested per ray origin: of those with the largest hull faces
 # Below this share of the scene's triangle area in the planes, a second BVH is not worth its
 # memory (a room whose walls have geometry behind them: modern-hall 6%, grey-white-room 3%).
 MIN_AREA_SHARE = 0.1
@@ -29,9 +29,9 @@ def supporting_planes(vertices: np.ndarray, faces: np.ndarray, area: np.ndarray,
     unit normal n pointing out of the hull and d, so n·x + d <= 0 for every vertex) that hold
     triangles of ``faces`` — of the ``max_planes`` planes with the largest hull faces, those
     holding the most triangle ``area`` first — and (F,) bool: the triangles lying in one of them
-    (every vertex within 1e-9 of the ``diagonal`` of the plane). A scene with no volume (all vertices in one plane,
-    or fewer than four), or whose planes hold less than ``min_share`` of its triangle area, has
-    none: ``((0, 4), all False)``."""
+    (every vertex within 1e-9 of the ``diagonal`` of the plane). A scene with no volume (all
+    vertices in one plane, or fewer than four), or whose planes hold less than ``min_share`` of
+    its triangle area, has none: ``((0, 4), all False)``."""
     f = len(faces)
     none = (np.zeros((0, 4)), np.zeros(f, bool))
     v = np.asarray(vertices, np.float64)

@@ -533,9 +533,10 @@ def _gather_packets(geom: Geometry, end: EndPoints, cols: "_VPLColumns", max_dep
                    cols.vwi, cols.vnormal)
     n, m = len(x), len(cols.depth)
     geom.counters["occluded_rays"] += vg.gather_packets(
-        scene, geom.interior_bvh()[0].handle, x, ns, ng, off, side, row, end.vpl_depth_limit(max_depth), cols.pos, cols.normal, cols.directional,
-        cols.min_d2, cols.cos_y_factor, cols.side, cols.spot_cutoff, cols.spot_beam, cols.depth, cols.mis,
-        cols.light_pdf, cols.area, cols.direct_count, np.float32(2 * geom.eps), tables, row_tab, inv_tavg,
+        scene, geom.interior_bvh()[0].handle, x, ns, ng, off, side, row, end.vpl_depth_limit(max_depth), cols.pos,
+        cols.normal, cols.directional, cols.min_d2, cols.cos_y_factor, cols.side, cols.spot_cutoff, cols.spot_beam,
+        cols.depth, cols.mis, cols.light_pdf, cols.area, cols.direct_count, np.float32(2 * geom.eps), tables, row_tab,
+        inv_tavg,
         np.zeros(n, np.int64), np.full(n, m, np.int64), cols.lum, float(roulette[0]) if roulette else 0.0,
         int(roulette[1]) if roulette else 0, 0, cols.planes, cols.col_out, cols.color, irr, factors)
     return True
@@ -599,7 +600,7 @@ def contribution_per_vpl(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2:
         eye_weight = albedo[sl] * end.throughput[sl]
         if not sampled:
             pi, pj, w, blocked, factor, _inner = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, receivers,
-                                                           col_range=col_range)
+                                                                   col_range=col_range)
             out += np.bincount(pj, weights=_pair_luminance(cols, eye_weight, pi, pj, w, blocked, factor),
                                minlength=m)
             continue

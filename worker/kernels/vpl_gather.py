@@ -435,7 +435,8 @@ def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
                (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis,
                 light_pdf, area, direct_count), (lum, fraction, seed, base), (planes, col_out))
     # one 16-ray packet per BVH, side by side: [0] the full scene's, [1] the inner one's
-    ray, lane_i, lane_j, lane_w, lane_pl, valid = _two_packets()
+    packets = _two_packets()
+    ray, lane_i, lane_j, lane_w, lane_pl, _valid = packets
     handles = (scene, inner)
     fill = np.zeros(2, np.int64)  # lanes filled per packet
     # the sums per BVH: a row's pairs go to either, each BVH's in column order
@@ -481,26 +482,23 @@ def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
                 lane_pl[s, k] = spl[b, a] if row[i] == ROW_GLOSSY else np.float32(0.0)
                 k += 1
                 if k == LANES:
-                    pk = (ray[s], lane_i[s], lane_j[s], lane_w[s], lane_pl[s], valid[s])
                     if factors is None:
-                        _flush(handles[s], pk, LANES, color, sums[s])
+                        _flush(handles[s], _lanes_of(packets, s), LANES, color, sums[s])
                     else:
-                        count = _hold(handles[s], s, pk, LANES, held, count)
+                        count = _hold(handles[s], s, _lanes_of(packets, s), LANES, held, count)
                     traced += LANES
                     k = 0
                 fill[s] = k
         if factors is not None:
             for s in range(2):
                 if fill[s] > 0:  # a block's pairs are summed with the block: its last packets go now
-                    pk = (ray[s], lane_i[s], lane_j[s], lane_w[s], lane_pl[s], valid[s])
-                    count = _hold(handles[s], s, pk, fill[s], held, count)
+                    count = _hold(handles[s], s, _lanes_of(packets, s), fill[s], held, count)
                     traced += fill[s]
                     fill[s] = 0
             _sum_held(count, held, row, factors, color, sums)
     for s in range(2):
         if fill[s] > 0:
-            _flush(handles[s], (ray[s], lane_i[s], lane_j[s], lane_w[s], lane_pl[s], valid[s]), fill[s], color,
-                   sums[s])
+            _flush(handles[s], _lanes_of(packets, s), fill[s], color, sums[s])
             traced += fill[s]
     _add_rows(sums[1], out)
     _finite_rows(n, out)
@@ -525,12 +523,18 @@ def _two_packets():
             np.empty((2, LANES), np.float32), np.empty((2, LANES), np.float32), valid.reshape((2, LANES)))
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _lanes_of(packets, s):
+    """Packet s of :func:`_two_packets`: (ray, row, column, weight, light pdf, valid mask)."""
+    ray, lane_i, lane_j, lane_w, lane_pl, valid = packets
+    return ray[s], lane_i[s], lane_j[s], lane_w[s], lane_pl[s], valid[s]
+
+
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _hold(scene, stream, pk, count, held, at):
-    """Trace the first ``count`` lanes of packet ``pk`` (ray, row, column, weight, light
-    pdf, valid mask: one of :func:`_two_packets`) and keep each pair (row,
-    column, weight, light pdf, direction, blocked) in ``held`` from position ``at`` on; returns
-    the next position."""
+    """Trace the first ``count`` lanes of packet ``pk`` (:func:`_lanes_of`) and keep each pair
+    (row, column, weight, light pdf, direction, blocked, the packet's ``stream``) in ``held``
+    from position ``at`` on; returns the next position."""
     ray, lane_i, lane_j, lane_w, lane_pl, valid = pk
     hi, hj, hw, hpl, hd, hb, _hf, hs = held
     tfar = occlude_lanes(scene, ray, valid, count)
@@ -568,8 +572,8 @@ def _sum_held(count, held, row, factors, color, sums) -> None:
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _flush(scene, pk, count, color, acc) -> None:
-    """Trace the first ``count`` lanes of packet ``pk`` (as :func:`_hold` takes it) and add each unoccluded
-    pair's weight × VPL colour to its row of ``acc``."""
+    """Trace the first ``count`` lanes of packet ``pk`` (:func:`_lanes_of`) and add each
+    unoccluded pair's weight × VPL colour to its row of ``acc``."""
     ray, lane_i, lane_j, lane_w, _pl, valid = pk
     tfar = occlude_lanes(scene, ray, valid, count)
     for k in range(count):

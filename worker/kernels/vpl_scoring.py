@@ -90,12 +90,13 @@ def scored_draws(x, ns, ng, off, side, row, vmax,
     sw = np.empty((rows, width_max), np.float32)
     spl = np.empty((rows, width_max), np.float32)
     staging = (sw, spl, np.empty((rows, 3), np.float32), np.empty(rows, np.bool_), vx, vy, vz, wx, wy, wz)
-    # (no culling planes: the scoring's rays are the caller's, vpl_gather.pair_rays)
+    # (roulette arguments typed, not literal: see worker.kernels.eye_paths — a literal would
+    # compile _stage once more; no culling planes: the scoring's rays are the caller's,
+    # vpl_gather.pair_rays)
     weighed = ((x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi),
                (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis,
-                light_pdf, area, direct_count), (lum, 0.0, np.int64(0), np.int64(0)),  # (typed, not literal: see
-               (np.zeros((0, 4), np.float32), np.zeros(m + 1, np.int64)))  # worker.kernels.eye_paths — a literal
-    # would compile _stage once more)
+                light_pdf, area, direct_count), (lum, 0.0, np.int64(0), np.int64(0)),
+               (np.zeros((0, 4), np.float32), np.zeros(m + 1, np.int64)))
     cr = np.empty(m)
     cg = np.empty(m)
     cb = np.empty(m)
