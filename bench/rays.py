@@ -14,7 +14,9 @@ shadow BVH without the walls for the pairs inside them, common.hull_culling
 the full scene). Those frames run with the hooks below on, which send every shadow ray through
 Python-visible batches; the headline times (``frame_seconds``, the pipeline's rays/s,
 ``accumulating_frame_seconds``) are of the same kinds of frames rendered again with every hook
-off — the product's path, where the VPL gather traces its shadow rays inside its kernel.
+off — the product's path, where the VPL gather traces its shadow rays inside its kernel. The
+steady frames and the full-BVH and own-BVH replays run in ROUNDS interleaved rounds and each
+counts its fastest (a neighbour's load on a shared machine slows a round, not the ratio).
 
 Stage breakdown (``stages``, seconds per frame, first frame and steady frames): the renderer's
 profiler hook (``Renderer.stage_times``: eye paths, VPL set, BSDF rays, lensed chains, final
@@ -47,6 +49,7 @@ from igi.common.params import make_params
 
 from .report import git_commit, machine_info, md_table
 
+ROUNDS = 3  # pipeline / replay rounds, interleaved; each timed by its fastest
 STAGES = ("eye paths", "VPL set", "BSDF rays", "lensed chains", "final gather points", "VPL gather", "BSDF direct",
           "photon set", "photon gather")
 
@@ -180,18 +183,24 @@ def measure(scene_path: str, width: int | None = None, height: int | None = None
     # The headline times are the product's path: no timers, no recording (the gather then
     # traces its shadow rays from inside its kernel, which neither hook can see into). The same
     # frames as the instrumented ones, so the same rays as those recorded and replayed.
-    pipeline = sum(_frame(r, spec, tiles, hooks=False)["render_seconds"] for _ in range(frames))
+    # Pipeline and replays interleaved, ROUNDS times, each timed by its fastest round: a busy
+    # neighbour on the machine slows one round, not the ratio (min, as timeit takes it).
+    plain, raws, owns = [], [], []
+    for _ in range(ROUNDS):
+        plain.append(min(_frame(r, spec, tiles, hooks=False)["render_seconds"] for _ in range(frames)))
+        raws.append(r.geom.replay(batches))
+        # the same rays on the BVHs the product's gather takes (the walls skipped where it may:
+        # common.hull_culling); ``raw`` is Embree on the scene's full BVH
+        owns.append(r.geom.replay(batches, own=True))
+    pipeline = frames * min(plain)
+    raw, raw_own = min(raws), min(owns)
     acc_plain = [_frame(r, sequence_spec(i, i, cam, fov_x, w, h, pd), tiles, hooks=False)
                  for i in range(frames + 1, 2 * frames + 1)]
     acc_seconds = sum(f["render_seconds"] + f["encode_seconds"] for f in acc_plain) / max(1, frames)
-    raw = r.geom.replay(batches)
     prim = counted["intersect_rays"]
     shadow = counted["occluded_rays"]
     raw_prim = r.geom.replay([b for b in batches if b[0] == "intersect"])
     raw_shadow = r.geom.replay([b for b in batches if b[0] == "occluded"])
-    # the same rays on the BVHs the product's gather takes (the walls skipped where it may:
-    # common.hull_culling); ``raw`` is Embree on the scene's full BVH
-    raw_own = r.geom.replay(batches, own=True)
     raw_shadow_embreex = _replay_shadow_embreex(r.geom, batches)
     per_frame = _scaled(_sum_frames(steady), 1.0 / max(1, frames))
     result = {
@@ -200,7 +209,8 @@ def measure(scene_path: str, width: int | None = None, height: int | None = None
         "scene": str(scene_path),
         "settings": {"width": w, "height": h, "frames": frames, "params": pd},
         "rays": {"primary_and_secondary": prim, "shadow": shadow},
-        "pipeline_seconds": pipeline,
+        "pipeline_seconds": pipeline,  # frames × the fastest frame of ROUNDS rounds
+        "rounds": ROUNDS,
         "raw_embree_seconds": raw,
         "pipeline_rays_per_s": (prim + shadow) / pipeline,
         "raw_rays_per_s": (prim + shadow) / raw,

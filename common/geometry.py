@@ -210,7 +210,7 @@ class Geometry:
 
     def shadow_bvh(self):
         """The BVH of the shadow rays, built on first use (Renderer builds it up front), queried
-        in 16-ray packets where Embree's C API is at hand (common.ray_packets): the
+        in packets of the CPU's width where Embree's C API is at hand (common.ray_packets): the
         same triangles without Embree's robust mode — occlusion queries 20% faster
         (cornell-box-sphere; 9% grey-white-room), and a shadow ray through a shared edge
         decides differently about once in a million (3 of a frame's 3.9M, 7 of 6.6M). Where an
@@ -218,8 +218,8 @@ class Geometry:
         if self._shadow is None:
             with self._build_lock:
                 if self._shadow is None:
-                    # Embree's C API in 16-ray packets (common.ray_packets) where at hand: the
-                    # same answers ~1.6x faster than embreex's one ray per call.
+                    # Embree's C API in packets of the CPU's width (common.ray_packets) where at
+                    # hand: the same answers ~1.6x faster than embreex's one ray per call.
                     scene = packet_scene(self._local, robust=False)
                     if scene is None:
                         scene = rtcs.EmbreeScene(self._device, robust=False)

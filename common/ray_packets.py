@@ -1,7 +1,7 @@
 """An Embree scene built through Embree's C API (ctypes, on the library embreex ships) and
-queried in 16-ray packets by common.kernels.ray_packets: the shadow rays' BVH, and the closest
-hits' (robust) one, whose rays go to Embree from the caller's float64 arrays in one compiled
-pass (no float32 copies, no per-call dictionaries of result arrays).
+queried in packets of the CPU's width by common.kernels.ray_packets: the shadow rays' BVH, and
+the closest hits' (robust) one, whose rays go to Embree from the caller's float64 arrays in one
+compiled pass (no float32 copies, no per-call dictionaries of result arrays).
 
 It answers ``run(o, d, query="OCCLUDED", dists=t)`` as embreex's scenes do (geomID per ray, -1
 where nothing blocks it), so it takes their place under Geometry.shadow_bvh, the benchmark

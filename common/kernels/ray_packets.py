@@ -1,15 +1,19 @@
-"""Embree's occlusion query in packets of 16 rays, called from compiled code.
+"""Embree's ray queries in packets of the CPU's native width, called from compiled code.
 
-embreex traces one ray per Embree call (``rtcOccluded1`` in a loop); Embree's 16-wide packets
-(``rtcOccluded16``, SoA ``RTCRay16``) traverse the same BVH with SIMD over the rays and answer
-the gather's shadow rays ~1.6x faster (cornell-box-sphere: 3.4 M rays of a 640x480 frame,
-identical answers). The kernels call Embree's C API by symbol from the library embreex ships
-(numba ``ExternalFunction``: cacheable, unlike ctypes pointers); :data:`AVAILABLE` is False
-where that library is not found, and callers keep embreex's path.
+embreex traces one ray per Embree call (``rtcOccluded1`` in a loop); Embree's packets
+(``rtcOccluded8`` / ``rtcOccluded16``, SoA ``RTCRay8`` / ``RTCRay16``) traverse the same BVH
+with SIMD over the rays. The width is the one Embree's kernels run natively on this CPU
+(:func:`native_lanes`): 16 with AVX-512, 8 with AVX/AVX2, 4 below — a wider packet than the
+CPU's is split inside Embree at a cost: on an AVX2 EPYC, 16-wide packets took 1.6x the time of
+8-wide ones on a 640x480 frame's 3.6 M shadow rays of cornell-box-sphere, 1.2x on modern-hall's
+8.7 M, with identical answers (bench rays, stop 48). The kernels call Embree's C API by symbol
+from the library embreex ships (numba ``ExternalFunction``: cacheable, unlike ctypes pointers;
+numba keys its cache by the CPU, so a cached kernel never meets another width); :data:`AVAILABLE`
+is False where that library is not found, and callers keep embreex's path.
 
-RTCRay16 layout (embree4/rtcore_ray.h): twelve 16-lane fields, float org_x, org_y, org_z,
-tnear, dir_x, dir_y, dir_z, time, tfar, then unsigned mask, id, flags; aligned to 64 bytes.
-A blocked ray's tfar comes back -inf.
+RTCRay<LANES> layout (embree4/rtcore_ray.h): twelve LANES-wide fields, float org_x, org_y,
+org_z, tnear, dir_x, dir_y, dir_z, time, tfar, then unsigned mask, id, flags; aligned to the
+packet's size (64 bytes suffices for all). A blocked ray's tfar comes back -inf.
 """
 from __future__ import annotations
 
@@ -51,20 +55,35 @@ def _load() -> bool:
 
 AVAILABLE = _load()
 
-# void rtcOccluded16(const int* valid, RTCScene scene, RTCRay16* ray, RTCIntersectArguments* args)
-# (pointers passed as size_t: the same register on every 64-bit ABI Embree supports)
-_rtcOccluded16 = types.ExternalFunction("rtcOccluded16", types.void(types.uintp, types.uintp, types.uintp,
-                                                                     types.uintp))
 
-LANES = 16
-FIELDS = 12  # RTCRay16's 16-lane fields
+def native_lanes() -> int:
+    """The packet width Embree traverses natively on this CPU: 16 (AVX-512), 8 (AVX), 4."""
+    try:
+        import llvmlite.binding as llb
+
+        features = llb.get_host_cpu_features()
+    except Exception:  # noqa: BLE001 - no feature list: the width every x86-64 Embree build runs
+        return 4
+    if features.get("avx512f", False):
+        return 16
+    return 8 if features.get("avx", False) else 4
+
+
+LANES = native_lanes()
+FIELDS = 12  # RTCRay<LANES>'s LANES-wide fields
+
+# void rtcOccluded<LANES>(const int* valid, RTCScene scene, RTCRay<LANES>* ray, RTCOccludedArguments* args)
+# (pointers passed as size_t: the same register on every 64-bit ABI Embree supports)
+_rtcOccludedN = types.ExternalFunction(f"rtcOccluded{LANES}", types.void(types.uintp, types.uintp, types.uintp,
+                                                                          types.uintp))
 _TFAR_MAX = np.float32(3.0e38)  # longer segments are clamped (as Geometry.occluded's callers did)
 
 
 @njit(cache=True, nogil=True, inline="always")
 def _packet(floats: int, masks: int = 1):
-    """A packet buffer of ``floats`` float32 (its uint32 view too) and ``masks`` 16-lane valid
-    masks side by side, all 64-byte aligned as Embree's 16-wide calls require."""
+    """A packet buffer of ``floats`` float32 (its uint32 view too) and ``masks`` LANES-wide
+    valid masks side by side, all 64-byte aligned (what Embree's 16-wide calls require, more
+    than narrower ones do)."""
     buf = np.empty(floats + LANES, np.float32)
     a = ((64 - buf.ctypes.data % 64) % 64) // 4
     ray = buf[a:a + floats]
@@ -75,7 +94,7 @@ def _packet(floats: int, masks: int = 1):
 
 @njit(cache=True, nogil=True, inline="always")
 def _put_ray(ray, bits, k, ox, oy, oz, dx, dy, dz, tfar) -> None:
-    """Lane k of an RTCRay16: origin, direction (float32), tnear 0, time 0, tfar, mask all
+    """Lane k of an RTCRay<LANES>: origin, direction (float32), tnear 0, time 0, tfar, mask all
     ones, id and flags 0."""
     ray[k] = ox
     ray[LANES + k] = oy
@@ -94,7 +113,7 @@ def _put_ray(ray, bits, k, ox, oy, oz, dx, dy, dz, tfar) -> None:
 @njit(cache=True, nogil=True, inline="always")
 def packet_lanes(packets=1):
     """``packets`` occlusion packets side by side (rays, their uint32 view, valid masks; packet
-    p's fields from p × 192 on, its mask from p × 16) whose fixed fields are set — tnear and
+    p's fields from p × FIELDS × LANES on, its mask from p × LANES) whose fixed fields are set — tnear and
     time 0, mask all ones, id and flags 0 — for callers that write the origins, directions and
     tfar of their lanes themselves (Embree's occlusion query changes only tfar)."""
     ray, bits, valid = _packet(packets * LANES * FIELDS, packets)
@@ -120,15 +139,15 @@ def occlude_lanes(scene, ray, valid, count):
             valid[k] = -1
         else:
             valid[k] = 0
-    _rtcOccluded16(valid.ctypes.data, scene, ray.ctypes.data, 0)
+    _rtcOccludedN(valid.ctypes.data, scene, ray.ctypes.data, 0)
     return ray[8 * LANES:9 * LANES]
 
 
 @njit(cache=True, nogil=True)
 def occluded(scene, o, d, tfar, out) -> None:
     """out[i] = whether something blocks ray i (origin o[i], direction d[i], 0 < t <
-    min(tfar[i], 3e38), float32) in the Embree ``scene`` (an RTCScene handle), 16 rays per
-    Embree call."""
+    min(tfar[i], 3e38), float32) in the Embree ``scene`` (an RTCScene handle), LANES rays
+    per Embree call."""
     ray, bits, valid = _packet(LANES * FIELDS)  # (_put_ray writes every field of a lane)
     n = o.shape[0]
     for s in range(0, n, LANES):
@@ -142,17 +161,17 @@ def occluded(scene, o, d, tfar, out) -> None:
 
 
 
-# void rtcIntersect16(const int* valid, RTCScene scene, RTCRayHit16* rayhit, RTCIntersectArguments* args)
-_rtcIntersect16 = types.ExternalFunction("rtcIntersect16", types.void(types.uintp, types.uintp, types.uintp,
-                                                                       types.uintp))
-_HIT = 12 * LANES  # RTCHit16 after RTCRay16: Ng_x, Ng_y, Ng_z, u, v, primID, geomID, instID[levels]
+# void rtcIntersect<LANES>(const int* valid, RTCScene scene, RTCRayHit<LANES>* rayhit, RTCIntersectArguments* args)
+_rtcIntersectN = types.ExternalFunction(f"rtcIntersect{LANES}", types.void(types.uintp, types.uintp, types.uintp,
+                                                                            types.uintp))
+_HIT = 12 * LANES  # RTCHit<LANES> after RTCRay<LANES>: Ng_x, Ng_y, Ng_z, u, v, primID, geomID, instID[levels]
 _HIT_ROOM = 16 * LANES  # the hit's 7 fields and room for up to 9 instance levels
 _INVALID = 0xFFFFFFFF  # RTC_INVALID_GEOMETRY_ID
 
 
 @njit(cache=True, nogil=True)
 def closest_hits(scene, origins, directions, tfar, center, out_prim, out_u, out_v, out_t) -> None:
-    """Closest hit of ray i in the Embree ``scene``, 16 rays per Embree call: the float64 ray
+    """Closest hit of ray i in the Embree ``scene``, LANES rays per Embree call: the float64 ray
     (origins[i] - center, directions[i]) rounded to float32 as Embree takes it, 0 < t <
     tfar[i] (float32). out_prim[i] the triangle (-1 on a miss), out_u/out_v its barycentrics,
     out_t the distance (tfar[i] on a miss), as float64."""
@@ -172,7 +191,7 @@ def closest_hits(scene, origins, directions, tfar, center, out_prim, out_u, out_
                 valid[k] = -1
             else:
                 valid[k] = 0
-        _rtcIntersect16(valid.ctypes.data, scene, ray.ctypes.data, 0)
+        _rtcIntersectN(valid.ctypes.data, scene, ray.ctypes.data, 0)
         for k in range(m):
             i = s + k
             hit = bits[_HIT + 6 * LANES + k] != _INVALID and bits[_HIT + 5 * LANES + k] < 0x80000000

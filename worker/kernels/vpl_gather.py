@@ -15,9 +15,10 @@ Three steps per chunk of end points, none with an (end points × VPLs) temporary
    per end point.
 
 Where the shadow BVH is an Embree packet scene, :func:`gather_packets` does all three in one
-pass: the pairs go 16 at a time into an Embree packet traced from inside the kernel
-(rtcOccluded16) and are summed as they come back (pairs that need a BSDF factor once their
-block's factors are known) — the same sums, with no pair or ray arrays.
+pass: the pairs go LANES at a time into an Embree packet traced from inside the kernel
+(rtcOccluded8 or 16, the CPU's width: common.kernels.ray_packets) and are summed as they come
+back (pairs that need a BSDF factor once their block's factors are known) — the same sums,
+with no pair or ray arrays.
 
 Both weigh their rows a block of BLOCK rows at a time (:func:`_stage`: the pairs' weights
 staged per row, then thinned by the roulette); pair_weights then writes them row by row,
@@ -415,7 +416,7 @@ def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
                    vdepth, mis, light_pdf, area, direct_count, eps2,
                    tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base, planes, col_out, color, out,
                    factors):
-    """Steps 1-3 of the module in one pass: :func:`pair_weights`' pairs go 16 at a time straight
+    """Steps 1-3 of the module in one pass: :func:`pair_weights`' pairs go LANES at a time straight
     into an Embree packet (``scene``: the shadow BVH's RTCScene handle, see
     common.kernels.ray_packets; ``inner``: the BVH without the triangles of the supporting
     ``planes``, for the pairs whose origin and column lie on their inner side), a block's column
@@ -434,7 +435,7 @@ def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
     weighed = ((x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi),
                (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis,
                 light_pdf, area, direct_count), (lum, fraction, seed, base), (planes, col_out))
-    # one 16-ray packet per BVH, side by side: [0] the full scene's, [1] the inner one's
+    # one LANES-ray packet per BVH, side by side: [0] the full scene's, [1] the inner one's
     packets = _two_packets()
     ray, lane_i, lane_j, lane_w, lane_pl, _valid = packets
     handles = (scene, inner)
@@ -516,8 +517,8 @@ def _add_rows(part, out) -> None:
 @njit(cache=True, nogil=True, inline="always")
 def _two_packets():
     """Two occlusion packets side by side, their fixed fields set (common.kernels.ray_packets
-    .packet_lanes): (rays (2, 192) float32, then per packet and lane the pair's row, column,
-    weight and light pdf, and the valid masks (2, 16)), each packet 64-byte aligned."""
+    .packet_lanes): (rays (2, FIELDS × LANES) float32, then per packet and lane the pair's row, column,
+    weight and light pdf, and the valid masks (2, LANES)), each packet 64-byte aligned."""
     ray, _bits, valid = packet_lanes(2)
     return (ray.reshape((2, FIELDS * LANES)), np.empty((2, LANES), np.int64), np.empty((2, LANES), np.int64),
             np.empty((2, LANES), np.float32), np.empty((2, LANES), np.float32), valid.reshape((2, LANES)))
