@@ -70,3 +70,25 @@ def test_compiled_before_tells_a_warm_cache_from_a_cold_one(monkeypatch, tmp_pat
     assert compiled_before() is False  # a checkout whose kernels were never compiled
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
     assert compiled_before() is None  # elsewhere: cannot tell without numba
+
+
+def test_workers_started_together_compile_one_at_a_time(tmp_path):
+    """one_compiler: while one process holds the kernels' lock, another that asks for it waits
+    until it is released (the first compiles into numba's cache, the second then loads)."""
+    import subprocess
+    import sys
+
+    from igi.worker.kernels.warm import one_compiler
+
+    flag = tmp_path / "entered"
+    child = ("import pathlib, sys\nfrom igi.worker.kernels.warm import one_compiler\n"
+             "with one_compiler():\n    pathlib.Path(sys.argv[1]).write_text('in')\n")
+    with one_compiler():
+        p = subprocess.Popen([sys.executable, "-c", child, str(flag)])
+        try:
+            p.wait(timeout=3)  # the child imports and then blocks on the lock
+        except subprocess.TimeoutExpired:
+            pass
+        assert p.poll() is None and not flag.exists(), "the second process did not wait for the lock"
+    assert p.wait(timeout=120) == 0
+    assert flag.read_text() == "in"

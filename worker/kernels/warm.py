@@ -14,6 +14,7 @@ load and are left out.
 """
 from __future__ import annotations
 
+import contextlib
 import importlib
 import pkgutil
 import time
@@ -296,12 +297,41 @@ def warm_up(render: bool = True) -> dict:
     return {"seconds": time.perf_counter() - t0, "kernels": len(kernels), "cold": cold}
 
 
+@contextlib.contextmanager
+def one_compiler():
+    """Hold a lock of this checkout's kernels while warming up a cold cache, so the workers one
+    machine starts together compile them once: the first compiles into numba's on-disk cache, the
+    others wait and then load from it (on a fresh checkout each would otherwise spend minutes
+    of a core compiling the same code). Where no lock can be taken (no fcntl, no temporary
+    directory), each warms up on its own, as before."""
+    try:
+        import fcntl
+        import hashlib
+        import os
+        import tempfile
+
+        here = os.path.dirname(os.path.abspath(__file__))
+        key = hashlib.sha1(here.encode()).hexdigest()[:16]
+        fh = open(os.path.join(tempfile.gettempdir(), f"igi-kernels-{key}.lock"), "w")
+    except (ImportError, OSError):
+        yield
+        return
+    with fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX)
+        except OSError:
+            pass
+        yield  # (closing the file releases the lock)
+
+
 def warm_up_before_hello(log) -> None:
     """The worker's start (worker.node): :func:`warm_up`, its duration logged at INFO. A
     failure here must not keep a worker from serving (its kernels then load on first use):
     it is logged as a warning."""
     try:
-        res = warm_up()
+        # (a machine that has compiled them loads them, each worker on its own)
+        with one_compiler() if compiled_before() is not True else contextlib.nullcontext():
+            res = warm_up()
     except Exception as e:  # noqa: BLE001 - any failure only costs the first frame's latency
         log.warning("kernel warm-up failed (%s: %s); kernels load on first use", type(e).__name__, e)
         return
