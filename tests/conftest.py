@@ -30,16 +30,11 @@ def _private_table_cache(tmp_path_factory):
         os.environ["IGI_CACHE_DIR"] = old
 
 
-def pytest_sessionstart(session):
-    """Under pytest-xdist (``-n 2``, the README's command) the controller compiles the kernels
-    once into numba's on-disk cache before its workers start, so the workers load them instead
-    of each compiling all of them at once (minutes on a fresh checkout)."""
-    config = session.config
-    if getattr(config.option, "numprocesses", None) and not hasattr(config, "workerinput"):
-        from igi.worker.kernels.warm import one_compiler, warm_up
-
-        with one_compiler():
-            warm_up()
+def pytest_collection_modifyitems(session, config, items):
+    """The README's bare-clone test first: minutes of one core (a fresh install and a cold
+    kernel compile of its own clone), so under ``-n 2`` it runs beside the rest — whose
+    process compiles this checkout's kernels meanwhile — instead of alone at the end."""
+    items.sort(key=lambda item: item.path.name != "test_fresh_clone.py")
 
 
 def pytest_report_header(config):
