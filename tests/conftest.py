@@ -30,13 +30,6 @@ def _private_table_cache(tmp_path_factory):
         os.environ["IGI_CACHE_DIR"] = old
 
 
-def pytest_collection_modifyitems(session, config, items):
-    """The README's bare-clone test first: minutes of one core (a fresh install and a cold
-    kernel compile of its own clone), so under ``-n 2`` it runs beside the rest — whose
-    process compiles this checkout's kernels meanwhile — instead of alone at the end."""
-    items.sort(key=lambda item: item.path.name != "test_fresh_clone.py")
-
-
 def pytest_report_header(config):
     if not SHARED.is_dir():
         return (f"NOTE: the shared test set (scenes and Mitsuba references) is not at {SHARED}; "
