@@ -30,6 +30,18 @@ def _private_table_cache(tmp_path_factory):
         os.environ["IGI_CACHE_DIR"] = old
 
 
+def pytest_sessionstart(session):
+    """Under pytest-xdist (``-n 2``, the README's command) the controller compiles the kernels
+    once into numba's on-disk cache before its workers start, so the workers load them instead
+    of each compiling all of them at once (minutes on a fresh checkout)."""
+    config = session.config
+    if getattr(config.option, "numprocesses", None) and not hasattr(config, "workerinput"):
+        from igi.worker.kernels.warm import one_compiler, warm_up
+
+        with one_compiler():
+            warm_up()
+
+
 def pytest_report_header(config):
     if not SHARED.is_dir():
         return (f"NOTE: the shared test set (scenes and Mitsuba references) is not at {SHARED}; "
