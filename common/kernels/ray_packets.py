@@ -6,7 +6,8 @@ with SIMD over the rays. The width is the one Embree's kernels run natively on t
 (:func:`native_lanes`): 16 with AVX-512, 8 with AVX/AVX2, 4 below — a wider packet than the
 CPU's is split inside Embree at a cost: on an AVX2 EPYC, 16-wide packets took 1.6x the time of
 8-wide ones on a 640x480 frame's 3.6 M shadow rays of cornell-box-sphere, 1.2x on modern-hall's
-8.7 M, with identical answers (the frames' recorded rays replayed at each width, stop 48). The kernels call Embree's C API by symbol
+8.7 M, with identical answers (the frames' recorded rays replayed at each width, stop
+48). The kernels call Embree's C API by symbol
 from the library embreex ships (numba ``ExternalFunction``: cacheable, unlike ctypes pointers;
 numba keys its cache by the CPU, so a cached kernel never meets another width); :data:`AVAILABLE`
 is False where that library is not found, and callers keep embreex's path.
