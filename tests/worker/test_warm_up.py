@@ -49,27 +49,15 @@ def test_warm_up_logs_its_duration(caplog):
 
 
 def test_compiled_before_tells_a_warm_cache_from_a_cold_one(monkeypatch, tmp_path):
-    import importlib.util
-
+    from igi.worker.kernels import parallel_compile
     from igi.worker.kernels.warm import compiled_before
 
     warm_up()
-    assert compiled_before() is True  # the kernels beside the sources were just compiled/loaded
-    real = importlib.util.find_spec
-    fake_dir = tmp_path / "kernels"
-    fake_dir.mkdir()
-    (fake_dir / "bsdf.py").write_text("")
-
-    def find_spec(name, *a, **k):
-        spec = real(name, *a, **k)
-        if name == "igi.common.kernels.bsdf":
-            spec = importlib.util.spec_from_file_location(name, fake_dir / "bsdf.py")
-        return spec
-
-    monkeypatch.setattr(importlib.util, "find_spec", find_spec)
-    assert compiled_before() is False  # a checkout whose kernels were never compiled
+    assert compiled_before() is True  # every listed kernel was just compiled/loaded beside its source
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
-    assert compiled_before() is None  # elsewhere: cannot tell without numba
+    assert compiled_before() is False  # an empty cache
+    monkeypatch.setattr(parallel_compile, "MANIFEST", tmp_path / "no-list.json")
+    assert compiled_before() is None  # without the list of kernels it cannot be told
 
 
 def test_workers_started_together_compile_one_at_a_time(tmp_path):

@@ -161,7 +161,8 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
     comp = np.empty((n_delta, 12))
     best = np.empty(n_delta, np.int64)
     sel = delta[:n_delta]
-    kb.specular_many(P, prow[sel], wi[sel], True, comp[:, 0:3], comp[:, 3:6], comp[:, 6:9], comp[:, 9:12])
+    # (np.bool_: a literal True would have specular_many compiled once more, for Literal[bool])
+    kb.specular_many(P, prow[sel], wi[sel], np.bool_(True), comp[:, 0:3], comp[:, 3:6], comp[:, 6:9], comp[:, 9:12])
     for q in range(n_delta):
         # np.argmax of (luminance where the component carries light, else -1): NaN wins, ties go first
         lum0 = comp[q, 3] * _WR + comp[q, 4] * _WG + comp[q, 5] * _WB if _carries_any(

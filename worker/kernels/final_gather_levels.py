@@ -79,8 +79,9 @@ def find_levels(P, reflects, atlas, closest, rng, center, eps, ulps, reach_all, 
                 k += 1
         u1 = rng.random(k)
         u2 = rng.random((k, 2))
+        # (np.bool_: a literal True would have sample_rays compiled once more, for Literal[bool])
         c = sample_rays(P, prow[p0:p1], src[:k], p_wo[p0:p1], p_ns[p0:p1], p_pos[p0:p1], p_ng[p0:p1], u1, u2,
-                        True, center, eps, ulps, r_row[r0:], r_w[r0:], r_pdf[r0:], r_delta[r0:], r_d[r0:], r_o[r0:])
+                        np.bool_(True), center, eps, ulps, r_row[r0:], r_w[r0:], r_pdf[r0:], r_delta[r0:], r_d[r0:], r_o[r0:])
         r1 = r0 + c
         reach = np.ones(c, np.bool_)
         if not reach_all:

@@ -80,7 +80,7 @@ def scored_draws(x, ns, ng, off, side, row, vmax,
     m = vpos.shape[0]
     # One staging for a whole run (its weights are read again when its columns are drawn).
     rows, width_max = 1, 1
-    r0 = 0
+    r0 = np.int64(0)  # (not a literal 0: _stage would compile once more for Literal[int](0))
     while r0 < n:
         r1 = _run_end(r0, n, col_lo, col_hi)
         rows = max(rows, r1 - r0)
@@ -111,7 +111,7 @@ def scored_draws(x, ns, ng, off, side, row, vmax,
     d_w = np.empty(m * samples, np.float32)
     d_pl = np.empty(m * samples, np.float32)
     d_plain = np.empty(m * samples)
-    r0 = 0
+    r0 = np.int64(0)  # (not a literal 0: _stage would compile once more for Literal[int](0))
     while r0 < n:
         r1 = _run_end(r0, n, col_lo, col_hi)
         lo = max(col_lo[r0], 0)
