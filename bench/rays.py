@@ -60,6 +60,8 @@ def add_arguments(p) -> None:
     p.add_argument("--height", type=int, default=None)
     p.add_argument("--frames", type=int, default=2)
     p.add_argument("--no-startup", action="store_true", help="skip the start-up (compile / cache-load) runs")
+    p.add_argument("--compile-one-process", action="store_true",
+                   help="also time a cold compile without the helper processes (one process, as before stop 49)")
     p.add_argument("--out", default="artifacts/bench_rays.json")
 
 
@@ -77,7 +79,7 @@ def run(args) -> int:
            "scenes": results}
     if not args.no_startup:
         print("rays: start-up (fresh processes) ...", file=sys.stderr)
-        doc["startup"] = startup()
+        doc["startup"] = startup(args.compile_one_process)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(json.dumps(doc, indent=2))
@@ -271,12 +273,12 @@ def _sum_frames(frames: list[dict]) -> dict:
 
 
 _STARTUP_SCRIPT = r"""
-import json, time
+import json, os, time
 t0 = time.perf_counter()
 import igi.worker.renderer, igi.worker.node  # the worker's imports (numba, embreex, the kernel modules)
 t1 = time.perf_counter()
 from igi.worker.kernels.warm import warm_up
-a = warm_up()
+a = warm_up(parallel=os.environ.get("IGI_BENCH_COMPILE_ONE_PROCESS") != "1")
 b = warm_up()
 import numpy as np
 from igi.common.codec import encode
@@ -295,6 +297,7 @@ def master_frame():  # the master's kernels: wire decode, filter + compose, accu
 m1, m2 = master_frame(), master_frame()
 print(json.dumps({"import_seconds": t1 - t0, "warm_up_seconds": a["seconds"],
                   "warm_up_again_seconds": b["seconds"], "kernels": a["kernels"], "cold": a["cold"],
+                  "parallel_compile": a["parallel"],
                   "master_first_frame_seconds": m1, "master_second_frame_seconds": m2}))
 """
 
@@ -315,8 +318,9 @@ def _startup_run(env: dict) -> dict:
     return res
 
 
-def startup() -> dict:
-    """Kernel cache-load and cold-compile time, each in a fresh process."""
+def startup(one_process: bool = False) -> dict:
+    """Kernel cache-load and cold-compile time, each in a fresh process (the cold compile with
+    its helper processes, and with ``one_process`` also without them)."""
     from .paths import REPO_ROOT
 
     env = dict(os.environ)
@@ -325,7 +329,11 @@ def startup() -> dict:
     cached = _startup_run(env)
     with tempfile.TemporaryDirectory(prefix="igi-numba-") as d:
         cold = _startup_run(dict(env, NUMBA_CACHE_DIR=d))
-    return {"cache_load": cached, "cold_compile": cold}
+    out = {"cache_load": cached, "cold_compile": cold}
+    if one_process:
+        with tempfile.TemporaryDirectory(prefix="igi-numba-") as d:
+            out["cold_compile_one_process"] = _startup_run(dict(env, NUMBA_CACHE_DIR=d, IGI_BENCH_COMPILE_ONE_PROCESS="1"))
+    return out
 
 
 def markdown(doc: dict) -> list[str]:
@@ -376,4 +384,11 @@ def markdown(doc: dict) -> list[str]:
                          f"kernels from numba's cache {c['kernels_seconds']:.2f} s, compiled from scratch "
                          f"{k['kernels_seconds']:.2f} s; the master's kernels {c['master_kernels_seconds']:.2f} s "
                          f"from the cache, {k['master_kernels_seconds']:.2f} s compiled.")
+            helpers = k.get("parallel_compile")
+            if helpers:
+                lines[-1] += f" The cold compile ran {helpers['processes']} helper processes ({helpers['seconds']:.1f} s)"
+                one = su.get("cold_compile_one_process")
+                if one and "error" not in one:
+                    lines[-1] += f"; in one process it took {one['kernels_seconds']:.2f} s"
+                lines[-1] += "."
     return lines
