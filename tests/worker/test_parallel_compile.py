@@ -23,8 +23,8 @@ def _cheap_entries(n: int) -> list[dict]:
 
 def test_the_list_holds_exactly_the_signatures_the_warm_up_compiles():
     """A fresh process (no other test's calls) warms up; its dispatchers' signatures, as JSON,
-    are the committed list's (regenerate with ``python -m igi.worker.kernels.parallel_compile
-    --write`` when a kernel's arguments change). Left out: the kernels the warm-up also calls
+    are the committed list's (regenerate with ``python -m igi.worker.kernels.warm
+    --record-signatures`` when a kernel's arguments change). Left out: the kernels the warm-up also calls
     directly when they have no signature of their own (on a warm cache those loaded inside
     their callers keep none, and the direct call's types need not be their callers')."""
     from igi.worker.kernels import warm

@@ -11,7 +11,7 @@ kernel at once) to one helper process per core, longest first (the greedy LPT sc
 each compiles into numba's on-disk cache, then the warm-up loads them all. A stale list costs
 only time: what it misses, the warm-up's render compiles as before.
 
-``python -m igi.worker.kernels.parallel_compile --write`` records the list anew (on a cold
+``python -m igi.worker.kernels.warm --record-signatures`` records the list anew (on a cold
 cache of its own); a test holds the committed list to what the warm-up compiles.
 """
 from __future__ import annotations
@@ -218,12 +218,12 @@ def compile_in_parallel(entries: list[dict], processes: int | None = None, timeo
 # recording
 
 
-def record() -> list[dict]:
-    """Run the warm-up on this process's (cold) cache, timing each kernel's own compile and
-    noting the kernels compiled inside it; returns the entries (sorted by kernel)."""
+def record(warm_up, kernel_dispatchers) -> list[dict]:
+    """Run ``warm_up()`` on this process's (cold) cache, timing each kernel's own compile and
+    noting the kernels compiled inside it; returns the entries of ``kernel_dispatchers()``'s
+    signatures (sorted by kernel). (worker.kernels.warm passes its own: this module must not
+    import it, warm imports this.)"""
     from numba.core import dispatcher
-
-    from .warm import kernel_dispatchers, warm_up
 
     own: dict[tuple, float] = {}
     inside: dict[tuple, list] = {}
@@ -266,26 +266,31 @@ def record() -> list[dict]:
             for k in keys]
 
 
+def write(warm_up, kernel_dispatchers, argv: list[str]) -> int:
+    """Record the list anew (:func:`record`) in a fresh process on a cold cache of its own, so
+    its seconds are compile times; ``argv``: the command that re-runs this in that process."""
+    if not os.environ.get("NUMBA_CACHE_DIR") or os.environ.get("IGI_RECORDING_CACHE") != os.environ["NUMBA_CACHE_DIR"]:
+        with tempfile.TemporaryDirectory() as cache:
+            env = dict(os.environ, NUMBA_CACHE_DIR=cache, IGI_RECORDING_CACHE=cache)
+            return subprocess.call([sys.executable, *argv], env=env)
+    import numba
+
+    entries = record(warm_up, kernel_dispatchers)
+    lines = ",\n".join(json.dumps(e, separators=(",", ":")) for e in entries)  # one kernel a line
+    MANIFEST.write_text(f'{{"numba": "{numba.__version__}", "signatures": [\n{lines}\n]}}\n')
+    print(f"wrote {MANIFEST} ({len(entries)} signatures, {sum(e['seconds'] for e in entries):.0f} s of compiles)")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
+    """The helpers' entry: ``--compile LIST.json``."""
     argv = sys.argv[1:] if argv is None else argv
-    if argv[:1] == ["--compile"]:
+    if argv[:1] == ["--compile"] and len(argv) == 2:
         for line in compile_entries(json.loads(Path(argv[1]).read_text())):
             print(f"error: {line}", flush=True)
         return 0
-    if argv[:1] == ["--write"]:
-        if os.environ.get("IGI_RECORDING_CACHE") != os.environ.get("NUMBA_CACHE_DIR") or not os.environ.get(
-                "NUMBA_CACHE_DIR"):
-            with tempfile.TemporaryDirectory() as cache:  # a cold cache of its own, so seconds are compile times
-                env = dict(os.environ, NUMBA_CACHE_DIR=cache, IGI_RECORDING_CACHE=cache)
-                return subprocess.call([sys.executable, "-m", _MODULE, *argv], env=env)
-        import numba
-
-        entries = record()
-        lines = ",\n".join(json.dumps(e, separators=(",", ":")) for e in entries)  # one kernel a line
-        MANIFEST.write_text(f'{{"numba": "{numba.__version__}", "signatures": [\n{lines}\n]}}\n')
-        print(f"wrote {MANIFEST} ({len(entries)} signatures, {sum(e['seconds'] for e in entries):.0f} s of compiles)")
-        return 0
-    print("usage: python -m igi.worker.kernels.parallel_compile --write | --compile LIST.json", file=sys.stderr)
+    print("usage: python -m igi.worker.kernels.parallel_compile --compile LIST.json "
+          "(record the list with python -m igi.worker.kernels.warm --record-signatures)", file=sys.stderr)
     return 2
 
 

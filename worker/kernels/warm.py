@@ -361,3 +361,25 @@ def warm_up_before_hello(log) -> None:
             log.warning("parallel kernel compile: %s", line)
     log.info("kernels ready in %.2f s (%d compiled kernels, loaded from numba's cache or compiled)",
              res["seconds"], res["kernels"])
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``--record-signatures``: write kernel_signatures.json anew (parallel_compile.write);
+    with no argument, warm up and print what it did."""
+    import sys
+
+    from . import parallel_compile
+
+    argv = sys.argv[1:] if argv is None else argv
+    if argv == ["--record-signatures"]:
+        return parallel_compile.write(lambda: warm_up(parallel=False), kernel_dispatchers,
+                                      ["-m", "igi.worker.kernels.warm", *argv])
+    if argv:
+        print("usage: python -m igi.worker.kernels.warm [--record-signatures]", file=sys.stderr)
+        return 2
+    print(warm_up())
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
