@@ -279,6 +279,11 @@ def compiled_before() -> bool | None:
     return not missing(entries)
 
 
+# Helpers of a cold compile: past ~6 the longest group of kernels (trace_eye's, ~70 s of 250)
+# bounds the time, and each helper holds ~400 MB while it compiles.
+MAX_COMPILE_HELPERS = 8
+
+
 def compile_cold_kernels(processes: int | None = None) -> dict | None:
     """On a cold (or partly cold) cache, compile the listed kernels not yet cached in one helper
     process per core (worker.kernels.parallel_compile); None where there is nothing to gain
@@ -289,7 +294,7 @@ def compile_cold_kernels(processes: int | None = None) -> dict | None:
 
     keep_true()  # stale caches go before they are counted (and before the helpers start)
     todo = missing(load_manifest())
-    processes = processes or usable_cores()
+    processes = processes or min(usable_cores(), MAX_COMPILE_HELPERS)
     if processes < 2 or sum(e.get("seconds", 0.0) for e in todo) < 10.0:
         return None
     return compile_in_parallel(todo, processes)
