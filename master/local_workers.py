@@ -76,12 +76,13 @@ FIRST_RUN_HELLO_TIMEOUT = 900.0  # ... on a machine whose kernels are not compil
 
 def wait_workers(broker, workers: LocalWorkers, count: int, timeout: float | None = None) -> None:
     """Until ``count`` workers have joined; a worker that exits first, or ``timeout`` s (None:
-    HELLO_TIMEOUT, or FIRST_RUN_HELLO_TIMEOUT while the kernels have never been compiled here —
+    HELLO_TIMEOUT, or FIRST_RUN_HELLO_TIMEOUT unless the kernels are known compiled here —
     every worker compiles them before its HELLO), is a :class:`UsageError`."""
     if timeout is None:
         from igi.worker.kernels.warm import compiled_before
 
-        timeout = FIRST_RUN_HELLO_TIMEOUT if compiled_before() is False else HELLO_TIMEOUT
+        # (None: cannot be told, as for a read-only install; a dead worker is still seen at once)
+        timeout = FIRST_RUN_HELLO_TIMEOUT if compiled_before() is not True else HELLO_TIMEOUT
     deadline = time.monotonic() + timeout
     while not broker.wait_for_workers(count, 0.2):
         workers.check()

@@ -37,3 +37,28 @@ def test_every_worker_dying_mid_render_cancels_the_frames_and_stops_everything()
             cluster.broker.render_sequence({"photons": 0}, frames=10_000, width=16, height=16, timeout=60)
         assert cluster.all_exited.is_set()
     assert all(p.poll() is not None for p in procs)
+
+
+@pytest.mark.parametrize("compiled, expect", [(True, "in 0 s"), (False, "in 1 s"), (None, "in 1 s")])
+def test_workers_get_the_first_runs_time_unless_the_kernels_are_known_compiled(monkeypatch, compiled, expect):
+    """Local workers compile the kernels before their HELLO on a cold cache: the master waits
+    FIRST_RUN_HELLO_TIMEOUT for them unless compiled_before() says True (None — cannot be told,
+    as for a read-only install — waits the long time too; a dead worker is seen at once)."""
+    from igi.worker.kernels import warm
+
+    class NoOne:
+        def wait_for_workers(self, count, timeout):
+            return False
+
+        def workers(self):
+            return []
+
+    class Alive:
+        def check(self):
+            pass
+
+    monkeypatch.setattr(warm, "compiled_before", lambda: compiled)
+    monkeypatch.setattr(local_workers, "HELLO_TIMEOUT", 0.2)
+    monkeypatch.setattr(local_workers, "FIRST_RUN_HELLO_TIMEOUT", 1.2)
+    with pytest.raises(UsageError, match=f"only 0 of 1 local workers connected {expect}"):
+        local_workers.wait_workers(NoOne(), Alive(), 1)

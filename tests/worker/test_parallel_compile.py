@@ -148,3 +148,20 @@ def test_a_cold_warm_up_compiles_in_parallel_only_with_cores_and_work(monkeypatc
     assert calls == [(len(pc.load_manifest()), 2)]
     monkeypatch.setattr(pc, "missing", lambda entries: [])  # a warm cache
     assert warm.compile_cold_kernels(2) is None
+
+
+def test_a_cache_numba_keeps_elsewhere_is_not_guessed(monkeypatch):
+    """An install whose kernel folders cannot be written (read-only site-packages): numba caches
+    in a folder of its own choosing, so whether the kernels were compiled cannot be told; the
+    warm-up then starts no helpers and compiled_before() says None (the master waits the
+    first run's time for its workers)."""
+    from igi.worker.kernels import warm
+
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    entries = pc.load_manifest()
+    assert pc.cache_located(entries)  # this checkout: __pycache__ beside the sources
+    monkeypatch.setattr(os, "access", lambda path, mode: False)
+    assert not pc.cache_located(entries)
+    assert warm.compiled_before() is None
+    monkeypatch.setattr(pc, "compile_in_parallel", lambda *a: pytest.fail("helpers started on an unseen cache"))
+    assert warm.compile_cold_kernels(2) is None

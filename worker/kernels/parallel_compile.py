@@ -104,6 +104,30 @@ def _cache_dirs(source: str) -> list[str]:
     return [os.path.join(folder, "__pycache__")]
 
 
+def cache_located(entries: list[dict]) -> bool:
+    """Can :func:`missing` see numba's cache: NUMBA_CACHE_DIR set, or every kernel folder's
+    ``__pycache__`` writable (else numba caches in a per-user folder of its own choosing, as
+    for an install in a read-only site-packages)."""
+    import importlib.util
+
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return True
+    folders = set()
+    for e in entries:
+        try:
+            spec = importlib.util.find_spec(e["kernel"].rsplit(".", 1)[0])
+        except (ImportError, ValueError):
+            return False
+        if spec is None or not spec.origin:
+            return False
+        folders.add(os.path.dirname(os.path.abspath(spec.origin)))
+    for folder in folders:
+        cache = os.path.join(folder, "__pycache__")
+        if not os.access(cache if os.path.isdir(cache) else folder, os.W_OK):
+            return False
+    return True
+
+
 def missing(entries: list[dict]) -> list[dict]:
     """The entries whose kernel has no fresh index in numba's cache (``<module>.<kernel>-<line>
     .py<ver>.nbi`` written after the source was last changed): checked without importing numba

@@ -267,13 +267,13 @@ def compiled_before() -> bool | None:
     """Has this machine compiled igi's kernels (a fresh index in numba's on-disk cache for each
     kernel of worker/kernels/kernel_signatures.json)? Checked without importing numba or the
     kernels, so the master can say why a first run waits. None when that cannot be told (the
-    list is missing)."""
+    list is missing, or numba caches in a folder of its own choosing)."""
     from igi.common.kernel_cache import keep_true
 
-    from .parallel_compile import load_manifest, missing
+    from .parallel_compile import cache_located, load_manifest, missing
 
     entries = load_manifest()
-    if not entries:
+    if not entries or not cache_located(entries):
         return None
     keep_true()  # (caches of kernels whose imported modules changed are dropped first)
     return not missing(entries)
@@ -287,13 +287,16 @@ MAX_COMPILE_HELPERS = 8
 def compile_cold_kernels(processes: int | None = None) -> dict | None:
     """On a cold (or partly cold) cache, compile the listed kernels not yet cached in one helper
     process per core (worker.kernels.parallel_compile); None where there is nothing to gain
-    (cache warm, one core, no list)."""
+    (cache warm, one core, no list, a cache numba keeps where it cannot be seen)."""
     from igi.common.kernel_cache import keep_true
 
-    from .parallel_compile import compile_in_parallel, load_manifest, missing, usable_cores
+    from .parallel_compile import cache_located, compile_in_parallel, load_manifest, missing, usable_cores
 
+    entries = load_manifest()
+    if not entries or not cache_located(entries):
+        return None
     keep_true()  # stale caches go before they are counted (and before the helpers start)
-    todo = missing(load_manifest())
+    todo = missing(entries)
     processes = processes or min(usable_cores(), MAX_COMPILE_HELPERS)
     if processes < 2 or sum(e.get("seconds", 0.0) for e in todo) < 10.0:
         return None
