@@ -165,3 +165,15 @@ def test_a_cache_numba_keeps_elsewhere_is_not_guessed(monkeypatch):
     assert warm.compiled_before() is None
     monkeypatch.setattr(pc, "compile_in_parallel", lambda *a: pytest.fail("helpers started on an unseen cache"))
     assert warm.compile_cold_kernels(2) is None
+
+
+def test_a_partly_cold_cache_groups_the_missing_kernels_by_their_places_in_the_list():
+    """missing() returns a subset of the list; ``inside`` names callees by their place in the
+    whole list, so a subset's groups still join a caller with its own callees only."""
+    entries = [dict(e, index=i) for i, e in enumerate([_entry("a", 5.0, inside=[2]), _entry("b", 1.0),
+                                                       _entry("c", 1.0, depth=1), _entry("d", 1.0, inside=[1])])]
+    subset = [entries[0], entries[2], entries[3]]  # b is cached already
+    names = sorted(sorted(e["kernel"] for e in g) for g in pc.groups(subset))
+    assert names == [["a", "c"], ["d"]]
+    assert all(e["index"] == i for i, e in enumerate(pc.load_manifest()))
+

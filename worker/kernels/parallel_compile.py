@@ -81,7 +81,8 @@ def load_manifest(path: Path | None = None) -> list[dict]:
     parallel and the warm-up compiles as before)."""
     try:
         data = json.loads(Path(path or MANIFEST).read_text())
-        return list(data["signatures"])
+        # (each entry keeps its place in the list: ``inside`` names its callees by it)
+        return [dict(e, index=i) for i, e in enumerate(data["signatures"])]
     except (OSError, ValueError, KeyError, TypeError):
         return []
 
@@ -160,6 +161,7 @@ def groups(entries: list[dict]) -> list[list[dict]]:
     group ordered callees first: one process compiles a group, so no kernel is compiled by two
     processes at once and a caller finds its callees in the cache."""
     parent = list(range(len(entries)))
+    at = {e.get("index", i): i for i, e in enumerate(entries)}  # list place -> place here (a subset: missing())
 
     def find(i: int) -> int:
         while parent[i] != i:
@@ -168,8 +170,9 @@ def groups(entries: list[dict]) -> list[list[dict]]:
         return i
 
     for i, e in enumerate(entries):
-        for j in e.get("inside", []):
-            if 0 <= j < len(entries):
+        for callee in e.get("inside", []):
+            j = at.get(callee)
+            if j is not None:
                 parent[find(j)] = find(i)
     out: dict[int, list[dict]] = {}
     for i, e in enumerate(entries):
