@@ -92,7 +92,24 @@ def _dispatcher(name: str):
     return getattr(importlib.import_module(module), attr)
 
 
-def _cache_dirs(source: str) -> list[str]:
+def _sources(entries: list[dict]) -> dict[str, str | None]:
+    """Module -> its source file (None where it cannot be found), for the entries' kernels:
+    found without importing them."""
+    import importlib.util
+
+    out: dict[str, str | None] = {}
+    for e in entries:
+        module = e["kernel"].rsplit(".", 1)[0]
+        if module not in out:
+            try:
+                spec = importlib.util.find_spec(module)
+            except (ImportError, ValueError):
+                spec = None
+            out[module] = spec.origin if spec is not None and spec.origin else None
+    return out
+
+
+def _cache_dir(source: str) -> str:
     """Where numba keeps the cache of the kernels of ``source``: ``__pycache__`` beside it, or
     with NUMBA_CACHE_DIR set, ``<dir>/<parent folder>_<sha1 of the folder>`` (numba's
     UserProvidedCacheLocator)."""
@@ -101,28 +118,20 @@ def _cache_dirs(source: str) -> list[str]:
     folder = os.path.dirname(os.path.abspath(source))
     user = os.environ.get("NUMBA_CACHE_DIR")
     if user:
-        return [os.path.join(user, f"{os.path.basename(folder)}_{hashlib.sha1(folder.encode()).hexdigest()}")]
-    return [os.path.join(folder, "__pycache__")]
+        return os.path.join(user, f"{os.path.basename(folder)}_{hashlib.sha1(folder.encode()).hexdigest()}")
+    return os.path.join(folder, "__pycache__")
 
 
 def cache_located(entries: list[dict]) -> bool:
     """Can :func:`missing` see numba's cache: NUMBA_CACHE_DIR set, or every kernel folder's
     ``__pycache__`` writable (else numba caches in a per-user folder of its own choosing, as
     for an install in a read-only site-packages)."""
-    import importlib.util
-
     if os.environ.get("NUMBA_CACHE_DIR"):
         return True
-    folders = set()
-    for e in entries:
-        try:
-            spec = importlib.util.find_spec(e["kernel"].rsplit(".", 1)[0])
-        except (ImportError, ValueError):
-            return False
-        if spec is None or not spec.origin:
-            return False
-        folders.add(os.path.dirname(os.path.abspath(spec.origin)))
-    for folder in folders:
+    sources = _sources(entries).values()
+    if None in sources:
+        return False
+    for folder in {os.path.dirname(os.path.abspath(src)) for src in sources}:
         cache = os.path.join(folder, "__pycache__")
         if not os.access(cache if os.path.isdir(cache) else folder, os.W_OK):
             return False
@@ -134,24 +143,19 @@ def missing(entries: list[dict]) -> list[dict]:
     .py<ver>.nbi`` written after the source was last changed): checked without importing numba
     or the kernels. An index may hold other signatures than the entry's: that costs the
     warm-up a compile, never a wrong answer."""
-    import importlib.util
-
     tag = f"py{sys.version_info.major}{sys.version_info.minor}"
+    sources = _sources(entries)
     out = []
     for e in entries:
         module, attr = e["kernel"].rsplit(".", 1)
-        try:
-            spec = importlib.util.find_spec(module)
-        except (ImportError, ValueError):
-            spec = None
-        if spec is None or not spec.origin:
+        src = sources[module]
+        if src is None:
             out.append(e)
             continue
-        stem = os.path.basename(spec.origin).rsplit(".", 1)[0]
-        changed = os.stat(spec.origin).st_mtime
-        fresh = [p for d in _cache_dirs(spec.origin) for p in glob.glob(os.path.join(d, f"{stem}.{attr}-*.{tag}.nbi"))
-                 if os.stat(p).st_mtime >= changed]
-        if not fresh:
+        stem = os.path.basename(src).rsplit(".", 1)[0]
+        changed = os.stat(src).st_mtime
+        if not [p for p in glob.glob(os.path.join(_cache_dir(src), f"{stem}.{attr}-*.{tag}.nbi"))
+                if os.stat(p).st_mtime >= changed]:
             out.append(e)
     return out
 

@@ -268,6 +268,13 @@ def compiled_before() -> bool | None:
     kernel of worker/kernels/kernel_signatures.json)? Checked without importing numba or the
     kernels, so the master can say why a first run waits. None when that cannot be told (the
     list is missing, or numba caches in a folder of its own choosing)."""
+    todo = _uncached()
+    return None if todo is None else not todo
+
+
+def _uncached() -> list[dict] | None:
+    """The listed kernels without a fresh index in numba's cache; None when that cannot be told
+    (no list, or a cache numba keeps where it cannot be seen)."""
     from igi.common.kernel_cache import keep_true
 
     from .parallel_compile import cache_located, load_manifest, missing
@@ -275,8 +282,8 @@ def compiled_before() -> bool | None:
     entries = load_manifest()
     if not entries or not cache_located(entries):
         return None
-    keep_true()  # (caches of kernels whose imported modules changed are dropped first)
-    return not missing(entries)
+    keep_true()  # stale caches go before they are counted (caches of kernels whose imports changed)
+    return missing(entries)
 
 
 # Helpers of a cold compile: past ~6 the longest group of kernels (trace_eye's, ~70 s of 250)
@@ -288,17 +295,11 @@ def compile_cold_kernels(processes: int | None = None) -> dict | None:
     """On a cold (or partly cold) cache, compile the listed kernels not yet cached in one helper
     process per core (worker.kernels.parallel_compile); None where there is nothing to gain
     (cache warm, one core, no list, a cache numba keeps where it cannot be seen)."""
-    from igi.common.kernel_cache import keep_true
+    from .parallel_compile import compile_in_parallel, usable_cores
 
-    from .parallel_compile import cache_located, compile_in_parallel, load_manifest, missing, usable_cores
-
-    entries = load_manifest()
-    if not entries or not cache_located(entries):
-        return None
-    keep_true()  # stale caches go before they are counted (and before the helpers start)
-    todo = missing(entries)
+    todo = _uncached()
     processes = processes or min(usable_cores(), MAX_COMPILE_HELPERS)
-    if processes < 2 or sum(e.get("seconds", 0.0) for e in todo) < 10.0:
+    if todo is None or processes < 2 or sum(e.get("seconds", 0.0) for e in todo) < 10.0:
         return None
     return compile_in_parallel(todo, processes)
 
