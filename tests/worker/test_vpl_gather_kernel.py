@@ -162,7 +162,7 @@ def test_shadow_roulette_keeps_the_big_pairs_and_counts_a_kept_small_one_at_the_
     kept = []
     for seed in range(200):
         sw = np.stack([np.full(6, 7.0, np.float32), w])  # row 1 of a staged block
-        vg.roulette_row(sw, 1, 6, 0, 5, total, lum, 0.5, seed, 7)
+        vg.roulette_row(sw, 1, 6, 0, 5, total, lum, 0.5, seed, 7, vg.column_keys(6))
         assert np.all(sw[0] == 7.0)  # other rows untouched
         row = sw[1]
         assert row[0] == np.float32(10.0) and row[2] == vg._NO_RAY  # the big pair; no pair
@@ -171,7 +171,7 @@ def test_shadow_roulette_keeps_the_big_pairs_and_counts_a_kept_small_one_at_the_
         kept.append(int(np.sum(small >= 0)))
         # the same draws in any block position: a pair's uniform is its (row, column)'s
         again = w[None].copy()
-        vg.roulette_row(again, 0, 6, 0, 5, total, lum, 0.5, seed, 7)
+        vg.roulette_row(again, 0, 6, 0, 5, total, lum, 0.5, seed, 7, vg.column_keys(6))
         np.testing.assert_array_equal(again[0], row)
     # each small pair survives with p = 0.1 / threshold
     assert np.mean(kept) / 4 == pytest.approx(0.1 / threshold, abs=0.05)
@@ -186,7 +186,7 @@ def test_shadow_roulette_keeps_a_row_of_no_or_negative_light_as_it_is():
         w = np.array([[0.5, 0.2, 0.1]], np.float32)
         total = float(np.sum(w[0].astype(np.float64) * lum))
         sw = w.copy()
-        vg.roulette_row(sw, 0, 3, 0, 3, total, lum, 1.0, 5, 0)
+        vg.roulette_row(sw, 0, 3, 0, 3, total, lum, 1.0, 5, 0, vg.column_keys(3))
         np.testing.assert_array_equal(sw, w)
 
 

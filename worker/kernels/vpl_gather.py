@@ -196,14 +196,15 @@ _NO_RAY = np.float32(-1.0)  # a staged pair that traces no ray (dead, or dropped
 def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi,
            vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf,
            area, direct_count, lum, fraction, seed, base, planes, col_out, sw, spl, so, sin, vx, vy, vz, wx, wy,
-           wz) -> None:
+           wz, vd, col_keys) -> None:
     """Weigh the pairs of rows [b0, b0 + nb) (the arguments as :func:`pair_weights` takes
     them): sw[b, a] the weight of row b0 + b with column col_lo + a (_NO_RAY: no pair), spl the
     MIS light pdf of glossy-row pairs, so the row's offset shadow-ray origin, sin whether it
     lies on the inner side of the supporting ``planes`` (:func:`interior_origin`). Lambertian and
-    plastic-layer rows then go through :func:`roulette_row` (``fraction`` > 0). vx … wz: the
-    columns' positions and normals per coordinate (:func:`_columns_soa`; empty: every row
-    weighed pair by pair), for the Lambertian rows' branch-free loop."""
+    plastic-layer rows then go through :func:`roulette_row` (``fraction`` > 0; ``col_keys``: the
+    columns' :func:`column_key`). vx … wz, vd: the columns' positions and normals per coordinate
+    and their depths as int32 (:func:`_columns_soa`; empty: every row weighed pair by pair), for
+    the Lambertian rows' branch-free loop."""
     n_tab = tables.shape[1]
     f1e30 = np.float32(1e-30)
     f1e7 = np.float32(1e-7)
@@ -231,6 +232,8 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
         sin[b] = interior_origin(planes, so[b, 0], so[b, 1], so[b, 2])
         q = 0
         total = 0.0
+        # (int32 as vd: 64-bit lanes would halve the loop's SIMD width; depths are far below 2^30)
+        lim32 = np.int32(min(max(lim, -1), 1 << 30))
         if r == ROW_LAMBERT and vector:
             # The common row, branch-free so the compiler runs it in SIMD lanes: every candidate
             # weighed in full, the dead ones marked after (the same float32 operations as below
@@ -256,7 +259,7 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
                 v = em * recv
                 q2 = pl * pl + recv * recv
                 v = v * (pl * pl / (f1e30 if f1e30 > q2 else q2)) if mis[j] else v
-                live = (vdepth[j] <= lim) & (dot_x * s > zero) & (em > zero) & (v > zero) & (v < inf32)
+                live = (vd[j] <= lim32) & (dot_x * s > zero) & (em > zero) & (v > zero) & (v < inf32)
                 sw[b, a] = v if live else _NO_RAY
             for a in range(width):
                 w = sw[b, a]
@@ -308,37 +311,42 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
             sw[b, a] = w
         # Glossy rows always trace (their own lobe can make any pair large).
         if q > 0 and fraction > 0.0 and (r == ROW_LAMBERT or r == ROW_LAYER):
-            roulette_row(sw, b, width, lo, q, total, lum, fraction, seed, base + i)
+            roulette_row(sw, b, width, lo, q, total, lum, fraction, seed, base + i, col_keys)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _columns_soa(vpos, vnormal, spot_cutoff):
-    """The columns' positions and normals one coordinate per array, for :func:`_stage`'s
-    branch-free rows; empty where a column is a spot (its falloff is weighed pair by pair)."""
+def _columns_soa(vpos, vnormal, spot_cutoff, vdepth):
+    """The columns' positions and normals one coordinate per array and their depths as int32
+    (at most 2^30), for :func:`_stage`'s branch-free rows; empty where a column is a spot (its
+    falloff is weighed pair by pair)."""
     m = vpos.shape[0]
     for j in range(m):
         if spot_cutoff[j] >= 0.0:
             m = 0
     out = (np.empty(m, np.float32), np.empty(m, np.float32), np.empty(m, np.float32), np.empty(m, np.float32),
            np.empty(m, np.float32), np.empty(m, np.float32))
+    depth = np.empty(m, np.int32)
     for j in range(m):
         for c in range(3):
             out[c][j] = vpos[j, c]
             out[3 + c][j] = vnormal[j, c]
-    return out
+        depth[j] = np.int32(min(vdepth[j], 1 << 30))
+    return out[0], out[1], out[2], out[3], out[4], out[5], depth
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _staging(n, col_lo, col_hi, vpos, vnormal, spot_cutoff):
+def _staging(n, col_lo, col_hi, vpos, vnormal, spot_cutoff, vdepth):
     """The staging of :func:`_stage` for blocks of up to BLOCK of the n rows: (rows a block
-    holds, (weights, light pdfs, origins, the columns' coordinates))."""
+    holds, (weights, light pdfs, origins, the columns' coordinates and depths, their roulette
+    keys))."""
     width = 0
     for i in range(n):
         width = max(width, col_hi[i] - col_lo[i])
     rows = max(1, min(BLOCK, n))
-    vx, vy, vz, wx, wy, wz = _columns_soa(vpos, vnormal, spot_cutoff)
+    vx, vy, vz, wx, wy, wz, vd = _columns_soa(vpos, vnormal, spot_cutoff, vdepth)
     return rows, (np.empty((rows, width), np.float32), np.empty((rows, width), np.float32),
-                  np.empty((rows, 3), np.float32), np.empty(rows, np.bool_), vx, vy, vz, wx, wy, wz)
+                  np.empty((rows, 3), np.float32), np.empty(rows, np.bool_), vx, vy, vz, wx, wy, wz, vd,
+                  column_keys(vpos.shape[0]))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -351,10 +359,11 @@ def _weigh(b0, nb, weighed, staging) -> None:
      direct_count) = columns
     lum, fraction, seed, base = roulette
     planes, col_out = cull
-    sw, spl, so, sin, vx, vy, vz, wx, wy, wz = staging
+    sw, spl, so, sin, vx, vy, vz, wx, wy, wz, vd, col_keys = staging
     _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi, vpos, vnormal,
            directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf, area,
-           direct_count, lum, fraction, seed, base, planes, col_out, sw, spl, so, sin, vx, vy, vz, wx, wy, wz)
+           direct_count, lum, fraction, seed, base, planes, col_out, sw, spl, so, sin, vx, vy, vz, wx, wy, wz, vd,
+           col_keys)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -380,7 +389,7 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
     :func:`interior_origin`, :func:`interior_column`).
     """
     n = x.shape[0]
-    rows_per_block, staging = _staging(n, col_lo, col_hi, vpos, vnormal, spot_cutoff)
+    rows_per_block, staging = _staging(n, col_lo, col_hi, vpos, vnormal, spot_cutoff, vdepth)
     sw, spl, so, sin = staging[0], staging[1], staging[2], staging[3]
     weighed = ((x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi),
                (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis,
@@ -430,7 +439,7 @@ def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
     glossy_col, P_vpl, vpl_row, vwi, vnormal), applied to each block's unoccluded pairs
     before they are summed."""
     n = x.shape[0]
-    rows_per_block, staging = _staging(n, col_lo, col_hi, vpos, vnormal, spot_cutoff)
+    rows_per_block, staging = _staging(n, col_lo, col_hi, vpos, vnormal, spot_cutoff, vdepth)
     sw, spl, so, sin = staging[0], staging[1], staging[2], staging[3]
     weighed = ((x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi),
                (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis,
@@ -591,15 +600,36 @@ _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _MIX_J = np.uint64(0xC2B2AE3D27D4EB4F)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def row_key(seed, i):
+    """Row i's share of its pairs' key under ``seed`` (:func:`pair_uniform`)."""
+    return np.uint64(seed) ^ (np.uint64(i) * _GOLDEN)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def column_key(j):
+    """Column j's share of its pairs' key (:func:`pair_uniform`)."""
+    return np.uint64(j) * _MIX_J
+
+
+@njit(cache=True, nogil=True, inline="always")
+def column_keys(m):
+    """The :func:`column_key` of columns 0 … m-1 (uint64 (m,)), as roulette_row takes them."""
+    out = np.empty(m, np.uint64)
+    for j in range(m):
+        out[j] = column_key(j)
+    return out
+
+
 @njit(cache=True, nogil=True)
 def pair_uniform(seed, i, j):
     """A uniform in [0, 1) for pair (i, j) under ``seed`` (splitmix64 of the three): the same
     in every thread and process, no generator state."""
-    return unit(mix64(np.uint64(seed) ^ (np.uint64(i) * _GOLDEN) ^ (np.uint64(j) * _MIX_J)))
+    return unit(mix64(row_key(seed, i) ^ column_key(j)))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def roulette_row(sw, b, width, lo, q, total, lum, fraction, seed, row_id) -> None:
+def roulette_row(sw, b, width, lo, q, total, lum, fraction, seed, row_id, col_keys) -> None:
     """Russian roulette on the shadow rays of one row's weighed pairs, in place: sw[b, a] the
     weight of its pair with column lo + a (_NO_RAY: none), ``q`` of them live, ``total`` =
     Σ weight · lum[column].
@@ -610,22 +640,22 @@ def roulette_row(sw, b, width, lo, q, total, lum, fraction, seed, row_id) -> Non
     at most fraction · mean · Σc); a dropped pair becomes _NO_RAY. A glossy column's lum[j] is a
     guess (a Lambertian sender of its albedo): its true light, applied later by its BSDF factor,
     only makes p less apt, never the estimate biased. Pair (row, j) draws
-    pair_uniform(seed, row_id, j). A row of no light (or of negative luminance) has no
-    threshold: every pair is kept as it is."""
+    pair_uniform(seed, row_id, j) (``col_keys``: every column's :func:`column_key`). A row of no
+    light (or of negative luminance) has no threshold: every pair is kept as it is."""
     threshold = fraction * total / q
     if not threshold > 0.0:
         return
+    # Branch-free, so the compiler runs it in SIMD lanes (half the weighing's time was this
+    # loop's branches): every pair's draw made, its new weight selected after.
+    key = row_key(seed, row_id)
     for a in range(width):
         w = sw[b, a]
-        if w < 0.0:
-            continue
         j = lo + a
         c = np.float64(w) * lum[j]
-        if c < threshold:
-            if pair_uniform(seed, row_id, j) * threshold >= c:
-                sw[b, a] = _NO_RAY
-            else:
-                sw[b, a] = np.float32(threshold / lum[j])  # c / p
+        u = unit(mix64(key ^ col_keys[j]))
+        small = (w >= 0.0) & (c < threshold)  # (a dead pair, w < 0, stays as it is)
+        kept = _NO_RAY if u * threshold >= c else np.float32(threshold / lum[j])  # c / p
+        sw[b, a] = kept if small else w
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -86,10 +86,11 @@ def scored_draws(x, ns, ng, off, side, row, vmax,
         rows = max(rows, r1 - r0)
         width_max = max(width_max, col_hi[r0] - col_lo[r0])
         r0 = r1
-    vx, vy, vz, wx, wy, wz = vg._columns_soa(vpos, vnormal, spot_cutoff)
+    vx, vy, vz, wx, wy, wz, vd = vg._columns_soa(vpos, vnormal, spot_cutoff, vdepth)
     sw = np.empty((rows, width_max), np.float32)
     spl = np.empty((rows, width_max), np.float32)
-    staging = (sw, spl, np.empty((rows, 3), np.float32), np.empty(rows, np.bool_), vx, vy, vz, wx, wy, wz)
+    staging = (sw, spl, np.empty((rows, 3), np.float32), np.empty(rows, np.bool_), vx, vy, vz, wx, wy, wz, vd,
+               vg.column_keys(m))
     # (roulette arguments typed, not literal: see worker.kernels.eye_paths — a literal would
     # compile _stage once more; no culling planes: the scoring's rays are the caller's,
     # vpl_gather.pair_rays)

@@ -209,7 +209,8 @@ def _stage_call(vpl_gather) -> None:
     staging = np.zeros((1, 0), np.float32)
     vpl_gather._stage(0, 0, *a[0:7], *a[20:25], *a[7:20], a[25], 0.0, 0, 0, np.zeros((0, 4), np.float32),
                       np.zeros(1, np.int64), staging, staging.copy(), np.zeros((1, 3), np.float32),
-                      np.zeros(1, np.bool_), *(np.zeros(0, np.float32) for _ in range(6)))
+                      np.zeros(1, np.bool_), *(np.zeros(0, np.float32) for _ in range(6)), np.zeros(0, np.int32),
+                      np.zeros(0, np.uint64))
 
 
 def _pair_weights_call(vpl_gather) -> None:
