@@ -42,6 +42,17 @@ def pytest_sessionstart(session):
             warm_up()
 
 
+# Run first: its own install and cold kernel compile take minutes on one process; collected in
+# name order it started late in a CI run and was its last test, the other worker idle beside it.
+_FIRST = ("test_fresh_clone.py",)
+
+
+def pytest_collection_modifyitems(session, config, items):
+    """The long single tests (_FIRST) go to the front of the run (xdist's loadfile hands files
+    out in collection order; every worker collects the same order)."""
+    items.sort(key=lambda item: item.path.name not in _FIRST)  # stable: the rest keep their order
+
+
 def pytest_report_header(config):
     if not SHARED.is_dir():
         return (f"NOTE: the shared test set (scenes and Mitsuba references) is not at {SHARED}; "
