@@ -42,15 +42,26 @@ def pytest_sessionstart(session):
             warm_up()
 
 
-# Run first: its own install and cold kernel compile take minutes on one process; collected in
-# name order it started late in a CI run and was its last test, the other worker idle beside it.
+# Run first: its own install and cold kernel compile take minutes in one test. xdist's loadfile
+# hands out the files with the most tests first, so this one-test file ran last, alone, the
+# other worker idle beside it for minutes at the end of every CI run.
 _FIRST = ("test_fresh_clone.py",)
 
 
+def pytest_configure(config):
+    """The run's file order is the collection's (pytest_collection_modifyitems), not xdist's
+    reordering by test count."""
+    if hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
+
+
 def pytest_collection_modifyitems(session, config, items):
-    """The long single tests (_FIRST) go to the front of the run (xdist's loadfile hands files
-    out in collection order; every worker collects the same order)."""
-    items.sort(key=lambda item: item.path.name not in _FIRST)  # stable: the rest keep their order
+    """Files in the order xdist would take them (most tests first), the long single tests
+    (_FIRST) before all; each file's tests keep their order. Every worker collects the same."""
+    count: dict = {}
+    for item in items:
+        count[item.path] = count.get(item.path, 0) + 1
+    items.sort(key=lambda item: (item.path.name not in _FIRST, -count[item.path]))  # stable
 
 
 def pytest_report_header(config):
