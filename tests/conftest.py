@@ -3,6 +3,7 @@ always test this tree. Tests are packages (tests/common/, tests/worker/, tests/m
 tests/bench/, tests/cluster/), imported by pytest as ``tests.<folder>.<file>``; their helpers
 are in tests/support/ (``from tests.support.paths import SHARED``)."""
 import sys
+from collections import Counter
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -58,9 +59,7 @@ def pytest_configure(config):
 def pytest_collection_modifyitems(session, config, items):
     """Files in the order xdist would take them (most tests first), the long single tests
     (_FIRST) before all; each file's tests keep their order. Every worker collects the same."""
-    count: dict = {}
-    for item in items:
-        count[item.path] = count.get(item.path, 0) + 1
+    count = Counter(item.path for item in items)
     items.sort(key=lambda item: (item.path.name not in _FIRST, -count[item.path]))  # stable
 
 

@@ -188,6 +188,9 @@ def pair_rays(x, ng, off, vpos, vnormal, directional, eps2, pi, pj, out_o, out_d
 # coherent packets, 12% less time than row by row on cornell-box-sphere).
 BLOCK = 256
 _NO_RAY = np.float32(-1.0)  # a staged pair that traces no ray (dead, or dropped by the roulette)
+# Depths (light-path segments) past this compare as this in the int32 depth test (_columns_soa,
+# _stage): real ones are far below it.
+_DEPTH_CAP = 1 << 30
 
 
 # No reference counting (_nrt=False, as pair_factors): what it inlines takes the columns'
@@ -232,8 +235,8 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
         sin[b] = interior_origin(planes, so[b, 0], so[b, 1], so[b, 2])
         q = 0
         total = 0.0
-        # (int32 as vd: 64-bit lanes would halve the loop's SIMD width; depths are far below 2^30)
-        lim32 = np.int32(min(max(lim, -1), 1 << 30))
+        # (int32 as vd: 64-bit lanes would halve the loop's SIMD width)
+        lim32 = np.int32(min(max(lim, -1), _DEPTH_CAP))
         if r == ROW_LAMBERT and vector:
             # The common row, branch-free so the compiler runs it in SIMD lanes: every candidate
             # weighed in full, the dead ones marked after (the same float32 operations as below
@@ -317,7 +320,7 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _columns_soa(vpos, vnormal, spot_cutoff, vdepth):
     """The columns' positions and normals one coordinate per array and their depths as int32
-    (at most 2^30), for :func:`_stage`'s branch-free rows; empty where a column is a spot (its
+    (at most _DEPTH_CAP), for :func:`_stage`'s branch-free rows; empty where a column is a spot (its
     falloff is weighed pair by pair)."""
     m = vpos.shape[0]
     for j in range(m):
@@ -330,7 +333,7 @@ def _columns_soa(vpos, vnormal, spot_cutoff, vdepth):
         for c in range(3):
             out[c][j] = vpos[j, c]
             out[3 + c][j] = vnormal[j, c]
-        depth[j] = np.int32(min(vdepth[j], 1 << 30))
+        depth[j] = np.int32(min(vdepth[j], _DEPTH_CAP))
     return out[0], out[1], out[2], out[3], out[4], out[5], depth
 
 
