@@ -197,14 +197,16 @@ def shadow_roulette(k, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base) -
             e += 1
         i = int(pi[s])
         eligible = row[i] in (vg.ROW_LAMBERT, vg.ROW_LAYER)
-        c = w[s:e].astype(np.float64) * lum[pj[s:e]]
-        threshold = fraction * c.sum() / (e - s) if eligible else 0.0
+        total = float(np.sum(w[s:e].astype(np.float64) * lum[pj[s:e]]))
+        threshold = fraction * total / (e - s) if eligible else 0.0
+        t32 = np.float32(threshold)
+        c = w[s:e] * lum[pj[s:e]].astype(np.float32)  # float32, as the kernel compares
         for a in range(s, e):
             j = int(pj[a])
-            if threshold > 0.0 and c[a - s] < threshold:
-                if vg.pair_uniform(seed, base + i, j) * threshold >= c[a - s]:
+            if threshold > 0.0 and c[a - s] < t32:
+                if vg.pair_uniform(seed, base + i, j) * t32 >= c[a - s]:
                     continue
-                w[a] = np.float32(threshold / lum[j])
+                w[a] = t32 / np.float32(lum[j])
             pi[out], pj[out], w[out], pl[out], t[out] = pi[a], j, w[a], pl[a], t[a]
             o[out], d[out] = o[a], d[a]
             out += 1

@@ -35,7 +35,7 @@ from numba import njit
 from igi.common.kernels import bsdf as kb
 from igi.common.kernels import shading_frame
 from igi.common.kernels.ray_packets import FIELDS, LANES, occlude_lanes, packet_lanes
-from igi.common.kernels.splitmix import mix64, unit
+from igi.common.kernels.splitmix import mix32, mix64, unit32
 
 INV_PI = 1.0 / math.pi
 
@@ -600,25 +600,26 @@ def _flush(scene, pk, count, color, acc) -> None:
 
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
-_MIX_J = np.uint64(0xC2B2AE3D27D4EB4F)
+_GOLDEN32 = np.uint32(0x9E3779B9)
 
 
 @njit(cache=True, nogil=True, inline="always")
 def row_key(seed, i):
-    """Row i's share of its pairs' key under ``seed`` (:func:`pair_uniform`)."""
-    return np.uint64(seed) ^ (np.uint64(i) * _GOLDEN)
+    """Row i's share of its pairs' key under ``seed`` (:func:`pair_uniform`): 32 well-mixed
+    bits of the two (made once per row, so the 64-bit mix costs nothing per pair)."""
+    return np.uint32(mix64(np.uint64(seed) ^ (np.uint64(i) * _GOLDEN)) >> np.uint64(32))
 
 
 @njit(cache=True, nogil=True, inline="always")
 def column_key(j):
     """Column j's share of its pairs' key (:func:`pair_uniform`)."""
-    return np.uint64(j) * _MIX_J
+    return np.uint32(np.uint32(j) * _GOLDEN32)
 
 
 @njit(cache=True, nogil=True, inline="always")
 def column_keys(m):
-    """The :func:`column_key` of columns 0 … m-1 (uint64 (m,)), as roulette_row takes them."""
-    out = np.empty(m, np.uint64)
+    """The :func:`column_key` of columns 0 … m-1 (uint32 (m,)), as roulette_row takes them."""
+    out = np.empty(m, np.uint32)
     for j in range(m):
         out[j] = column_key(j)
     return out
@@ -626,9 +627,9 @@ def column_keys(m):
 
 @njit(cache=True, nogil=True)
 def pair_uniform(seed, i, j):
-    """A uniform in [0, 1) for pair (i, j) under ``seed`` (splitmix64 of the three): the same
-    in every thread and process, no generator state."""
-    return unit(mix64(row_key(seed, i) ^ column_key(j)))
+    """A float32 uniform in [0, 1) for pair (i, j) under ``seed`` (a 32-bit mix of the row's
+    and the column's keys): the same in every thread and process, no generator state."""
+    return unit32(mix32(np.uint32(row_key(seed, i) ^ column_key(j))))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -644,20 +645,24 @@ def roulette_row(sw, b, width, lo, q, total, lum, fraction, seed, row_id, col_ke
     guess (a Lambertian sender of its albedo): its true light, applied later by its BSDF factor,
     only makes p less apt, never the estimate biased. Pair (row, j) draws
     pair_uniform(seed, row_id, j) (``col_keys``: every column's :func:`column_key`). A row of no
-    light (or of negative luminance) has no threshold: every pair is kept as it is."""
+    light (or of negative luminance) has no threshold: every pair is kept as it is. The draw,
+    c and the threshold are float32 (c < threshold and u · threshold >= c compared there)."""
     threshold = fraction * total / q
     if not threshold > 0.0:
         return
-    # Branch-free, so the compiler runs it in SIMD lanes (half the weighing's time was this
-    # loop's branches): every pair's draw made, its new weight selected after.
+    # Branch-free and all 32-bit, so the compiler runs it in 8 SIMD lanes (half the weighing's
+    # time was this loop's branches; 64-bit hashing and float64 ran it 4 wide): every pair's
+    # draw made, its new weight selected after.
+    t = np.float32(threshold)
     key = row_key(seed, row_id)
     for a in range(width):
         w = sw[b, a]
         j = lo + a
-        c = np.float64(w) * lum[j]
-        u = unit(mix64(key ^ col_keys[j]))
-        small = (w >= 0.0) & (c < threshold)  # (a dead pair, w < 0, stays as it is)
-        kept = _NO_RAY if u * threshold >= c else np.float32(threshold / lum[j])  # c / p
+        lj = np.float32(lum[j])
+        c = w * lj
+        u = unit32(mix32(np.uint32(key ^ col_keys[j])))
+        small = (w >= 0.0) & (c < t)  # (a dead pair, w < 0, stays as it is)
+        kept = _NO_RAY if u * t >= c else t / lj  # c / p
         sw[b, a] = kept if small else w
 
 
