@@ -113,7 +113,8 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
     ovec = cols.pos[None, :, :] - o_rows[:, None, :]
     if cols.directional.any():
         ovec[:, cols.directional] = -cols.normal[cols.directional][None]
-    inv_o = f32(1) / np.sqrt(np.maximum(np.einsum("ijk,ijk->ij", ovec, ovec), f32(1e-30)))
+    len_o = np.sqrt(np.maximum(np.einsum("ijk,ijk->ij", ovec, ovec), f32(1e-30)))
+    inv_o = f32(1) / len_o
     udir = ovec * inv_o[:, :, None]
     if len(gi):
         wo_x = udir[gi].reshape(-1, 3).astype(np.float64)
@@ -148,10 +149,9 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
     ii, jj = np.nonzero(live)
     if len(ii):
         # Everything in Embree's centred float32 frame: no float64 round trip per pair.
-        id_ = inv_o[ii, jj]
         wij = udir[ii, jj]
         ox = o_rows[ii]
-        tmax = (1.0 / id_) * f32(1 - 1e-4) - f32(2 * geom.eps)
+        tmax = len_o[ii, jj] * f32(1 - 1e-4) - f32(2 * geom.eps)
         tmax[cols.directional[jj]] = np.inf
         blocked = geom.occluded_local(ox, wij, np.maximum(tmax, f32(0)), _interior_pairs(geom, cols, o_rows)[ii, jj])
         live[ii[blocked], jj[blocked]] = False

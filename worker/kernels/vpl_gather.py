@@ -81,23 +81,27 @@ def _length(d0, d1, d2):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _ray_end(d0, d1, d2, inv_d, directional_j, eps2):
+def _ray_end(d0, d1, d2, directional_j, eps2):
     """A shadow ray's unit direction and tfar toward the VPL (d: unnormalized, from the
-    origin): just short of the VPL (a directional one: unbounded)."""
+    origin): just short of the VPL (a directional one: unbounded). One square root and one
+    divide a ray (its length and 1/length; the length was 1/(1/length), a second divide on
+    each ray's dependency chain, the packet fill's hottest instructions)."""
+    length = np.float32(math.sqrt(max(d0 * d0 + d1 * d1 + d2 * d2, np.float32(1e-30))))
+    inv_d = np.float32(1.0) / length
     if directional_j:
         t = np.float32(3.0e38)
     else:
-        t = max((np.float32(1.0) / inv_d) * np.float32(1 - 1e-4) - eps2, np.float32(0.0))
+        t = max(length * np.float32(1 - 1e-4) - eps2, np.float32(0.0))
     return d0 * inv_d, d1 * inv_d, d2 * inv_d, t
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _write_ray(k, o0, o1, o2, d0, d1, d2, inv_d, directional_j, eps2, out_o, out_d, out_t):
+def _write_ray(k, o0, o1, o2, d0, d1, d2, directional_j, eps2, out_o, out_d, out_t):
     """Shadow ray k from the offset origin toward the VPL (:func:`_ray_end`) into the arrays."""
     out_o[k, 0] = o0
     out_o[k, 1] = o1
     out_o[k, 2] = o2
-    out_d[k, 0], out_d[k, 1], out_d[k, 2], out_t[k] = _ray_end(d0, d1, d2, inv_d, directional_j, eps2)
+    out_d[k, 0], out_d[k, 1], out_d[k, 2], out_t[k] = _ray_end(d0, d1, d2, directional_j, eps2)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -179,8 +183,7 @@ def pair_rays(x, ng, off, vpos, vnormal, directional, eps2, pi, pj, out_o, out_d
         o1 = x[i, 1] + ng[i, 1] * off[i]
         o2 = x[i, 2] + ng[i, 2] * off[i]
         d0, d1, d2 = _to_vpl(o0, o1, o2, vpos, vnormal, directional, j)
-        _dd, inv_d = _length(d0, d1, d2)
-        _write_ray(k, o0, o1, o2, d0, d1, d2, inv_d, directional[j], eps2, out_o, out_d, out_t)
+        _write_ray(k, o0, o1, o2, d0, d1, d2, directional[j], eps2, out_o, out_d, out_t)
 
 
 # Rows staged per block: their pairs are weighed row by row, then emitted. The gather's rays
@@ -415,8 +418,7 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
                 out_pl[k] = spl[b, a] if row[i] == ROW_GLOSSY else np.float32(0.0)
                 out_in[k] = sin[b] and interior_column(col_out, j)
                 d0, d1, d2_ = _to_vpl(so[b, 0], so[b, 1], so[b, 2], vpos, vnormal, directional, j)
-                _dd, inv_d = _length(d0, d1, d2_)
-                _write_ray(k, so[b, 0], so[b, 1], so[b, 2], d0, d1, d2_, inv_d, directional[j], eps2, out_o, out_d,
+                _write_ray(k, so[b, 0], so[b, 1], so[b, 2], d0, d1, d2_, directional[j], eps2, out_o, out_d,
                            out_t)
                 k += 1
     return k
@@ -482,13 +484,12 @@ def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
                 k = fill[s]
                 # aimed from the offset origin: the ray ends short of the VPL, never past its surface
                 d0, d1, d2_ = _to_vpl(so[b, 0], so[b, 1], so[b, 2], vpos, vnormal, directional, j)
-                _dd, inv_d = _length(d0, d1, d2_)
                 r = ray[s]
                 r[k] = so[b, 0]
                 r[LANES + k] = so[b, 1]
                 r[2 * LANES + k] = so[b, 2]
                 r[4 * LANES + k], r[5 * LANES + k], r[6 * LANES + k], r[8 * LANES + k] = _ray_end(
-                    d0, d1, d2_, inv_d, directional[j], eps2)
+                    d0, d1, d2_, directional[j], eps2)
                 lane_i[s, k] = i
                 lane_j[s, k] = j
                 lane_w[s, k] = sw[b, a]
