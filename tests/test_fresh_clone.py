@@ -4,7 +4,12 @@ The repository's committed HEAD is cloned into an empty temporary folder; a virt
 with ``--system-site-packages`` reuses the dependencies already installed (nothing is
 downloaded: the install step runs without network when ``unshare -n`` is available); then the
 first line of README.md's first ``bash`` block is run as written, and the image it writes must
-exist and not be black."""
+exist and not be black.
+
+The clone starts with this checkout's compiled kernels (:func:`seed_kernel_cache`): compiling
+them from nothing is CI's own first step (``.ci/run`` compiles before the tests, in a fresh venv),
+and doing it again here took 2–4 minutes of both cores, the suite's longest test. What this test
+proves is the install and the command from a bare clone."""
 from __future__ import annotations
 
 import os
@@ -29,6 +34,33 @@ def readme_first_command(readme: Path) -> str:
     return m.group(1).strip().splitlines()[0].strip()
 
 
+def seed_kernel_cache(root: Path, clone: Path) -> int:
+    """Copy ``root``'s compiled kernels (numba's cache beside the kernel sources, with
+    common.kernel_cache's source-hash stamps) into ``clone``, and give each of the clone's kernel
+    sources that is byte for byte ``root``'s the same modification time — numba's key for a
+    cached kernel. A source that differs keeps the clone's own time, so its kernels compile
+    again. Returns the number of cache files copied (0: ``root`` has no cache beside its sources)."""
+    from igi.common.kernel_cache import KERNEL_PACKAGES
+
+    copied = 0
+    for pkg in KERNEL_PACKAGES:
+        src, dst = root / pkg, clone / pkg
+        cache = src / "__pycache__"
+        if not cache.is_dir() or not dst.is_dir():
+            continue
+        for py in src.glob("*.py"):
+            twin = dst / py.name
+            if twin.is_file() and twin.read_bytes() == py.read_bytes():
+                st = py.stat()
+                os.utime(twin, ns=(st.st_atime_ns, st.st_mtime_ns))
+        (dst / "__pycache__").mkdir(exist_ok=True)
+        for f in cache.iterdir():
+            if f.suffix in (".nbi", ".nbc") or f.name.endswith(".igi-sources.sha1"):
+                shutil.copy2(f, dst / "__pycache__" / f.name)
+                copied += 1
+    return copied
+
+
 def _offline_prefix() -> list[str]:
     """``unshare -n`` (a network namespace with no interface up) when this user may use it."""
     exe = shutil.which("unshare")
@@ -49,6 +81,7 @@ def test_readme_first_command_from_a_bare_clone(tmp_path):
     clone = tmp_path / "igi"
     subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True, timeout=300)
     assert not (clone.parent / "shared").exists(), "nothing beside the clone"
+    seed_kernel_cache(ROOT, clone)
     venv = tmp_path / "venv"
     subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], check=True, timeout=300)
     bindir = venv / ("Scripts" if os.name == "nt" else "bin")
@@ -80,3 +113,26 @@ def test_readme_first_command_from_a_bare_clone(tmp_path):
     img = np.asarray(Image.open(out).convert("RGB"), np.float32)
     assert img.mean() > 20, f"the image is (nearly) black: mean {img.mean():.1f}"
     assert img.std() > 10, "the image shows something"
+
+
+def test_the_seeded_cache_keys_only_sources_equal_byte_for_byte(tmp_path):
+    """seed_kernel_cache copies the cache files and gives a clone's kernel source the checkout's
+    modification time only where the two are byte for byte equal: a changed source keeps its
+    own time, so numba does not take the checkout's kernels for it."""
+    root, clone = tmp_path / "root", tmp_path / "clone"
+    for d in (root, clone):
+        (d / "worker" / "kernels").mkdir(parents=True)
+    cache = root / "worker" / "kernels" / "__pycache__"
+    cache.mkdir()
+    for name in ("same.f-3.py311.nbi", "same.f-3.py311.1.nbc", "same.igi-sources.sha1", "same.cpython-311.pyc"):
+        (cache / name).write_bytes(b"x")
+    for name, text in (("same.py", "a = 1\n"), ("changed.py", "b = 1\n")):
+        (root / "worker" / "kernels" / name).write_text(text)
+        os.utime(root / "worker" / "kernels" / name, ns=(1_000_000_000, 1_000_000_000))
+    (clone / "worker" / "kernels" / "same.py").write_text("a = 1\n")
+    (clone / "worker" / "kernels" / "changed.py").write_text("b = 2\n")
+    assert seed_kernel_cache(root, clone) == 3  # the .pyc is not numba's
+    assert (clone / "worker" / "kernels" / "same.py").stat().st_mtime_ns == 1_000_000_000
+    assert (clone / "worker" / "kernels" / "changed.py").stat().st_mtime_ns != 1_000_000_000
+    assert sorted(p.name for p in (clone / "worker" / "kernels" / "__pycache__").iterdir()) == [
+        "same.f-3.py311.1.nbc", "same.f-3.py311.nbi", "same.igi-sources.sha1"]
