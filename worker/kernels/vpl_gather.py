@@ -626,11 +626,18 @@ def column_keys(m):
     return out
 
 
+@njit(cache=True, nogil=True, inline="always")
+def pair_draw(row, column):
+    """The float32 uniform in [0, 1) of the pair whose row and column keys are ``row``
+    (:func:`row_key`) and ``column`` (:func:`column_key`): a 32-bit mix of the two."""
+    return unit32(mix32(np.uint32(row ^ column)))
+
+
 @njit(cache=True, nogil=True)
 def pair_uniform(seed, i, j):
-    """A float32 uniform in [0, 1) for pair (i, j) under ``seed`` (a 32-bit mix of the row's
-    and the column's keys): the same in every thread and process, no generator state."""
-    return unit32(mix32(np.uint32(row_key(seed, i) ^ column_key(j))))
+    """The :func:`pair_draw` of pair (i, j) under ``seed``: the same in every thread and
+    process, no generator state."""
+    return pair_draw(row_key(seed, i), column_key(j))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -661,7 +668,7 @@ def roulette_row(sw, b, width, lo, q, total, lum, fraction, seed, row_id, col_ke
         j = lo + a
         lj = np.float32(lum[j])
         c = w * lj
-        u = unit32(mix32(np.uint32(key ^ col_keys[j])))
+        u = pair_draw(key, col_keys[j])
         small = (w >= 0.0) & (c < t)  # (a dead pair, w < 0, stays as it is)
         kept = _NO_RAY if u * t >= c else t / lj  # c / p
         sw[b, a] = kept if small else w
