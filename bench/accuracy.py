@@ -114,10 +114,25 @@ def markdown(doc: dict) -> str:
     return "\n".join(lines)
 
 
+def unit_fraction(text: str) -> float:
+    """``--scale``: 1/n of the film size for a whole n >= 1 (the reference is averaged over
+    n × n blocks), else argparse's usage error naming the value."""
+    import argparse
+
+    try:
+        scale = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    n = round(1 / scale) if 0 < scale <= 1 else 0
+    if n < 1 or abs(n * scale - 1) > 1e-9:
+        raise argparse.ArgumentTypeError(f"{text!r} is not 1/n of the film size for a whole n (1, 0.5, 0.25, …)")
+    return scale
+
+
 def add_arguments(p) -> None:
     p.add_argument("scenes", nargs="+", help="shared scene names (e.g. cornell-box veach-ajar)")
     p.add_argument("--frames", default="1,4,16,64", help="checkpoint frame counts")
-    p.add_argument("--scale", type=float, default=0.5, help="fraction of the film size (1/integer)")
+    p.add_argument("--scale", type=unit_fraction, default=0.5, help="fraction of the film size (1/integer)")
     p.add_argument("--variants", default="paper,consistent", help="paper and/or consistent")
     p.add_argument("--out", default="artifacts/bench_accuracy.json", help="JSON output")
     p.add_argument("--images", default=None, help="folder for the final images (PNG)")
