@@ -53,6 +53,7 @@ import zmq
 
 from igi.common import protocol as P
 from igi.common.frame import FrameSpec
+from igi.common.malloc_policy import reuse_freed_blocks
 from igi.common.scene import Scene
 
 from . import scene_state
@@ -132,6 +133,7 @@ class Broker:
             return self
         self._links.open()
         warm_up_master_in_background()  # the kernels load while the workers start
+        reuse_freed_blocks()  # each tile's decompressed payload in reused heap, not fresh pages
         self._running = True
         self._mailbox.inline = False
         self._thread = threading.Thread(target=self._loop, name="igi-master-loop", daemon=True)

@@ -29,7 +29,7 @@ from igi.common.codec import decode_into, decode_raw, decompress
 from igi.common.frame import Tile, TileBuffers
 from igi.common.interleave import make_tiles, scatter, task_tile_size, tile_slices
 from igi.master.discontinuity_buffer import resolve_window, run_stripes, window_offsets
-from igi.master.kernels.discontinuity import finish_sub
+from igi.master.kernels.discontinuity import finish_sub, plane_pad
 
 # Task size: every task pays a fixed cost per bounce of its eye paths and chains (~0.5 ms of small
 # numpy calls and one Embree batch each, whatever the batch size), so larger tasks render faster
@@ -128,7 +128,8 @@ class FrameAssembler:
             wf = self._planes()
             _, _, h, w = tile_slices(tile, self.n, self.width, self.height)
             k = tile.k
-            decode_into(raw, p, h, w, 1, tile.sy0, tile.sx0, wf.vals[k], wf.nrm[k], wf.depth[k])
+            q = wf.pad
+            decode_into(raw, p, h, w, 1, tile.sy0 + q, tile.sx0 + q, wf.vals[k], wf.nrm[k], wf.depth[k])
             wf.covered += p
         self._tiles.add(tile)
         self.received += count
@@ -154,34 +155,32 @@ class FrameAssembler:
         if self._buffers is None:
             return self._planes().image(self._tiles, window, w, p)
         b = self.buffers
-        planar = lambda a: a.transpose(2, 0, 1)
-        vals = np.concatenate([planar(b["reflectance"]), planar(b["irradiance"]), planar(b["unfiltered"])])
-        return _finish(vals[None], np.ascontiguousarray(planar(b["normal"]))[None], b["depth"][None], 1,
-                       self.width, self.height, window, w, p)
+        pl = _Planes(self.width, self.height, 1, plane_pad(*_window_reach(window), 1))
+        for s, name in enumerate(("reflectance", "irradiance", "unfiltered")):
+            pl.interior(pl.vals[0, 3 * s:3 * s + 3])[...] = b[name].transpose(2, 0, 1)
+        pl.interior(pl.nrm[0])[...] = b["normal"].transpose(2, 0, 1)
+        pl.interior(pl.depth[0])[...] = b["depth"]
+        return pl.finish(window, w, p)
 
 
-def _finish(vals: np.ndarray, nrm: np.ndarray, depth: np.ndarray, n: int, W: int, H: int, window: int,
-            w: float, p: dict) -> np.ndarray:
-    """The image from a frame kept per sub-image (``_Planes`` layout; n = 1 and one sub-image:
-    a frame in image order): discontinuity filter (when ``w`` > 0 and the window > 1), the
-    fading blend (w < 1) and the compose, one compiled pass per block of sub-image rows on
-    ``master.parallel``'s threads (blocks write disjoint image rows)."""
-    use_filter = w > 0.0 and window > 1
+def _window_reach(window: int) -> tuple[int, int]:
+    """(lo, hi): the window's offsets run -lo .. hi."""
     offs = window_offsets(window)
-    lo, hi = -offs[0], offs[-1]
-    dt, nt = float(p["depth_threshold"]), float(p["normal_threshold"])
-    img = np.empty((H, W, 3), np.float32)
-    run_stripes(depth.shape[1], W * n, lambda y0, y1: finish_sub(vals, nrm, depth, n, H, W, y0, y1, use_filter,
-                                                                 lo, hi, dt, nt, float(w), img))
-    return img
+    return -offs[0], offs[-1]
 
 
 class _Planes:
     """A frame's decoded buffers as they arrive, per sub-image k of the interleave (a tile is
-    a rectangle of one, so its decode writes contiguous rows): ``vals`` (n², 9, sh, sw)
-    float32 reflectance, irradiance, unfiltered (x RGB), ``nrm`` (n², 3, sh, sw), ``depth``
-    (n², sh, sw), sh x sw the largest sub-image. The image is made in row stripes that are
-    filtered and composed in sub-image space (``master.kernels.discontinuity.finish_sub``).
+    a rectangle of one, so its decode writes contiguous rows): ``vals`` (n², 9, SH, SW)
+    float32 reflectance, irradiance, unfiltered (x RGB), ``nrm`` (n², 3, SH, SW), ``depth``
+    (n², SH, SW), where SH x SW is the largest sub-image with a border of ``pad`` pixels all
+    round. The image is made in row stripes that are filtered and composed in sub-image space
+    (``master.kernels.discontinuity.finish_sub``).
+
+    The border and every cell outside a sub-image's own extent hold a miss (depth +inf, zero
+    values), written once when the planes are made; decodes write only inside. ``pad`` covers
+    the widest window the parameters allow, so a frame's filter reads its neighbours across
+    the image's edges without a bounds test.
 
     Pooled per resolution (fresh multi-megabyte arrays cost page faults every frame): an
     assembler takes a set when its first tile arrives and gives it back when it is collected.
@@ -194,15 +193,22 @@ class _Planes:
     # page faults at 640x480, more than the frame's decode and filter together)
     POOL = 4
 
-    def __init__(self, width: int, height: int, n: int):
+    def __init__(self, width: int, height: int, n: int, pad: int | None = None):
         self.key = (width, height, n)
         self.width, self.height, self.n = width, height, n
-        K = n * n
-        sw, sh = -(-width // n), -(-height // n)
-        self.vals = np.empty((K, 9, sh, sw), np.float32)
-        self.nrm = np.empty((K, 3, sh, sw), np.float32)
-        self.depth = np.empty((K, sh, sw), np.float32)
+        self.pad = _widest_pad(n) if pad is None else pad
+        K, q = n * n, self.pad
+        self.sw, self.sh = -(-width // n), -(-height // n)
+        SH, SW = self.sh + 2 * q, self.sw + 2 * q
+        self.vals = np.zeros((K, 9, SH, SW), np.float32)
+        self.nrm = np.zeros((K, 3, SH, SW), np.float32)
+        self.depth = np.full((K, SH, SW), np.inf, np.float32)
         self.covered = 0  # pixels written since acquire
+
+    def interior(self, a: np.ndarray) -> np.ndarray:
+        """The view of a plane (or planes: the last two axes) without its border."""
+        q = self.pad
+        return a[..., q:q + self.sh, q:q + self.sw]
 
     @classmethod
     def acquire(cls, width: int, height: int, n: int) -> "_Planes":
@@ -228,19 +234,40 @@ class _Planes:
         frames only: a complete frame has written every pixel)."""
         if self.covered >= self.width * self.height:
             return
-        missing = np.ones(self.depth.shape, bool)
+        missing = np.ones((self.n * self.n, self.sh, self.sw), bool)
         for t in tiles:
             _, _, h, w = tile_slices(t, self.n, self.width, self.height)
             missing[t.k, t.sy0:t.sy0 + h, t.sx0:t.sx0 + w] = False
         for k in range(len(missing)):
-            self.vals[k][:, missing[k]] = 0.0
-            self.nrm[k][:, missing[k]] = 0.0
-        self.depth[missing] = np.inf
+            vals, nrm = self.interior(self.vals[k]), self.interior(self.nrm[k])
+            vals[:, missing[k]] = 0.0
+            nrm[:, missing[k]] = 0.0
+        self.interior(self.depth)[missing] = np.inf
         self.covered = self.width * self.height
 
     def image(self, tiles, window: int, w: float, p: dict) -> np.ndarray:
         self.fill_missing(tiles)
-        return _finish(self.vals, self.nrm, self.depth, self.n, self.width, self.height, window, w, p)
+        return self.finish(window, w, p)
+
+    def finish(self, window: int, w: float, p: dict) -> np.ndarray:
+        """The image (H, W, 3): discontinuity filter (when ``w`` > 0 and the window > 1), the
+        fading blend (w < 1) and the compose, one compiled pass per block of sub-image rows on
+        ``master.parallel``'s threads (blocks write disjoint image rows)."""
+        use_filter = w > 0.0 and window > 1
+        lo, hi = _window_reach(window)
+        if use_filter and plane_pad(lo, hi, self.n) > self.pad:  # wider than the parameters allow
+            wide = _Planes(self.width, self.height, self.n, plane_pad(lo, hi, self.n))
+            for a, b in ((wide.vals, self.vals), (wide.nrm, self.nrm), (wide.depth, self.depth)):
+                wide.interior(a)[...] = self.interior(b)
+            return wide.finish(window, w, p)
+        dt, nt = float(p["depth_threshold"]), float(p["normal_threshold"])
+        flat = lambda a: a.reshape(a.shape[:-2] + (-1,))  # noqa: E731 - a view: the planes are contiguous
+        vals, nrm, depth = flat(self.vals), flat(self.nrm), flat(self.depth)
+        H, W, n, q, SW = self.height, self.width, self.n, self.pad, self.sw + 2 * self.pad
+        img = np.empty((H, W, 3), np.float32)
+        run_stripes(self.sh, W * n, lambda y0, y1: finish_sub(vals, nrm, depth, SW, n, q, H, W, y0, y1, use_filter,
+                                                              lo, hi, dt, nt, float(w), img))
+        return img
 
     def to_buffers(self, b: dict[str, np.ndarray], tiles) -> None:
         from igi.master.kernels.discontinuity import gather_rows
@@ -249,10 +276,18 @@ class _Planes:
         H, W = self.height, self.width
         vals = np.empty((9, H, W), np.float32)
         nrm = np.empty((3, H, W), np.float32)
-        gather_rows(self.vals, self.nrm, self.depth, self.n, W, 0, H, vals, nrm, b["depth"])
+        gather_rows(self.vals, self.nrm, self.depth, self.n, self.pad, W, 0, H, vals, nrm, b["depth"])
         for s, name in enumerate(("reflectance", "irradiance", "unfiltered")):
             np.copyto(b[name], vals[3 * s:3 * s + 3].transpose(1, 2, 0))
         np.copyto(b["normal"], nrm.transpose(1, 2, 0))
+
+
+def _widest_pad(n: int) -> int:
+    """The border the widest window the parameters allow needs at interleave ``n``."""
+    from igi.common.params import PARAM_BY_NAME
+
+    widest = int(max(PARAM_BY_NAME["filter_window"].max, n))  # -1 (the default) is the interleave size
+    return plane_pad(*_window_reach(widest), n)
 
 
 def _empty_buffers(width: int, height: int) -> dict[str, np.ndarray]:

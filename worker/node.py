@@ -46,6 +46,7 @@ import zmq
 from igi.common import protocol as P
 from igi.common.frame import Tile
 from igi.common.gc_policy import settle_long_lived
+from igi.common.malloc_policy import reuse_freed_blocks
 from igi.common.ratelimit_log import RateLimitedLog
 
 log = logging.getLogger("igi.worker")
@@ -525,6 +526,7 @@ def run_from_args(args: argparse.Namespace) -> int:
     from .kernels.warm import warm_up_before_hello  # compile / load every kernel before HELLO (issue 16)
     warm_up_before_hello(log)
     settle_long_lived()  # the kernels' objects out of later full collections
+    reuse_freed_blocks()  # each task's buffers in reused heap, not fresh pages
     log.info("worker %s: %d render thread(s), connecting to %s", node.name, node.threads, node.connect)
     return node.run()
 

@@ -14,7 +14,7 @@ Why a kernel: the numpy version made ~10 passes over memory per window offset (c
 masks, products, sums, all as temporaries of a strip); here a row's sums and counts stay in
 cache while every window offset adds to them in one branch-free, vectorized pass, and the
 compose follows at once. The master runs it in sub-image space (``finish_sub``), straight on
-the planes the wire decode wrote. The float32 operations are the numpy version's, in the
+the planes the wire decode wrote (bordered, so that no pass clips at the image's edges). The float32 operations are the numpy version's, in the
 same order (offsets row by row, as its loop did, rejected and outside neighbours adding +0),
 so the image is bit-identical to it, signed zeros included (tests/master/test_master_kernels.py;
 only which NaN payload survives when two NaNs meet may differ). Rows are independent: callers
@@ -125,16 +125,31 @@ def filter_rows(irr, nrm, depth, y0, y1, lo, hi, depth_threshold, normal_thresho
                     out[c, y, x] = irr[c, y, x]
 
 
+# Sub-image rows filtered together: each window offset is then one pass over ~4000 pixels, not
+# 128 (a pass costs ~0.1 us of slicing and reference counts before its first pixel: at one row
+# a pass that was 40% of the filter's time at 640x480, interleave 5), while the accumulators
+# (6 x 4 bytes a pixel) stay within L2.
+BLOCK_ROWS = 32
+
+
+def plane_pad(lo: int, hi: int, n: int) -> int:
+    """The border (in sub-image pixels) that holds every neighbour of a window with offsets
+    ``-lo .. hi`` at interleave ``n``: a neighbour lies at most ceil(max(lo, hi) / n)
+    sub-image pixels away."""
+    return -(-max(lo, hi, 0) // n)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
-def gather_rows(vals_s, nrm_s, dep_s, n, W, ya, yb, vals, nrm, depth) -> None:
+def gather_rows(vals_s, nrm_s, dep_s, n, pad, W, ya, yb, vals, nrm, depth) -> None:
     """Image rows ya .. yb of the frame kept as sub-images (interleave n): ``vals_s`` (n², 9,
-    sh, sw), ``nrm_s`` (n², 3, sh, sw), ``dep_s`` (n², sh, sw); image pixel (y, x) is pixel
-    (y div n, x div n) of sub-image (y mod n)·n + x mod n. Written to row 0 .. yb - ya of
-    ``vals`` (9, R, W), ``nrm`` (3, R, W), ``depth`` (R, W)."""
+    sh + 2 pad, sw + 2 pad), ``nrm_s`` (n², 3, ...), ``dep_s`` (n², ...) with a border of
+    ``pad`` (see :func:`finish_sub`); image pixel (y, x) is pixel (y div n, x div n) of
+    sub-image (y mod n)·n + x mod n. Written to row 0 .. yb - ya of ``vals`` (9, R, W),
+    ``nrm`` (3, R, W), ``depth`` (R, W)."""
     for y in range(ya, yb):
         r = y - ya
         ky = y % n
-        sy = y // n
+        sy = y // n + pad
         for kx in range(n):
             k = ky * n + kx
             cols = (W - kx + n - 1) // n
@@ -142,112 +157,107 @@ def gather_rows(vals_s, nrm_s, dep_s, n, W, ya, yb, vals, nrm, depth) -> None:
                 src = vals_s[k, b, sy]
                 dst = vals[b, r]
                 for sx in range(cols):
-                    dst[sx * n + kx] = src[sx]
+                    dst[sx * n + kx] = src[sx + pad]
             for b in range(3):
                 src = nrm_s[k, b, sy]
                 dst = nrm[b, r]
                 for sx in range(cols):
-                    dst[sx * n + kx] = src[sx]
+                    dst[sx * n + kx] = src[sx + pad]
             src = dep_s[k, sy]
             dst = depth[r]
             for sx in range(cols):
-                dst[sx * n + kx] = src[sx]
+                dst[sx * n + kx] = src[sx + pad]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def finish_sub(vals_s, nrm_s, dep_s, n, H, W, sy0, sy1, use_filter, lo, hi, depth_threshold,
+def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo, hi, depth_threshold,
                normal_threshold, w, img) -> None:
     """Image pixels of sub-image rows sy0 .. sy1 of every sub-image k of a frame kept per
-    sub-image (interleave n; see :func:`gather_rows` for the layout): the discontinuity
-    filter (as :func:`filter_rows`), the fading blend and the compose, written to ``img``
-    (H, W, 3) at (sy·n + k div n, sx·n + k mod n). n = 1 with one sub-image is a frame in
-    image order.
+    sub-image (interleave n): the discontinuity filter (as :func:`filter_rows`), the fading
+    blend and the compose, written to ``img`` (H, W, 3) at (sy·n + k div n, sx·n + k mod n).
+    n = 1 with one sub-image is a frame in image order.
 
-    The filter runs in sub-image space: the neighbour (oy, ox) of every pixel of sub-image k
-    lies in one sub-image k' at a constant shift (dy, dx), so each window offset is one
-    unit-stride pass over a row (:func:`_add_offset`, vectorized), and nothing is first
-    rearranged into image order. Same terms, same order as in image order: bit-identical."""
+    The planes are flattened rows of SW = sw + 2 pad pixels with a border of ``pad``
+    (:func:`plane_pad` of the window): ``vals_s`` (n², 9, (sh + 2 pad)·SW) reflectance,
+    irradiance, unfiltered (x RGB), ``nrm_s`` (n², 3, ...), ``dep_s`` (n², ...); sub-image
+    pixel (sy, sx) at (sy + pad)·SW + sx + pad. The border, and every cell outside a
+    sub-image's own extent, holds a miss (depth +inf, zero values), so it is nobody's
+    neighbour and adds +0 exactly as an outside neighbour did.
+
+    In sub-image space the neighbour (oy, ox) of every pixel of sub-image k lies in one
+    sub-image k' at a constant shift (dy, dx): in the flattened, bordered planes one constant
+    index shift, so each window offset is one unit-stride pass (:func:`_add_offset`,
+    vectorized) over a block of BLOCK_ROWS rows at once, border columns included (their sums
+    are computed and never read). Same terms, same order as :func:`filter_rows` in image
+    order: bit-identical."""
     t = np.float32(depth_threshold)
     nt = np.float32(normal_threshold)
     blend = use_filter and w < 1.0
     wf = np.float32(w)
     wr = np.float32(1.0 - w)
     one = np.float32(1.0)
-    zero = np.float32(0.0)
-    swm = vals_s.shape[3]
-    acc = np.empty((3, swm), np.float32)
-    cnt = np.empty(swm, np.int32)
-    dlo = np.empty(swm, np.float32)
-    dhi = np.empty(swm, np.float32)
-    for sy in range(sy0, sy1):  # all k of a row block together: their image rows stay in cache
+    cap = BLOCK_ROWS * SW
+    acc = np.empty((3, cap), np.float32)
+    cnt = np.empty(cap, np.int32)
+    dlo = np.empty(cap, np.float32)
+    dhi = np.empty(cap, np.float32)
+    for ya in range(sy0, sy1, BLOCK_ROWS):  # all k of a row block together: their image rows stay in cache
+        yb = min(sy1, ya + BLOCK_ROWS)
         for k in range(n * n):
             ky = k // n
             kx = k % n
             sw = (W - kx + n - 1) // n
-            sh = (H - ky + n - 1) // n
-            if sw <= 0 or sy >= sh:
+            yend = min(yb, (H - ky + n - 1) // n)
+            if sw <= 0 or ya >= yend:
                 continue
-            a0, a1, a2 = acc[0, :sw], acc[1, :sw], acc[2, :sw]
-            y = sy * n + ky
-            d0 = dep_s[k, sy, :sw]
-            c0, c1, c2 = nrm_s[k, 0, sy, :sw], nrm_s[k, 1, sy, :sw], nrm_s[k, 2, sy, :sw]
-            i0, i1, i2 = vals_s[k, 3, sy, :sw], vals_s[k, 4, sy, :sw], vals_s[k, 5, sy, :sw]
+            i_s = (ya + pad) * SW + pad  # the block's first pixel .. one past its last
+            i_e = (yend - 1 + pad) * SW + pad + sw
+            L = i_e - i_s
+            d0 = dep_s[k]
+            i0, i1, i2 = vals_s[k, 3], vals_s[k, 4], vals_s[k, 5]
+            a0, a1, a2 = acc[0, :L], acc[1, :L], acc[2, :L]
             if use_filter:
-                for x in range(sw):
-                    dlo[x] = d0[x] * (one - t)
-                    dhi[x] = d0[x] * (one + t)
-                    a0[x] = i0[x]
-                    a1[x] = i1[x]
-                    a2[x] = i2[x]
+                for x in range(L):
+                    dlo[x] = d0[i_s + x] * (one - t)
+                    dhi[x] = d0[i_s + x] * (one + t)
+                    a0[x] = i0[i_s + x]
+                    a1[x] = i1[i_s + x]
+                    a2[x] = i2[i_s + x]
                     cnt[x] = 0
+                c0, c1, c2 = nrm_s[k, 0, i_s:i_e], nrm_s[k, 1, i_s:i_e], nrm_s[k, 2, i_s:i_e]
                 for oy in range(-lo, hi + 1):
                     ty = ky + oy
                     kyp = ty % n
-                    syp = sy + ty // n
-                    if syp < 0 or syp >= (H - kyp + n - 1) // n:
-                        for x in range(sw):  # a row outside the image: +0 terms
-                            a0[x] += zero
-                            a1[x] += zero
-                            a2[x] += zero
-                        continue
+                    dy = ty // n
                     for ox in range(-lo, hi + 1):
                         if oy == 0 and ox == 0:
                             continue
                         tx = kx + ox
-                        kxp = tx % n
-                        dx = tx // n
-                        kp = kyp * n + kxp
-                        xa = max(0, -dx)
-                        xb = min(sw, (W - kxp + n - 1) // n - dx)
-                        for x in range(0, min(xa, sw)):  # columns outside the image: +0 terms
-                            a0[x] += zero
-                            a1[x] += zero
-                            a2[x] += zero
-                        for x in range(max(xa, xb), sw):
-                            a0[x] += zero
-                            a1[x] += zero
-                            a2[x] += zero
-                        if xb > xa:
-                            s0, s1 = xa + dx, xb + dx
-                            _add_offset(dep_s[kp, syp, s0:s1], nrm_s[kp, 0, syp, s0:s1], nrm_s[kp, 1, syp, s0:s1],
-                                        nrm_s[kp, 2, syp, s0:s1], vals_s[kp, 3, syp, s0:s1],
-                                        vals_s[kp, 4, syp, s0:s1], vals_s[kp, 5, syp, s0:s1],
-                                        c0[xa:xb], c1[xa:xb], c2[xa:xb], dlo[xa:xb], dhi[xa:xb],
-                                        a0[xa:xb], a1[xa:xb], a2[xa:xb], cnt[xa:xb], nt)
-            r0, r1, r2 = vals_s[k, 0, sy, :sw], vals_s[k, 1, sy, :sw], vals_s[k, 2, sy, :sw]
-            u0, u1, u2 = vals_s[k, 6, sy, :sw], vals_s[k, 7, sy, :sw], vals_s[k, 8, sy, :sw]
-            for sx in range(sw):
-                f0, f1, f2 = i0[sx], i1[sx], i2[sx]
-                if use_filter and math.isfinite(d0[sx]):
-                    cf = np.float32(cnt[sx]) + one
-                    f0 = a0[sx] / cf
-                    f1 = a1[sx] / cf
-                    f2 = a2[sx] / cf
-                if blend:
-                    f0 = wf * f0 + wr * i0[sx]
-                    f1 = wf * f1 + wr * i1[sx]
-                    f2 = wf * f2 + wr * i2[sx]
-                x = sx * n + kx
-                img[y, x, 0] = r0[sx] * f0 + u0[sx]
-                img[y, x, 1] = r1[sx] * f1 + u1[sx]
-                img[y, x, 2] = r2[sx] * f2 + u2[sx]
+                        kp = kyp * n + tx % n
+                        s = i_s + dy * SW + tx // n
+                        e = s + L
+                        _add_offset(dep_s[kp, s:e], nrm_s[kp, 0, s:e], nrm_s[kp, 1, s:e], nrm_s[kp, 2, s:e],
+                                    vals_s[kp, 3, s:e], vals_s[kp, 4, s:e], vals_s[kp, 5, s:e],
+                                    c0, c1, c2, dlo[:L], dhi[:L], a0, a1, a2, cnt[:L], nt)
+            r0, r1, r2 = vals_s[k, 0], vals_s[k, 1], vals_s[k, 2]
+            u0, u1, u2 = vals_s[k, 6], vals_s[k, 7], vals_s[k, 8]
+            for sy in range(ya, yend):
+                y = sy * n + ky
+                b = (sy - ya) * SW  # the row in the block's sums
+                j0 = (sy + pad) * SW + pad  # the row in the planes
+                for sx in range(sw):
+                    j = j0 + sx
+                    f0, f1, f2 = i0[j], i1[j], i2[j]
+                    if use_filter and math.isfinite(d0[j]):
+                        cf = np.float32(cnt[b + sx]) + one
+                        f0 = a0[b + sx] / cf
+                        f1 = a1[b + sx] / cf
+                        f2 = a2[b + sx] / cf
+                    if blend:
+                        f0 = wf * f0 + wr * i0[j]
+                        f1 = wf * f1 + wr * i1[j]
+                        f2 = wf * f2 + wr * i2[j]
+                    x = sx * n + kx
+                    img[y, x, 0] = r0[j] * f0 + u0[j]
+                    img[y, x, 1] = r1[j] * f1 + u1[j]
+                    img[y, x, 2] = r2[j] * f2 + u2[j]

@@ -71,6 +71,8 @@ def _params(n, **kw):
 SETTINGS = [  # (filter_window, depth_threshold, normal_threshold, consistent fading index)
     (-1, 0.05, 0.9, 0), (1, 0.05, 0.9, 0), (2, 0.1, 0.5, 0), (3, 0.0, 1.0, 0), (4, 0.05, -1.0, 0),
     (5, 1.0, 0.0, 0), (7, 0.2, 0.99, 0), (-1, 0.05, 0.9, 5), (3, 2.0, 0.3, 9),
+    # the widest window the parameters allow (the planes' border), and one wider (planes re-bordered)
+    (15, 0.3, 0.2, 0), (17, 0.3, 0.2, 0),
 ]
 
 
@@ -83,7 +85,7 @@ def _images(ref, new, n):
         assert_same(ref.image(p, index), new.image(p, index), (window, dt, nt, index))
 
 
-@pytest.mark.parametrize("w,h,n,task_pixels", [(97, 61, 3, 200), (64, 48, 4, 97), (33, 20, 2, 5000),
+@pytest.mark.parametrize("w,h,n,task_pixels", [(97, 61, 3, 200), (64, 48, 4, 97), (33, 20, 2, 5000), (53, 37, 5, 150),
                                                (5, 4, 3, 4), (2, 1, 3, 1), (1, 1, 1, 1)])
 def test_wire_frames_match_the_numpy_master(w, h, n, task_pixels):
     full = _frame(w, h, w + h)
