@@ -2,7 +2,7 @@
 docs/scaling.md; the paper's §4.3 "quantized and compressed").
 
 Layout after a 12-byte header (magic b"IGTB", version, flags, pixel count P):
-an lz4 frame holding, planar and byte-shuffled,
+an lz4 frame (xxh32 checksum on each compressed block) holding, planar and byte-shuffled,
   reflectance, irradiance, unfiltered  3 x float16 each  (clamped to +-65504, NaN -> 0)
   depth                                float32            (NaN -> inf = miss)
   normal                               2 x int16           octahedral, snorm16
@@ -98,8 +98,11 @@ def encode(buffers: TileBuffers, compression_level: int = 0) -> bytes:
     raw = np.empty(BYTES_PER_PIXEL * p, np.uint8)
     # one compiled pass: float16 colours, depth, normals, each section byte-shuffled
     payload_into(colours, colours.view(np.uint32), depth, depth.view(np.uint32), oct_encode(buffers.normal), raw)
-    body = lz4.frame.compress(raw, compression_level=compression_level, content_checksum=True,
-                              store_size=True)
+    # Checksums on the compressed blocks, not the content: a flipped byte is caught all the same
+    # (lz4 checks each block's xxh32 before decompressing it), over 3x fewer bytes: the
+    # content checksum took 4 of a 640x480 frame's 7 ms of decompression on the master.
+    body = lz4.frame.compress(raw, compression_level=compression_level, content_checksum=False,
+                              block_checksum=True, store_size=True)
     return _HEADER.pack(MAGIC, VERSION, 0, 0, p) + body
 
 
