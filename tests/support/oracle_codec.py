@@ -145,5 +145,6 @@ def encode_numpy(buffers: TileBuffers, compression_level: int = 0) -> bytes:
     parts = [to_f16(buffers.reflectance), to_f16(buffers.irradiance), to_f16(buffers.unfiltered),
              depth.astype("<f4"), oct_encode(buffers.normal).astype("<i2")]
     raw = b"".join(shuffle(a.reshape(-1)) for a in parts)
-    body = lz4.frame.compress(raw, compression_level=compression_level, content_checksum=True, store_size=True)
+    body = lz4.frame.compress(raw, compression_level=compression_level, content_checksum=False, block_checksum=True,
+                              store_size=True)
     return _HEADER.pack(MAGIC, VERSION, 0, 0, p) + body
