@@ -6,8 +6,14 @@ an lz4 frame (xxh32 checksum on each compressed block) holding, planar and byte-
   reflectance, irradiance, unfiltered  3 x float16 each  (clamped to +-65504, NaN -> 0)
   depth                                float32            (NaN -> inf = miss)
   normal                               2 x int16           octahedral, snorm16
-= 26 bytes per pixel before compression. Byte shuffling (all high bytes, then all low
-bytes) puts the slowly varying exponent bytes together, which is what lz4 can exploit.
+= 26 bytes per pixel before compression. Within a section the items run channel by channel
+(all P red values, then all green, ...; for normals all x codes, then all y), pixels in tile
+order, and the section is byte-shuffled (all first bytes of its items, then all second
+bytes, ...): the slowly varying exponent bytes lie together, which is what lz4 can exploit,
+and the decode reads every channel's bytes at unit stride.
+
+Version 2 (channels apart) replaced version 1 (channels interleaved per pixel): the decode's
+stride-3 gathers took ~60% of the master's decode.
 """
 from __future__ import annotations
 
@@ -19,7 +25,7 @@ import numpy as np
 from igi.common.frame import TileBuffers
 
 MAGIC = b"IGTB"
-VERSION = 1
+VERSION = 2
 _HEADER = struct.Struct("<4sBBHI")  # magic, version, flags (0), reserved (0), pixel count
 HEADER_SIZE = _HEADER.size
 BYTES_PER_PIXEL = 3 * 3 * 2 + 4 + 2 * 2
@@ -155,13 +161,14 @@ def section_offsets(p: int) -> dict[str, int]:
 
 
 def section_planes(raw: np.ndarray, p: int) -> dict[str, np.ndarray]:
-    """Views of a decompressed payload: name -> (itemsize, P, channels) uint8 byte planes
-    (plane b holds byte b of every little-endian value, pixels row-major, channels minor)."""
+    """Views of a decompressed payload: name -> (itemsize, channels, P) uint8 byte planes
+    (plane b holds byte b of every little-endian value, channel by channel, pixels in tile
+    order)."""
     out = {}
     pos = 0
     for name, dtype, n in _sections(p):
         size = n * dtype.itemsize
-        out[name] = raw[pos:pos + size].reshape(dtype.itemsize, p, n // p if p else 1)
+        out[name] = raw[pos:pos + size].reshape(dtype.itemsize, n // p if p else 1, p)
         pos += size
     return out
 

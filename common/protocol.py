@@ -60,7 +60,9 @@ from typing import Any, Callable
 
 import msgpack
 
-PROTOCOL_VERSION = 1
+# 2: RESULT's data in common.codec version 2 (channels apart); a version-1 peer is refused at
+# HELLO rather than having every tile refused as it arrives
+PROTOCOL_VERSION = 2
 
 HELLO = "HELLO"
 WELCOME = "WELCOME"

@@ -1,8 +1,9 @@
-"""Decode of a task's wire payload (common.codec, version 1), compiled: a tile's decompressed,
-byte-shuffled sections are converted in tile order (float16 -> float32 exactly, depth from its
-4 byte planes, octahedral snorm16 normals) and written to planar destination arrays — the
-master's per-sub-image planes (n = 1, tile pixel (r, c) at (y0 + r, x0 + c)), a frame in
-image order (step n), or a tile's own arrays.
+"""Decode of a task's wire payload (common.codec, version 2), compiled: a tile's decompressed,
+byte-shuffled sections are converted channel by channel (float16 -> float32 exactly, depth
+from its 4 byte planes, octahedral snorm16 normals) and written to planar destination arrays —
+the master's per-sub-image planes (n = 1, tile pixel (r, c) at (y0 + r, x0 + c): each tile row
+one unit-stride pass from its bytes to its plane row), a frame in image order (step n), or a
+tile's own arrays.
 
 Why: the numpy decode made a byte-plane copy, a table gather, a transpose and a scatter per
 section, each a pass over memory with its temporaries; here each section is read once in
@@ -65,50 +66,34 @@ def oct_decode_into(qx, qy, out) -> None:
         out[2, i] = z
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def f16_to_f32(lo, hi, bits, out) -> None:
-    """float16 values (little-endian bytes ``lo``, ``hi``) -> float32 ``out``; ``bits`` is
-    ``out`` viewed as uint32. Exact for every code, the way numpy's cast defines it: the
-    magnitude bits shifted into float32 position are the value x 2^-112 for normal and
-    subnormal halves alike (one exact multiply); exponent 31 becomes inf / NaN with the
-    mantissa kept. Unit-stride, branch-free loops (vectorized)."""
-    m = out.shape[0]
-    for i in range(m):
-        h = np.uint32(lo[i]) | (np.uint32(hi[i]) << np.uint32(8))
-        bits[i] = (h & np.uint32(0x7FFF)) << np.uint32(13)
-    scale = np.float32(2.0 ** 112)
-    for i in range(m):
-        out[i] = out[i] * scale
-    for i in range(m):
-        h = np.uint32(lo[i]) | (np.uint32(hi[i]) << np.uint32(8))
-        sign = (h & np.uint32(0x8000)) << np.uint32(16)
-        special = (h & np.uint32(0x7C00)) == np.uint32(0x7C00)
-        b = (np.uint32(0x7F800000) | ((h & np.uint32(0x3FF)) << np.uint32(13))) if special else bits[i]
-        bits[i] = b | sign
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def f16_one(lo, hi) -> float:
+    """One float16 (its low and high byte) -> float32, exact for every code, the way numpy's
+    cast defines it: the magnitude bits shifted into float32 position are the value x 2^-112
+    for normal and subnormal halves alike (one exact multiply); exponent 31 becomes inf / NaN
+    with the mantissa kept. Branch-free (selects), so the loops around it vectorize."""
+    h = np.uint32(lo) | (np.uint32(hi) << np.uint32(8))
+    f = np.uint32((h & np.uint32(0x7FFF)) << np.uint32(13)).view(np.float32) * np.float32(2.0 ** 112)
+    special = (h & np.uint32(0x7C00)) == np.uint32(0x7C00)
+    b = (np.uint32(0x7F800000) | ((h & np.uint32(0x3FF)) << np.uint32(13))) if special else np.float32(f).view(np.uint32)
+    return np.uint32(b | ((h & np.uint32(0x8000)) << np.uint32(16))).view(np.float32)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _u32(b0, b1, b2, b3, dst) -> None:
-    for c in range(dst.shape[0]):
-        dst[c] = (np.uint32(b0[c]) | (np.uint32(b1[c]) << np.uint32(8))
-                  | (np.uint32(b2[c]) << np.uint32(16)) | (np.uint32(b3[c]) << np.uint32(24)))
+def f16_to_f32(lo, hi, out) -> None:
+    """float16 values (little-endian bytes ``lo``, ``hi``) -> float32 ``out``."""
+    for i in range(out.shape[0]):
+        out[i] = f16_one(lo[i], hi[i])
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _oct(lo, hi, d0, d1, d2) -> None:
-    """Normals of a tile: ``lo``/``hi`` the normal section's two byte planes read as uint16
-    (pixel i: low bytes of qx, qy in lo[i], high bytes in hi[i])."""
-    for c in range(d0.shape[0]):
-        a = np.int64(lo[c])
-        b = np.int64(hi[c])
-        qx = (a & 0xFF) | ((b & 0xFF) << 8)
-        qy = (a >> 8) | (b & 0xFF00)
-        qx = qx - 65536 if qx >= 32768 else qx
-        qy = qy - 65536 if qy >= 32768 else qy
-        x, y, z = oct_decode_one(qx, qy)
-        d0[c] = x
-        d1[c] = y
-        d2[c] = z
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _normal(xlo, ylo, xhi, yhi) -> tuple:
+    """The normal of one pixel from the bytes of its x and y codes."""
+    qx = np.int64(xlo) | (np.int64(xhi) << 8)
+    qy = np.int64(ylo) | (np.int64(yhi) << 8)
+    qx = qx - 65536 if qx >= 32768 else qx
+    qy = qy - 65536 if qy >= 32768 else qy
+    return oct_decode_one(qx, qy)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -117,36 +102,48 @@ def decode_tile(raw, h, w, o_refl, o_irr, o_unf, o_depth, o_nor, n, y0, x0,
     """Decode an h x w tile's payload ``raw`` (uint8, codec byte layout, section byte offsets
     ``o_*``) into ``vals`` (9, H, W) float32 (reflectance, irradiance, unfiltered x RGB),
     ``nrm`` (3, H, W) float32 and ``depth_bits`` (H, W) uint32 (the float32 depth's bits),
-    tile pixel (r, c) at (y0 + r n, x0 + c n). Each section is converted in tile order
-    (unit stride, vectorized), then scattered to its planes."""
+    tile pixel (r, c) at (y0 + r n, x0 + c n). Row by row, channel by channel: with n = 1 (the
+    master's planes) every pass reads and writes at unit stride (vectorized)."""
     p = h * w
-    tmp = np.empty(3 * p, np.float32)
-    tbits = tmp.view(np.uint32)
     for s in range(3):
         base = o_refl if s == 0 else (o_irr if s == 1 else o_unf)
-        f16_to_f32(raw[base:base + 3 * p], raw[base + 3 * p:base + 6 * p], tbits, tmp)
-        for r in range(h):
-            y = y0 + r * n
-            for c in range(w):
-                i = 3 * (r * w + c)
-                x = x0 + c * n
-                vals[3 * s, y, x] = tmp[i]
-                vals[3 * s + 1, y, x] = tmp[i + 1]
-                vals[3 * s + 2, y, x] = tmp[i + 2]
+        for c in range(3):
+            lo = raw[base + c * p:base + (c + 1) * p]
+            hi = raw[base + (3 + c) * p:base + (4 + c) * p]
+            dst = vals[3 * s + c]
+            for r in range(h):
+                i = r * w
+                y = y0 + r * n
+                if n == 1:
+                    d = dst[y, x0:x0 + w]
+                    for x in range(w):
+                        d[x] = f16_one(lo[i + x], hi[i + x])
+                else:
+                    for x in range(w):
+                        dst[y, x0 + x * n] = f16_one(lo[i + x], hi[i + x])
     o = o_depth
-    _u32(raw[o:o + p], raw[o + p:o + 2 * p], raw[o + 2 * p:o + 3 * p], raw[o + 3 * p:o + 4 * p], tbits[:p])
+    b0, b1, b2, b3 = raw[o:o + p], raw[o + p:o + 2 * p], raw[o + 2 * p:o + 3 * p], raw[o + 3 * p:o + 4 * p]
     for r in range(h):
+        i = r * w
         y = y0 + r * n
-        for c in range(w):
-            depth_bits[y, x0 + c * n] = tbits[r * w + c]
+        for x in range(w):
+            j = i + x
+            depth_bits[y, x0 + x * n] = (np.uint32(b0[j]) | (np.uint32(b1[j]) << np.uint32(8))
+                                         | (np.uint32(b2[j]) << np.uint32(16)) | (np.uint32(b3[j]) << np.uint32(24)))
     o = o_nor
-    _oct(raw[o:o + 2 * p].view(np.uint16), raw[o + 2 * p:o + 4 * p].view(np.uint16), tmp[:p], tmp[p:2 * p],
-         tmp[2 * p:])
+    xlo, ylo, xhi, yhi = raw[o:o + p], raw[o + p:o + 2 * p], raw[o + 2 * p:o + 3 * p], raw[o + 3 * p:o + 4 * p]
     for r in range(h):
+        i = r * w
         y = y0 + r * n
-        for c in range(w):
-            i = r * w + c
-            x = x0 + c * n
-            nrm[0, y, x] = tmp[i]
-            nrm[1, y, x] = tmp[p + i]
-            nrm[2, y, x] = tmp[2 * p + i]
+        if n == 1:
+            d0, d1, d2 = nrm[0, y, x0:x0 + w], nrm[1, y, x0:x0 + w], nrm[2, y, x0:x0 + w]
+            for x in range(w):
+                j = i + x
+                d0[x], d1[x], d2[x] = _normal(xlo[j], ylo[j], xhi[j], yhi[j])
+        else:
+            for x in range(w):
+                j = i + x
+                nx, ny, nz = _normal(xlo[j], ylo[j], xhi[j], yhi[j])
+                nrm[0, y, x0 + x * n] = nx
+                nrm[1, y, x0 + x * n] = ny
+                nrm[2, y, x0 + x * n] = nz

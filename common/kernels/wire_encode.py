@@ -1,4 +1,4 @@
-"""Encode side of the wire codec (common.codec, version 1), compiled: the octahedral snorm16
+"""Encode side of the wire codec (common.codec, version 2), compiled: the octahedral snorm16
 normals of a task's buffers, and the whole byte-shuffled payload (float16 colours, float32
 depth, the normals) written in one pass (:func:`payload_into`).
 
@@ -70,19 +70,21 @@ def f16_bits(x, b) -> int:
 def payload_into(colours, colour_bits, depth, depth_bits, normal_codes, out) -> None:
     """The uncompressed wire payload of one task into ``out`` (uint8, 26 bytes a pixel):
     ``colours`` (3, P, 3) float32 — reflectance, irradiance, unfiltered — as float16 (3P items
-    each), ``depth`` (P,) float32 with NaN as +inf, ``normal_codes`` (P, 2) int16; each section
-    byte-shuffled (all first bytes of its items, then all second bytes, ...). ``*_bits``: the
-    float32 arrays' uint32 views."""
+    each), ``depth`` (P,) float32 with NaN as +inf, ``normal_codes`` (P, 2) int16; items channel
+    by channel (all P of channel 0, then channel 1, ...), each section byte-shuffled (all first
+    bytes of its items, then all second bytes, ...). ``*_bits``: the float32 arrays' uint32
+    views."""
     p = depth.shape[0]
     off = 0
     n = 3 * p
     for part in range(3):
-        for i in range(p):
-            for c in range(3):
-                j = 3 * i + c
+        for c in range(3):
+            lo = off + c * p
+            hi = off + n + c * p
+            for i in range(p):
                 h = f16_bits(colours[part, i, c], colour_bits[part, i, c])
-                out[off + j] = h & 0xFF
-                out[off + n + j] = h >> 8
+                out[lo + i] = h & 0xFF
+                out[hi + i] = h >> 8
         off += 2 * n
     for i in range(p):
         x = depth[i]
@@ -93,9 +95,10 @@ def payload_into(colours, colour_bits, depth, depth_bits, normal_codes, out) -> 
         out[off + 3 * p + i] = b >> 24
     off += 4 * p
     n = 2 * p
-    for i in range(p):
-        for c in range(2):
-            j = 2 * i + c
+    for c in range(2):
+        lo = off + c * p
+        hi = off + n + c * p
+        for i in range(p):
             v = np.int64(normal_codes[i, c]) & 0xFFFF
-            out[off + j] = v & 0xFF
-            out[off + n + j] = v >> 8
+            out[lo + i] = v & 0xFF
+            out[hi + i] = v >> 8

@@ -4,7 +4,7 @@ import lz4.frame
 import numpy as np
 import pytest
 
-from igi.common.codec import (BYTES_PER_PIXEL, HEADER_SIZE, MAGIC, decode, encode, oct_decode, oct_encode,
+from igi.common.codec import (BYTES_PER_PIXEL, HEADER_SIZE, MAGIC, VERSION, decode, encode, oct_decode, oct_encode,
                           to_f16)
 from igi.common.frame import TileBuffers
 
@@ -135,7 +135,7 @@ def test_encode_rejects_inconsistent_buffers():
         encode(b)
 
 
-def _header(p, magic=MAGIC, version=1, flags=0):
+def _header(p, magic=MAGIC, version=VERSION, flags=0):
     return struct.pack("<4sBBHI", magic, version, flags, 0, p)
 
 

@@ -1,6 +1,7 @@
-"""The numpy wire decode that common.kernels.wire_decode replaced (codec version 1, as
-written before issue 16) and the numpy octahedral encode that common.kernels.wire_encode
-replaced: test oracles, bit for bit the references of the compiled codec."""
+"""The numpy wire decode that common.kernels.wire_decode replaced (as written before issue 16,
+on codec version 2's layout: channels apart) and the numpy octahedral encode that
+common.kernels.wire_encode replaced: test oracles, bit for bit the references of the compiled
+codec."""
 from __future__ import annotations
 
 import numpy as np
@@ -118,13 +119,14 @@ def decode_raw(p: int, raw: np.ndarray) -> TileBuffers:
         size = n * dtype.itemsize
         out[name] = _unshuffle(raw_mv[pos:pos + size], dtype, n)
         pos += size
-    f32 = lambda h: f16_to_f32(h.view(np.uint16)).reshape(p, 3)
+    # items run channel by channel (codec version 2): (channels, P) -> (P, channels)
+    f32 = lambda h: np.ascontiguousarray(f16_to_f32(h.view(np.uint16)).reshape(3, p).T)
     return TileBuffers(
         reflectance=f32(out["reflectance"]),
         irradiance=f32(out["irradiance"]),
         unfiltered=f32(out["unfiltered"]),
         depth=out["depth"].astype(np.float32),
-        normal=oct_decode(out["normal"].reshape(p, 2)),
+        normal=oct_decode(np.ascontiguousarray(out["normal"].reshape(2, p).T)),
     )
 
 
@@ -144,7 +146,7 @@ def encode_numpy(buffers: TileBuffers, compression_level: int = 0) -> bytes:
     depth = np.where(np.isnan(depth), np.float32(np.inf), depth)
     parts = [to_f16(buffers.reflectance), to_f16(buffers.irradiance), to_f16(buffers.unfiltered),
              depth.astype("<f4"), oct_encode(buffers.normal).astype("<i2")]
-    raw = b"".join(shuffle(a.reshape(-1)) for a in parts)
+    raw = b"".join(shuffle(a.T.reshape(-1)) for a in parts)  # channel by channel (version 2)
     body = lz4.frame.compress(raw, compression_level=compression_level, content_checksum=False, block_checksum=True,
                               store_size=True)
     return _HEADER.pack(MAGIC, VERSION, 0, 0, p) + body

@@ -417,11 +417,11 @@ class _WireFrame:
         if w * h != p:
             raise ValueError(f"tile {tile} holds {w * h} pixels, data has {p}")
         k, ys, xs = tile.k, slice(tile.sy0, tile.sy0 + h), slice(tile.sx0, tile.sx0 + w)
-        # common.codec layout: 3 float16 sections x 2 byte planes x P x 3, depth 4 planes x P,
-        # normal 2 byte planes x P x 2
-        self.f16[:, :, k, ys, xs] = raw[:18 * p].reshape(3, 2, h, w, 3)
+        # common.codec layout (version 2): 3 float16 sections x 2 byte planes x 3 channels x P,
+        # depth 4 planes x P, normal 2 byte planes x 2 components x P
+        self.f16[:, :, k, ys, xs] = raw[:18 * p].reshape(3, 2, 3, h, w).transpose(0, 1, 3, 4, 2)
         self.dep[:, k, ys, xs] = raw[18 * p:22 * p].reshape(4, h, w)
-        self.nor[:, k, ys, xs] = raw[22 * p:26 * p].reshape(2, h, w, 2)
+        self.nor[:, k, ys, xs] = raw[22 * p:26 * p].reshape(2, 2, h, w).transpose(0, 2, 3, 1)
 
     def convert(self, sy0: int, sy1: int, values, normals, dp=None, depth=None) -> None:
         """Decode sub-image rows ``sy0 .. sy1`` of every k (image rows sy0·n … sy1·n - 1) into

@@ -137,10 +137,7 @@ def _direct_calls() -> dict:
         "igi.common.kernels.texture.lookup": lambda: texture.lookup(
             np.zeros((1, 1, 3), np.float32), np.zeros((1, 2)), 1.0, 1.0, 0.0, 0.0, False, np.zeros((1, 3), np.float32)),
         "igi.common.kernels.wire_decode.oct_decode_one": lambda: wire_decode.oct_decode_one(0, 0),
-        "igi.common.kernels.wire_decode.f16_to_f32": lambda: wire_decode.f16_to_f32(z, z, out1.view(np.uint32), out1),
-        "igi.common.kernels.wire_decode._u32": lambda: wire_decode._u32(z, z, z, z, out1.view(np.uint32)),
-        "igi.common.kernels.wire_decode._oct": lambda: wire_decode._oct(z.view(np.uint16), z.view(np.uint16), out1, out1,
-                                                                   out1),
+        "igi.common.kernels.wire_decode.f16_to_f32": lambda: wire_decode.f16_to_f32(z, z, out1),
         "igi.common.kernels.wire_decode.oct_decode_into": lambda: wire_decode.oct_decode_into(
             np.zeros(1, np.int16), np.zeros(1, np.int16), np.zeros((3, 1), np.float32)),
         # the gather's array path (benchmark replays, no Embree C API): the render takes the packets
