@@ -15,6 +15,7 @@ from typing import Callable
 import numpy as np
 
 from igi.common.camera import resolve_camera
+from igi.common.malloc_policy import reuse_freed_blocks
 from igi.common.params import make_params, params_to_dict
 from igi.common.scene import Scene
 
@@ -43,6 +44,7 @@ def render_local(scene: Scene, params=None, frames: int = 1, camera=None,
     frames are then identical). ``on_frame(i, image_so_far)`` is called after each frame.
     ``renderer`` reuses an existing ``worker.renderer.Renderer`` for ``scene``.
     """
+    reuse_freed_blocks()  # this process is master and worker: tile buffers stay in the heap
     if params is None:
         params = make_params()
     elif isinstance(params, dict):
