@@ -155,12 +155,15 @@ class FrameAssembler:
         if self._buffers is None:
             return self._planes().image(self._tiles, window, w, p)
         b = self.buffers
-        pl = _Planes(self.width, self.height, 1, plane_pad(*_window_reach(window), 1))
-        for s, name in enumerate(("reflectance", "irradiance", "unfiltered")):
-            pl.interior(pl.vals[0, 3 * s:3 * s + 3])[...] = b[name].transpose(2, 0, 1)
-        pl.interior(pl.nrm[0])[...] = b["normal"].transpose(2, 0, 1)
-        pl.interior(pl.depth[0])[...] = b["depth"]
-        return pl.finish(window, w, p)
+        pl = _Planes.acquire(self.width, self.height, 1)  # the frame in image order: one sub-image
+        try:
+            for s, name in enumerate(("reflectance", "irradiance", "unfiltered")):
+                pl.interior(pl.vals[0, 3 * s:3 * s + 3])[...] = b[name].transpose(2, 0, 1)
+            pl.interior(pl.nrm[0])[...] = b["normal"].transpose(2, 0, 1)
+            pl.interior(pl.depth[0])[...] = b["depth"]
+            return pl.finish(window, w, p)
+        finally:
+            _Planes.release(pl)
 
 
 def _window_reach(window: int) -> tuple[int, int]:
