@@ -265,7 +265,8 @@ def run(args: argparse.Namespace) -> int:
         lasts[key] = last
         mf = merge_filter_rate(last, args.merge_reps)
         results["merge_filter"][key] = mf
-        print(f"  master merge+filter {mf['merge_filter_mpixel_s']:.1f} Mpixel/s", file=sys.stderr)
+        print(f"  master merge+filter {mf['merge_filter_mpixel_s']:.1f} Mpixel/s on {mf['threads']} thread(s), "
+              f"{mf['cpu_1thread_mpixel_s']:.1f} on one core (CPU time)", file=sys.stderr)
     if getattr(args, "model", False):
         results["model"] = run_model(args, scene, params, results, lasts)
     out = Path(args.out)
