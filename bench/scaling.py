@@ -429,7 +429,6 @@ def _baseline(rev, costs, lasts, src_key, n, pdict, tp, workers, kw, sizes) -> d
     import types
     from dataclasses import replace
 
-    from igi.common import codec
     from igi.common.interleave import extract
 
     from . import scaling_model as sm
@@ -460,9 +459,10 @@ def _baseline(rev, costs, lasts, src_key, n, pdict, tp, workers, kw, sizes) -> d
             key = f"{w}x{h}"
             if key in lasts:
                 res = lasts[key]
-                wire = [(t, codec.encode(extract(t, n, res.buffers))) for t in task_tiles(w, h, n, tp)]
+                # the revision's own codec: its wire format may be older than this one's
+                wire = [(t, old_codec.encode(extract(t, n, res.buffers))) for t in task_tiles(w, h, n, tp)]
             else:
-                wire = sm.synthetic_wire(lasts[src_key].buffers, w, h, n, tp)
+                wire = sm.synthetic_wire(lasts[src_key].buffers, w, h, n, tp, encode=old_codec.encode)
             recv = fin = float("inf")
             for _ in range(3):
                 asm = old_fa.FrameAssembler(w, h, n)

@@ -674,13 +674,16 @@ def _accumulating_set_cost(scene, params, cam, fov: float, w: int, h: int) -> fl
     return (time.process_time() - c0) / ACCUMULATED_FRAMES
 
 
-def synthetic_wire(buffers: dict, width: int, height: int, n: int, task_pixels: int) -> list:
+def synthetic_wire(buffers: dict, width: int, height: int, n: int, task_pixels: int, encode=None) -> list:
     """Wire bytes of a frame of another size made from rendered full-frame buffers (nearest
-    resampling): for timing the master at resolutions not rendered here."""
+    resampling): for timing the master at resolutions not rendered here. ``encode``: the
+    codec's (default: this revision's common.codec.encode)."""
     import numpy as np
 
-    from igi.common.codec import encode
     from igi.common.interleave import extract
+
+    if encode is None:
+        from igi.common.codec import encode
 
     from igi.master.frame_assembly import task_tiles
 
