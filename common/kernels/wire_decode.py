@@ -87,6 +87,13 @@ def f16_to_f32(lo, hi, out) -> None:
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _u32(b0, b1, b2, b3) -> int:
+    """A little-endian uint32 from its four bytes."""
+    return (np.uint32(b0) | (np.uint32(b1) << np.uint32(8)) | (np.uint32(b2) << np.uint32(16))
+            | (np.uint32(b3) << np.uint32(24)))
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _normal(xlo, ylo, xhi, yhi) -> tuple:
     """The normal of one pixel from the bytes of its x and y codes."""
     qx = np.int64(xlo) | (np.int64(xhi) << 8)
@@ -126,10 +133,13 @@ def decode_tile(raw, h, w, o_refl, o_irr, o_unf, o_depth, o_nor, n, y0, x0,
     for r in range(h):
         i = r * w
         y = y0 + r * n
-        for x in range(w):
-            j = i + x
-            depth_bits[y, x0 + x * n] = (np.uint32(b0[j]) | (np.uint32(b1[j]) << np.uint32(8))
-                                         | (np.uint32(b2[j]) << np.uint32(16)) | (np.uint32(b3[j]) << np.uint32(24)))
+        if n == 1:
+            d = depth_bits[y, x0:x0 + w]
+            for x in range(w):
+                d[x] = _u32(b0[i + x], b1[i + x], b2[i + x], b3[i + x])
+        else:
+            for x in range(w):
+                depth_bits[y, x0 + x * n] = _u32(b0[i + x], b1[i + x], b2[i + x], b3[i + x])
     o = o_nor
     xlo, ylo, xhi, yhi = raw[o:o + p], raw[o + p:o + 2 * p], raw[o + 2 * p:o + 3 * p], raw[o + 3 * p:o + 4 * p]
     for r in range(h):
