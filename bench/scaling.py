@@ -54,7 +54,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=int, default=10, help="measured frames per point (default 10)")
     p.add_argument("--warmup", type=int, default=2, help="frames before measuring (default 2)")
     p.add_argument("--merge-reps", type=int, default=15,
-                   help="repetitions of the merge+filter timing, best kept (default 15: this VM moves by 30%% between reps)")
+                   help="repetitions of the merge+filter timing, best kept (default 15: a shared VM's "
+                        "speed moves by 30%% between repetitions)")
     p.add_argument("--task-pixels", type=int, default=None, help="pixels per task (default: the broker's)")
     p.add_argument("--latency-inputs", type=int, default=5,
                    help="camera inputs per point for the input-to-frame latency (master.viewer_latency; 0: skip)")

@@ -75,7 +75,8 @@ def f16_one(lo, hi) -> float:
     h = np.uint32(lo) | (np.uint32(hi) << np.uint32(8))
     f = np.uint32((h & np.uint32(0x7FFF)) << np.uint32(13)).view(np.float32) * np.float32(2.0 ** 112)
     special = (h & np.uint32(0x7C00)) == np.uint32(0x7C00)
-    b = (np.uint32(0x7F800000) | ((h & np.uint32(0x3FF)) << np.uint32(13))) if special else np.float32(f).view(np.uint32)
+    inf_nan = np.uint32(0x7F800000) | ((h & np.uint32(0x3FF)) << np.uint32(13))
+    b = inf_nan if special else np.float32(f).view(np.uint32)
     return np.uint32(b | ((h & np.uint32(0x8000)) << np.uint32(16))).view(np.float32)
 
 

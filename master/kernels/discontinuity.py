@@ -14,10 +14,11 @@ Why a kernel: the numpy version made ~10 passes over memory per window offset (c
 masks, products, sums, all as temporaries of a strip); here a row's sums and counts stay in
 cache while every window offset adds to them in one branch-free, vectorized pass, and the
 compose follows at once. The master runs it in sub-image space (``finish_sub``), straight on
-the planes the wire decode wrote (bordered, so that no pass clips at the image's edges). The float32 operations are the numpy version's, in the
-same order (offsets row by row, as its loop did, rejected and outside neighbours adding +0),
-so the image is bit-identical to it, signed zeros included (tests/master/test_master_kernels.py;
-only which NaN payload survives when two NaNs meet may differ). Rows are independent: callers
+the planes the wire decode wrote (bordered, so that no pass clips at the image's edges). The
+float32 operations are the numpy version's, in the same order (offsets row by row, as its
+loop did, rejected and outside neighbours adding +0), so the image is bit-identical to it,
+signed zeros included (tests/master/test_master_kernels.py; only which NaN payload survives
+when two NaNs meet may differ). Rows are independent: callers
 split a frame into row blocks across threads (``nogil``). ``error_model="numpy"``: no
 ZeroDivisionError checks (the only divisor is a count >= 1), so loops vectorize; IEEE
 float32 arithmetic either way, no fastmath.
