@@ -26,9 +26,10 @@ from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.random.bit_generator import ISpawnableSeedSequence
 from scipy.stats import qmc
 
-from igi.common.kernels import sobol_points
+from igi.common.kernels import seed_sequence, sobol_points
 
 # Tags that keep the derived PRNGs of different uses independent of each other.
 _TAG_MAIN = 0x50B01  # the main Sobol' instance
@@ -53,14 +54,64 @@ def _key_word(key: int | str | bytes) -> int:
     raise TypeError(f"rng key must be int, str or bytes, not {type(key).__name__}")
 
 
+def _words(x: int) -> list[int]:
+    """The uint32 words of a non-negative int, least significant first ([0] for 0), as numpy's
+    SeedSequence splits its entropy and spawn keys."""
+    words = [x & 0xFFFFFFFF]
+    x >>= 32
+    while x:
+        words.append(x & 0xFFFFFFFF)
+        x >>= 32
+    return words
+
+
+class _State(ISpawnableSeedSequence):
+    """PCG64's seed words, already hashed (seed_sequence.state_words): what the ``SeedSequence``
+    of the same entropy and spawn key would generate. Anything else asked of it (``spawn``:
+    scipy's engines spawn from the generator they are given) goes to that SeedSequence, made
+    on first use."""
+
+    __slots__ = ("words", "_entropy", "_keys", "_seq")
+
+    def __init__(self, words: np.ndarray, entropy: int, keys: tuple[int, ...]) -> None:
+        self.words, self._entropy, self._keys, self._seq = words, entropy, keys, None
+
+    def generate_state(self, n_words: int, dtype=np.uint32) -> np.ndarray:
+        if np.dtype(dtype) != np.uint64 or n_words != len(self.words):
+            raise ValueError(f"holds {len(self.words)} uint64 words, asked for {n_words} {np.dtype(dtype)}")
+        return self.words
+
+    def _sequence(self) -> np.random.SeedSequence:
+        if self._seq is None:
+            self._seq = np.random.SeedSequence(self._entropy, spawn_key=self._keys)
+        return self._seq
+
+    def spawn(self, n_children: int) -> list[np.random.SeedSequence]:
+        return self._sequence().spawn(n_children)
+
+    def __getattr__(self, name: str):
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(self._sequence(), name)
+
+
 def rng(seed: int, *keys: int | str | bytes) -> np.random.Generator:
-    """An independent PRNG for (seed, *keys), identical in every process.
+    """An independent PRNG for (seed, *keys), identical in every process: the generator
+    ``PCG64(SeedSequence(seed, spawn_key=keys))``, bit for bit, its seed hashed in one compiled
+    call (common.kernels.seed_sequence: numpy's SeedSequence cost ~3% of a small frame).
 
     Different key tuples give statistically independent streams (SeedSequence spawn keys),
     so e.g. ``rng(seed, "photons", k)`` and ``rng(seed, "vpl", k)`` never overlap.
     """
-    ss = np.random.SeedSequence(_key_word(seed), spawn_key=tuple(_key_word(k) for k in keys))
-    return np.random.Generator(np.random.PCG64(ss))
+    seed_word, key_words = _key_word(seed), tuple(_key_word(k) for k in keys)
+    entropy = _words(seed_word)
+    if key_words:
+        entropy += [0] * (seed_sequence.POOL_SIZE - len(entropy))  # as numpy: the seed padded to the pool
+        for k in key_words:
+            entropy += _words(k)
+    words = np.empty(8, np.uint32)
+    seed_sequence.state_words(np.array(entropy, np.uint32), words)
+    return np.random.Generator(np.random.PCG64(_State(words.view(np.uint64), seed_word, key_words)))
 
 
 def stream_seed(seed: int, *keys: int | str | bytes) -> int:
