@@ -63,3 +63,15 @@ def test_a_generator_spawns_the_children_numpy_would():
             for ca, cb in zip(a.spawn(3), b.spawn(3)):
                 assert ca.bit_generator.state == cb.bit_generator.state
         assert a.bit_generator.seed_seq.spawn_key == b.bit_generator.seed_seq.spawn_key
+
+
+def test_a_generator_survives_pickling_and_deep_copies():
+    import copy
+    import pickle
+
+    g = rng(5, "photons", 3)
+    g.random(3)
+    copies = [copy.deepcopy(g), pickle.loads(pickle.dumps(g))]
+    want = g.random(4)
+    for c in copies:
+        assert np.array_equal(c.random(4), want)
