@@ -86,6 +86,28 @@ def _table(sp: bsdf.SurfacePoints, key: np.ndarray, row: int, alpha: float) -> n
     return value
 
 
+def widened_lobes(surface: bsdf.SurfacePoints, regularized: bsdf.SurfacePoints, wi: np.ndarray) -> tuple | None:
+    """What :func:`regularization_gain` reads per widened point, or None where no lobe was
+    widened: (rows of ``surface`` widened, their points, their cosine (as bsdf.albedo evaluates
+    it), the lobe tables (G, MU_BINS, 6) at the original roughness (channels 0-2) and the widened
+    one (3-5), each row's table)."""
+    rows = np.nonzero(regularized.alpha != surface.alpha)[0]
+    if len(rows) == 0:
+        return None
+    orig = surface if len(rows) == len(surface) else surface.subset(rows)
+    alpha = regularized.alpha[rows]
+    # the cosine bsdf.albedo evaluates at, so the lobe tables and the total albedo agree
+    mu = np.clip(np.abs(np.asarray(wi, dtype=np.float64)[rows, 2]), ALBEDO_MIN_COS, 1.0)
+    keys = _lobe_keys(orig)
+    combos = np.column_stack([keys, alpha.astype(np.float64)])
+    # one lobe per material, as a rule: group rows by a 1-D projection of their keys (a sort of
+    # floats, not np.unique over rows), each group's first row stands for it
+    _, first, inverse = np.unique(combos @ _KEY_WEIGHTS, return_index=True, return_inverse=True)
+    tables = np.stack([np.concatenate([_table(orig, keys[r0], int(r0), float(orig.alpha[r0])),
+                                       _table(orig, keys[r0], int(r0), float(alpha[r0]))], axis=1) for r0 in first])
+    return rows, orig, mu, tables, inverse.reshape(-1)
+
+
 def regularization_gain(surface: bsdf.SurfacePoints, regularized: bsdf.SurfacePoints,
                         wi: np.ndarray) -> np.ndarray:
     """(N, 3) factor that gives the widened BSDFs ``regularized`` (:func:`regularized_senders` of
@@ -95,27 +117,16 @@ def regularization_gain(surface: bsdf.SurfacePoints, regularized: bsdf.SurfacePo
     [GAIN_MIN, GAIN_MAX]. The per-point arithmetic is one compiled pass
     (kernels.regularization_gain)."""
     gain = np.ones((len(surface), 3))
-    rows = np.nonzero(regularized.alpha != surface.alpha)[0]
-    if len(rows) == 0:
+    widened = widened_lobes(surface, regularized, wi)
+    if widened is None:
         return gain
-    orig = surface if len(rows) == len(surface) else surface.subset(rows)
-    alpha = regularized.alpha[rows]
-    # the cosine bsdf.albedo evaluates at, so the lobe tables and the total albedo agree
-    mu = np.clip(np.abs(np.asarray(wi, dtype=np.float64)[rows, 2]), ALBEDO_MIN_COS, 1.0)
-    keys = _lobe_keys(orig)
-    combos = np.column_stack([keys, alpha.astype(np.float64)])
-    # one lobe per material, as a rule: group rows by a 1-D projection of their keys (a sort of
-    # floats, not np.unique over rows), each group's first row stands for it; its tables at the
-    # original and the widened roughness side by side (channels 0-2, 3-5)
-    _, first, inverse = np.unique(combos @ _KEY_WEIGHTS, return_index=True, return_inverse=True)
-    tables = np.stack([np.concatenate([_table(orig, keys[r0], int(r0), float(orig.alpha[r0])),
-                                       _table(orig, keys[r0], int(r0), float(alpha[r0]))], axis=1) for r0 in first])
+    rows, orig, mu, tables, group = widened
     # A conductor is all lobe; a plastic's smooth albedo estimate is its diffuse layer plus its
     # coat's single-scattering reflectance at the original roughness (the coat tables, which the
     # widened lobe keeps): the original's total directional albedo.
     conductor = np.ascontiguousarray(orig.kind == ROUGHCONDUCTOR)
     albedo = np.ascontiguousarray(bsdf.albedo(orig, mu_dirs(mu)), np.float64)
-    kg.gains(np.ascontiguousarray(tables, np.float64), np.ascontiguousarray(inverse.reshape(-1), np.int64), mu,
+    kg.gains(np.ascontiguousarray(tables, np.float64), np.ascontiguousarray(group, np.int64), mu,
              np.ascontiguousarray(orig.specular, np.float64), conductor, albedo, MU_BINS, GAIN_MIN, GAIN_MAX,
              rows, gain)
     return gain

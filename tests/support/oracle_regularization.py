@@ -1,13 +1,13 @@
 """The numpy regularization gain that worker.kernels.regularization_gain replaced, kept as the
-test oracle (worker.regularization's tables, keys and grouping, the per-point passes in numpy)."""
+test oracle: the per-point passes in numpy on the product's own rows, cosines and lobe tables
+(worker.regularization.widened_lobes)."""
 from __future__ import annotations
 
 import numpy as np
 
 from igi.common import bsdf
 from igi.common.scene import ROUGHCONDUCTOR
-from igi.worker.regularization import (_KEY_WEIGHTS, ALBEDO_MIN_COS, GAIN_MAX, GAIN_MIN, MU_BINS, _lobe_keys,
-                                       _table, mu_dirs)
+from igi.worker.regularization import GAIN_MAX, GAIN_MIN, MU_BINS, mu_dirs, widened_lobes
 
 
 def _at(table: np.ndarray, mu: np.ndarray) -> np.ndarray:
@@ -27,26 +27,15 @@ def regularization_gain(surface: bsdf.SurfacePoints, regularized: bsdf.SurfacePo
     (original albedo - what widening the lobe loses). 1 where the lobe was not widened; within
     [GAIN_MIN, GAIN_MAX]."""
     gain = np.ones((len(surface), 3))
-    rows = np.nonzero(regularized.alpha != surface.alpha)[0]
-    if len(rows) == 0:
+    widened = widened_lobes(surface, regularized, wi)  # the product's rows, cosines and tables
+    if widened is None:
         return gain
-    orig = surface if len(rows) == len(surface) else surface.subset(rows)
-    alpha = regularized.alpha[rows]
-    # the cosine bsdf.albedo evaluates at, so the lobe tables and the total albedo agree
-    mu = np.clip(np.abs(np.asarray(wi, dtype=np.float64)[rows, 2]), ALBEDO_MIN_COS, 1.0)
-    keys = _lobe_keys(orig)
-    combos = np.column_stack([keys, alpha.astype(np.float64)])
-    # one lobe per material, as a rule: group rows by a 1-D projection of their keys (a sort of
-    # floats, not np.unique over rows), each group's first row stands for it
-    _, first, inverse = np.unique(combos @ _KEY_WEIGHTS, return_index=True, return_inverse=True)
+    rows, orig, mu, tables, group = widened
     s_orig = np.empty((len(rows), 3))
     s_reg = np.empty((len(rows), 3))
-    for c, r0 in enumerate(first):
-        sel = np.nonzero(inverse == c)[0] if len(first) > 1 else slice(None)
-        # both tables side by side: one interpolation pass over the points, not two
-        both = np.concatenate([_table(orig, keys[r0], int(r0), float(orig.alpha[r0])),
-                               _table(orig, keys[r0], int(r0), float(alpha[r0]))], axis=1)
-        s = _at(both, mu[sel])
+    for c in range(len(tables)):
+        sel = np.nonzero(group == c)[0] if len(tables) > 1 else slice(None)
+        s = _at(tables[c], mu[sel])
         s_orig[sel], s_reg[sel] = s[:, :3], s[:, 3:]
     spec = np.asarray(orig.specular, dtype=np.float64)
     lost = spec * np.maximum(s_orig - s_reg, 0.0)
