@@ -129,23 +129,37 @@ def check_bind(address: str) -> None:
 
 
 class Progress:
-    """A one-line progress bar on stderr (a line per ~10% when stderr is not a terminal)."""
+    """A one-line progress bar on stderr (a line per ~10% when stderr is not a terminal).
 
-    def __init__(self, total: int, label: str = "rendering", stream=None):
+    The frame rate is the one since the first frame: the first holds the start-up (workers
+    spawned, kernels and scene loaded, the first sets built), which a rate from the launch
+    would spread over every frame, and the ETA with it."""
+
+    def __init__(self, total: int, label: str = "rendering", stream=None, clock=time.monotonic):
         self.total, self.label = total, label
         self.stream = stream or sys.stderr
         self.tty = self.stream.isatty()
-        self.t0 = time.monotonic()
+        self.clock = clock
+        self.t0 = clock()
+        self._first: tuple[int, float] | None = None  # (frames done, time) at the first update
         self._last_pct = -1
 
     def update(self, done: int, error: float | None = None) -> None:
-        el = time.monotonic() - self.t0
-        rate = done / el if el > 0 else 0.0
+        now = self.clock()
+        if self._first is None and done > 0:
+            self._first = (done, now)
+        f_done, f_time = self._first if self._first is not None else (0, self.t0)
+        if done > f_done and now > f_time:
+            rate = (done - f_done) / (now - f_time)
+        else:
+            rate = done / (now - self.t0) if now > self.t0 else 0.0
         eta = (self.total - done) / rate if rate > 0 else 0.0
         width = 30
         fill = int(width * done / self.total)
         line = (f"{self.label} [{'#' * fill}{'-' * (width - fill)}] {done}/{self.total} frames "
                 f"{rate:.2f} fps ETA {eta:.0f} s")
+        if done >= self.total and self._first is not None:
+            line += f" (first frame after {f_time - self.t0:.1f} s)"
         if error is not None:
             line += f" noise estimate {error:.2e}"
         if self.tty:

@@ -337,3 +337,23 @@ def test_render_plan_says_how_emitter_samples_choose_their_emitter():
     box = igi("render", CORNELL, "--plan")
     assert box.returncode == 0, box.stderr
     assert "off emitter choice" in box.stdout
+
+
+def test_progress_rate_counts_from_the_first_frame_not_the_launch():
+    import io
+
+    from igi.master.cli import Progress
+
+    t = [100.0]
+    out = io.StringIO()
+    p = Progress(5, stream=out, clock=lambda: t[0])
+    t[0] = 104.0  # start-up: the first frame after 4 s
+    p.update(1)
+    for k in range(2, 6):  # then one frame every 0.25 s: 4 frames/s
+        t[0] = 104.0 + 0.25 * (k - 1)
+        p.update(k, error=1e-3)
+    lines = out.getvalue().strip().splitlines()
+    assert "1/5 frames 0.25 fps" in lines[0]  # one frame: all that is known is launch to frame
+    assert "3/5 frames 4.00 fps ETA 0 s" in lines[2]  # 2 frames left at 4 frames/s
+    assert lines[-1].startswith("rendering [") and "5/5 frames 4.00 fps" in lines[-1]
+    assert "(first frame after 4.0 s)" in lines[-1] and "noise estimate 1.00e-03" in lines[-1]
