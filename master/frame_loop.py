@@ -7,7 +7,8 @@ Everything here runs on the broker's loop thread (``master/broker.py``), except
   ``task_pixels=None`` as large as the render threads connected allow,
   ``frame_assembly.task_pixels_for``); their keys ``(frame, task)`` wait
   in one queue, front first. Each task needs one VPL/photon set, key
-  ``(scene_version, seed, k)``.
+  ``(scene_version, seed, k)``; the queue is indexed by it (``master/task_queue.py``), so a
+  dispatch costs O(sets), not O(queued tasks).
 - Dispatch asks the pure policy of ``master/scheduler.py`` (credit-based flow control,
   set-aware choice over the whole queue, fault avoidance) and sends FRAME (once per worker and
   frame) and TASK. Every assignment has a fresh epoch.
@@ -15,7 +16,7 @@ Everything here runs on the broker's loop thread (``master/broker.py``), except
   frame — stale and duplicate results are dropped. Its tile is validated and stored in the
   frame's :class:`FrameAssembler`; when the last tile is in, the frame's Future resolves.
 - Tasks of a worker that left, timed out, failed or was quarantined go back to the FRONT of
-  the queue, avoiding that worker (``scheduler.requeue_front``); a task that fails
+  the queue, avoiding that worker (``TaskQueue.push_front``); a task that fails
   :data:`MAX_TASK_FAILURES` times fails its frame. Task timeouts follow the measured task
   times (``scheduler.task_timeout``).
 
@@ -41,6 +42,7 @@ from .frames import Frame, FrameCancelled, FrameFailed, FrameResult, Task
 from .links import Links, Worker
 from .meters import Meters
 from .scene_state import SceneState
+from .task_queue import TaskQueue
 
 log = logging.getLogger("igi.master")
 
@@ -59,7 +61,7 @@ class FrameLoop:
         self.task_pixels = None if task_pixels is None else int(task_pixels)
         self.frames_in_flight = frames_in_flight
         self.task_timeout = float(task_timeout)
-        self.queue: collections.deque = collections.deque()  # (frame, task) keys, front first
+        self.queue = TaskQueue()  # (frame, task) keys, front first, by set
         self.frames: collections.OrderedDict[int, Frame] = collections.OrderedDict()
         self.meters = Meters()
         self.on_stream_frame_closed: Callable[[], None] = lambda: None  # the stream refills
@@ -89,7 +91,7 @@ class FrameLoop:
         tasks = {}
         for i, t in enumerate(tiles):
             tasks[i] = Task(spec.frame, i, t, (spec.scene_version, spec.seed, t.k))
-            self.queue.append((spec.frame, i))
+            self.queue.append((spec.frame, i), tasks[i].set_key)
         self.frames[spec.frame] = Frame(spec, FrameAssembler(spec.width, spec.height, n), fut,
                                         tasks, len(tiles), time.monotonic(), stream_gen=stream_gen)
         self.dispatch()
@@ -122,7 +124,7 @@ class FrameLoop:
             if not f.future.done():
                 f.future.set_exception(exc)
         gone_set = set(gone)
-        self.queue = collections.deque(k for k in self.queue if k[0] not in gone_set)
+        self.queue.remove_where(lambda k: k[0] in gone_set)
 
     def open_stream_frames(self, gen: int) -> int:
         return sum(1 for f in self.frames.values() if f.stream_gen == gen)
@@ -146,7 +148,7 @@ class FrameLoop:
 
     def _fail_frame(self, f: Frame, t: Task, why: str) -> None:
         self.frames.pop(f.spec.frame, None)
-        self.queue = collections.deque(k for k in self.queue if k[0] != f.spec.frame)
+        self.queue.remove_where(lambda k: k[0] == f.spec.frame)
         log.error("frame %d failed: task %d failed %d times (%s)", f.spec.frame, t.task, t.failures, why)
         if not f.future.done():
             f.future.set_exception(FrameFailed(f"frame {f.spec.frame}: task {t.task} failed "
@@ -195,24 +197,20 @@ class FrameLoop:
         """The queue as the policy sees it: the whole queue (set-aware choice looks past the
         front), but at most the first ``free`` tasks of each set — no more can be assigned.
         Tasks of frames gone meanwhile are dropped from the queue."""
-        pending = []
-        per_set: collections.Counter = collections.Counter()
-        stale = 0
-        for key in self.queue:
-            _, t = self._lookup(*key)
-            if t is None:
-                stale += 1
-                continue
-            if per_set[t.set_key] < free:
-                per_set[t.set_key] += 1
-                pending.append(t.as_pending(key))
-        if stale:
-            self.queue = collections.deque(k for k in self.queue
-                                           if k[0] in self.frames and k[1] in self.frames[k[0]].tasks)
-        return pending
+        while True:
+            pending, stale = [], []
+            for key in self.queue.heads(free):
+                _, t = self._lookup(*key)
+                if t is None:
+                    stale.append(key)
+                else:
+                    pending.append(t.as_pending(key))
+            if not stale:
+                return pending
+            for key in stale:  # and look again: a set's later tasks move up
+                self.queue.remove(key)
 
     def _apply_assignments(self, assigned: list) -> None:
-        done = set()
         for key, wid in assigned:
             w = self.links.workers.get(wid)
             if w is None:
@@ -221,9 +219,7 @@ class FrameLoop:
             if not self._ensure_frame_sent(w, f):
                 continue
             if self._send_task(w, f.tasks[key[1]]):
-                done.add(key)
-        if done:
-            self.queue = collections.deque(k for k in self.queue if k not in done)
+                self.queue.remove(key)
 
     def _send_task(self, w: Worker, t: Task) -> bool:
         self._epoch += 1
@@ -345,7 +341,7 @@ class FrameLoop:
         if t.failures >= MAX_TASK_FAILURES:
             self._fail_frame(f, t, why)
             return
-        self.queue.appendleft((t.frame, t.task))
+        self.queue.push_front([((t.frame, t.task), t.set_key)])
         self.counters["tasks_requeued"] += 1
 
     # ------------------------------------------------------------------ lost tasks
@@ -383,7 +379,8 @@ class FrameLoop:
     def requeue_front(self, lost: list) -> None:
         """Put the task keys ``lost`` back at the front of the queue, in their order."""
         if lost:
-            self.queue = collections.deque(scheduler.requeue_front(list(self.queue), lost))
+            keyed = [(key, t.set_key) for key in lost for _, t in [self._lookup(*key)] if t is not None]
+            self.queue.push_front(keyed)
             self.counters["tasks_requeued"] += len(lost)
 
     def worker_fault(self, w: Worker, quarantined: str | None) -> None:

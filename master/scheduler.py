@@ -36,8 +36,8 @@ Policy (docs/architecture.md, docs/scaling.md; set-aware since issue 19):
    only): otherwise a silent peer that holds a set and all its credit starves that set's
    tasks in every later frame while the trusted workers stay busy, and the stream stops.
 5. Re-queued tasks (of an expired, disconnected or departing worker) are put at the FRONT of
-   the queue in their original order (:func:`requeue_front`); among tasks of one set the
-   queue order is kept.
+   the queue in their original order (the broker's ``master/task_queue.py``,
+   ``TaskQueue.push_front``); among tasks of one set the queue order is kept.
 """
 from __future__ import annotations
 
@@ -180,14 +180,6 @@ def _may_take(t: PendingTask, wid, all_ids: set) -> bool:
 
 def _id_order(wid):
     return (type(wid).__name__, wid)
-
-
-def requeue_front(pending: Sequence, lost: Sequence) -> list:
-    """The queue with the ``lost`` tasks (of an expired or disconnected worker) at the front,
-    in their original order, and no task twice."""
-    lost_list = list(dict.fromkeys(lost))
-    seen = set(lost_list)
-    return lost_list + [t for t in pending if t not in seen]
 
 
 def credit_for(threads: int, per_thread: int | None = None) -> int:

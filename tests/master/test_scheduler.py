@@ -4,7 +4,8 @@ from __future__ import annotations
 import collections
 
 from igi.master.scheduler import (TIMEOUT_FLOOR, FaultLedger, PendingTask, WorkerView, assign, credit_for,
-                              requeue_front, task_timeout)
+                                  task_timeout)
+from igi.master.task_queue import TaskQueue
 
 
 def tasks(*keys):
@@ -87,15 +88,17 @@ def test_limit():
     assert len(assign(tasks(*[(0, 0, 0)] * 8), ws, limit=3)) == 3
 
 
-def test_requeue_front_keeps_order_and_no_duplicates():
-    assert requeue_front([5, 6, 7], [3, 6]) == [3, 6, 5, 7]
-    assert requeue_front([], [2, 1, 2]) == [2, 1]
-    assert requeue_front([1, 2], []) == [1, 2]
+def _queue(keys, set_of=lambda t: (t[0], t[1])) -> TaskQueue:
+    q = TaskQueue()
+    for t in keys:
+        q.append(t, set_of(t))
+    return q
 
 
 def test_requeued_tasks_are_assigned_first():
-    queue = requeue_front([("f", 2), ("f", 3)], [("f", 0)])
-    pending = [PendingTask(key, (0, 0, key[1])) for key in queue]
+    queue = _queue([("f", 2), ("f", 3)], lambda key: (0, 0, key[1]))
+    queue.push_front([(("f", 0), (0, 0, 0))])
+    pending = [PendingTask(key, (0, 0, key[1])) for key in queue.heads(1)]
     assert assign(pending, [WorkerView("a", 1)]) == [(("f", 0), "a")]
 
 
@@ -119,14 +122,16 @@ def _simulate(workers=16, ks=9, tiles_per_k=12, frames=30, pipeline=3, credit=3,
         ws[wid] = {"inflight": collections.deque(), "cache": set(), "acc": 0.0}
     for i in range(workers):
         join(f"w{i:02d}")
-    queue, remaining, builds, done, idle, requeued = [], {}, collections.Counter(), [], 0, []
+    queue, remaining, builds, done, idle, requeued = TaskQueue(), {}, collections.Counter(), [], 0, []
     nxt = [0]
 
     def submit():
         f = nxt[0]
         nxt[0] += 1
         remaining[f] = ks * tiles_per_k
-        queue.extend((f, k, t) for k in range(ks) for t in range(tiles_per_k))
+        for k in range(ks):
+            for t in range(tiles_per_k):
+                queue.append((f, k, t), (f, k))
     for _ in range(pipeline):
         submit()
     step = 0
@@ -139,15 +144,16 @@ def _simulate(workers=16, ks=9, tiles_per_k=12, frames=30, pipeline=3, credit=3,
             else:
                 lost = list(ws.pop(wid)["inflight"])
                 requeued.append((lost, list(queue)))
-                queue[:] = requeue_front(queue, lost)
+                queue.push_front([(t, (t[0], t[1])) for t in lost])
         views = [WorkerView(wid, credit, len(w["inflight"]),
                             frozenset(w["cache"]) | {(t[0], t[1]) for t in w["inflight"]})
                  for wid, w in ws.items()]
-        out = assign([PendingTask(t, (t[0], t[1])) for t in queue], views)
+        free = sum(v.free for v in views)  # as the broker: at most `free` tasks of each set
+        out = assign([PendingTask(t, (t[0], t[1])) for t in queue.heads(free)], views)
         for t, wid in out:
             ws[wid]["inflight"].append(t)
-        got = {t for t, _ in out}
-        queue[:] = [t for t in queue if t not in got]
+        for t, _ in out:
+            queue.remove(t)
         idle += bool(queue) and sum(1 for w in ws.values() if not w["inflight"])
         for wid, w in ws.items():
             w["acc"] += speed.get(wid, 1.0)
@@ -188,10 +194,12 @@ def test_requeue_order_after_a_worker_dies_is_unchanged():
     events = {25: [("leave", "w05")]}
     _, _, requeued = _simulate(frames=6, events=events)
     (lost, before), = requeued
-    after = requeue_front(before, lost)
+    q = _queue(before)
+    q.push_front([(t, (t[0], t[1])) for t in lost])
+    after = list(q)
     assert after[:len(lost)] == lost and after[len(lost):] == [t for t in before if t not in lost]
     # and assign hands the lost tasks out in that order: a new worker takes them first
-    pending = [PendingTask(t, (t[0], t[1])) for t in after]
+    pending = [PendingTask(t, (t[0], t[1])) for t in q.heads(len(lost))]
     out = assign(pending, [WorkerView("new", len(lost))])
     assert [t for t, _ in out] == lost
 
