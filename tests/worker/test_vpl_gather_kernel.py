@@ -217,6 +217,36 @@ def test_roulette_while_writing_the_pairs_equals_the_separate_pass(name):
 
 
 @pytest.mark.parametrize("name", ["cornell-box", "cornell-box-glossy"])
+@pytest.mark.parametrize("roulette", [None, (0.5, 11)])
+def test_the_column_by_column_weighing_equals_the_row_by_row_loop_bit_for_bit(name, roulette):
+    """A block whose rows all take the same VPLs weighs its Lambertian rows column by column
+    (vpl_gather._lambert_columns, the rows in SIMD lanes); a block whose rows take different
+    VPLs, row by row. Every row both blocks share gives the same pairs, weights, rays and
+    roulette draws bit for bit."""
+    from igi.worker import shading
+    from igi.worker.kernels import vpl_gather as vg
+
+    r = Renderer(load_shared(name))
+    end = eye_end_points(r, 40, 30)
+    vpls = _set(r, 3)
+    c2 = CLAMP * r.geom.diagonal ** 2
+    cols = shading.vpl_columns(vpls, r.geom, c2)
+    n, m = len(end), len(vpls)
+    sl = slice(3, n)
+    lo, hi = np.zeros(n, np.int64), np.full(n, m, np.int64)
+    odd = np.arange(3 + 17, n, vg.BLOCK // 2)  # one row in each block takes one VPL fewer
+    hi[odd] = m - 1
+    columns = shading._pair_rays(r.geom, end, sl, vpls, cols, -1, roulette=roulette)
+    rows = shading._pair_rays(r.geom, end, sl, vpls, cols, -1, col_range=(lo, hi), roulette=roulette)
+    assert np.sum(columns[3] == vg.ROW_LAMBERT) > vg.BLOCK  # whole blocks of Lambertian rows
+    keep_c = ~np.isin(columns[0] + sl.start, odd)
+    keep_r = ~np.isin(rows[0] + sl.start, odd)
+    assert keep_c.sum() == keep_r.sum() > 0
+    for a, b in zip(columns[:3] + columns[4:], rows[:3] + rows[4:]):
+        np.testing.assert_array_equal(a[keep_c], b[keep_r])
+
+
+@pytest.mark.parametrize("name", ["cornell-box", "cornell-box-glossy"])
 def test_the_rays_of_listed_pairs_are_the_rays_the_gather_writes_for_them(name):
     """The importance scoring traces only a few drawn pairs (vpl_scoring.scored_draws) and
     makes their rays afterwards (kernels.vpl_gather.pair_rays): bit for bit the rays the

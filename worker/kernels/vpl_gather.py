@@ -202,15 +202,20 @@ _DEPTH_CAP = 1 << 30
 def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi,
            vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf,
            area, direct_count, lum, fraction, seed, base, planes, col_out, sw, spl, so, sin, vx, vy, vz, wx, wy,
-           wz, vd, col_keys) -> None:
+           wz, vd, col_keys, block) -> None:
     """Weigh the pairs of rows [b0, b0 + nb) (the arguments as :func:`pair_weights` takes
-    them): sw[b, a] the weight of row b0 + b with column col_lo + a (_NO_RAY: no pair), spl the
+    them): sw[a, b] the weight of row b0 + b with column col_lo + a (_NO_RAY: no pair), spl the
     MIS light pdf of glossy-row pairs, so the row's offset shadow-ray origin, sin whether it
     lies on the inner side of the supporting ``planes`` (:func:`interior_origin`). Lambertian and
     plastic-layer rows then go through :func:`roulette_row` (``fraction`` > 0; ``col_keys``: the
     columns' :func:`column_key`). vx … wz, vd: the columns' positions and normals per coordinate
     and their depths as int32 (:func:`_columns_soa`; empty: every row weighed pair by pair), for
-    the Lambertian rows' branch-free loop."""
+    the Lambertian rows' branch-free loops; ``block``: :func:`_staging`'s scratch.
+
+    Where every row of the block takes the same columns (the gather's rows do), its Lambertian
+    rows are weighed and thinned column by column, each column over the block's rows in SIMD
+    lanes (:func:`_lambert_columns`); the other rows (and every row of a block whose rows take
+    different columns) one by one, their row in ``block``'s row buffers, then copied in."""
     n_tab = tables.shape[1]
     f1e30 = np.float32(1e-30)
     f1e7 = np.float32(1e-7)
@@ -218,6 +223,16 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
     inf32 = np.float32(np.inf)
     dcount = np.float32(direct_count)
     vector = vx.shape[0] > 0  # (the columns' SoA coordinates given: no spot column)
+    uniform = vector and nb > 0
+    for b in range(1, nb if uniform else 0):
+        if col_lo[b0 + b] != col_lo[b0] or col_hi[b0 + b] != col_hi[b0]:
+            uniform = False
+            break
+    if uniform:
+        _lambert_columns(b0, nb, x, ns, side, row, vmax, max(col_lo[b0], 0), col_hi[b0], directional, min_d2,
+                         cos_factor, vside, mis, light_pdf, area, dcount, lum, fraction, seed, base, sw, vx, vy, vz,
+                         wx, wy, wz, vd, col_keys, block)
+    rb, rpl = block[13], block[14]  # (1, width): one row's weights and light pdfs
     for b in range(nb):
         i = b0 + b
         r = row[i]
@@ -225,7 +240,7 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
         width = col_hi[i] - lo
         if r == ROW_NONE:
             for a in range(width):
-                sw[b, a] = _NO_RAY
+                sw[a, b] = _NO_RAY
             sin[b] = False
             continue
         xi0, xi1, xi2 = x[i, 0], x[i, 1], x[i, 2]
@@ -236,6 +251,8 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
         so[b, 1] = xi1 + ng[i, 1] * off[i]
         so[b, 2] = xi2 + ng[i, 2] * off[i]
         sin[b] = interior_origin(planes, so[b, 0], so[b, 1], so[b, 2])
+        if uniform and r == ROW_LAMBERT:
+            continue  # weighed and thinned by _lambert_columns
         q = 0
         total = 0.0
         # (int32 as vd: 64-bit lanes would halve the loop's SIMD width)
@@ -266,9 +283,9 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
                 q2 = pl * pl + recv * recv
                 v = v * (pl * pl / (f1e30 if f1e30 > q2 else q2)) if mis[j] else v
                 live = (vd[j] <= lim32) & (dot_x * s > zero) & (em > zero) & (v > zero) & (v < inf32)
-                sw[b, a] = v if live else _NO_RAY
+                rb[0, a] = v if live else _NO_RAY
             for a in range(width):
-                w = sw[b, a]
+                w = rb[0, a]
                 if w >= 0.0:
                     total += np.float64(w) * lum[lo + a]
                     q += 1
@@ -309,15 +326,101 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
                                 v = np.float32(v * t_o * inv_tavg[i])
                         elif cos_x > 0.0:  # every glossy kind reflects only: below the horizon f = 0
                             v = em
-                            spl[b, a] = pl
+                            rpl[0, a] = pl
                         if v > 0.0 and math.isfinite(v):
                             w = v
                             total += np.float64(v) * lum[j]
                             q += 1
-            sw[b, a] = w
+            rb[0, a] = w
         # Glossy rows always trace (their own lobe can make any pair large).
         if q > 0 and fraction > 0.0 and (r == ROW_LAMBERT or r == ROW_LAYER):
-            roulette_row(sw, b, width, lo, q, total, lum, fraction, seed, base + i, col_keys)
+            roulette_row(rb, 0, width, lo, q, total, lum, fraction, seed, base + i, col_keys)
+        for a in range(width):
+            sw[a, b] = rb[0, a]
+            spl[a, b] = rpl[0, a]
+
+
+# (a call of its own: numba inlines no call of more than 30 arguments; no reference counting, as _stage)
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _lambert_columns(b0, nb, x, ns, side, row, vmax, lo, hi, directional, min_d2, cos_factor, vside, mis,
+                     light_pdf, area, dcount, lum, fraction, seed, base, sw, vx, vy, vz, wx, wy, wz, vd, col_keys,
+                     block) -> None:
+    """:func:`_stage`'s Lambertian rows of a block whose rows all take columns [lo, hi): each
+    column over the block's rows (their x, ns, side and depth limit copied out per coordinate,
+    ``block``), so the compiler runs the rows in SIMD lanes with no per-row remainder loop — the
+    same float32 operations per pair as the row-by-row loop, each row's total summed in column
+    order, then :func:`roulette_row`'s draws column by column. Every other row is left _NO_RAY."""
+    rx0, rx1, rx2, rn0, rn1, rn2, rs, rl, lam, tot, qq, tt, rkey = block[:13]
+    f1e30 = np.float32(1e-30)
+    f1e7 = np.float32(1e-7)
+    zero = np.float32(0.0)
+    inf32 = np.float32(np.inf)
+    for b in range(nb):
+        i = b0 + b
+        rx0[b], rx1[b], rx2[b] = x[i, 0], x[i, 1], x[i, 2]
+        rn0[b], rn1[b], rn2[b] = ns[i, 0], ns[i, 1], ns[i, 2]
+        rs[b] = side[i]
+        rl[b] = np.int32(min(max(vmax[i], -1), _DEPTH_CAP))
+        lam[b] = row[i] == ROW_LAMBERT
+        tot[b] = 0.0
+        qq[b] = 0
+    for a in range(hi - lo):
+        j = lo + a
+        dr, cx, cy, cz, nx, ny, nz = directional[j], vx[j], vy[j], vz[j], wx[j], wy[j], wz[j]
+        md2, cf, vsd, lp, ar, mi, dj, lj = min_d2[j], cos_factor[j], vside[j], light_pdf[j], area[j], mis[j], vd[j], \
+            lum[j]
+        for b in range(nb):
+            s = rs[b]
+            d0 = -nx if dr else cx - rx0[b]
+            d1 = -ny if dr else cy - rx1[b]
+            d2_ = -nz if dr else cz - rx2[b]
+            dot_x = d0 * rn0[b] + d1 * rn1[b] + d2_ * rn2[b]
+            dd = d0 * d0 + d1 * d1 + d2_ * d2_
+            inv_d = np.float32(1.0) / np.float32(math.sqrt(f1e30 if f1e30 > dd else dd))
+            cos_x = dot_x * inv_d * s
+            cos_y = -(d0 * nx + d1 * ny + d2_ * nz) * inv_d
+            em = np.float32(1.0) / (md2 if md2 > dd else dd)
+            cv = cos_y * vsd
+            em = em * (zero if zero > cv else cv) if cf else em
+            pl = lp
+            pl = pl * dd / (f1e7 if f1e7 > cos_y else cos_y) if ar else pl
+            pl = pl * dcount
+            recv = (zero if zero > cos_x else cos_x) * np.float32(INV_PI)
+            v = em * recv
+            q2 = pl * pl + recv * recv
+            v = v * (pl * pl / (f1e30 if f1e30 > q2 else q2)) if mi else v
+            live = lam[b] & (dj <= rl[b]) & (dot_x * s > zero) & (em > zero) & (v > zero) & (v < inf32)
+            sw[a, b] = v if live else _NO_RAY
+        # the rows' sums in a loop of their own: float64 lanes here would halve the weighing's
+        # SIMD width (+0.0 for a dead pair: each row sums its live pairs in column order, as
+        # roulette_row's caller does)
+        for b in range(nb):
+            w = sw[a, b]
+            tot[b] += np.float64(w) * lj if w >= 0.0 else 0.0
+            qq[b] += w >= 0.0
+    if not fraction > 0.0:
+        return
+    no_roulette = np.float32(-np.inf)  # (c < -inf never: the row's pairs stay as they are)
+    for b in range(nb):
+        tt[b] = no_roulette
+        rkey[b] = np.uint32(0)
+        if lam[b] and qq[b] > 0:
+            threshold = fraction * tot[b] / qq[b]
+            if threshold > 0.0:
+                tt[b] = np.float32(threshold)
+                rkey[b] = row_key(seed, base + b0 + b)
+    for a in range(hi - lo):
+        j = lo + a
+        lj32 = np.float32(lum[j])
+        ck = col_keys[j]
+        for b in range(nb):
+            w = sw[a, b]
+            t = tt[b]
+            c = w * lj32
+            u = pair_draw(rkey[b], ck)
+            small = (w >= 0.0) & (c < t)
+            kept = _NO_RAY if u * t >= c else t / lj32
+            sw[a, b] = kept if small else w
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -343,16 +446,21 @@ def _columns_soa(vpos, vnormal, spot_cutoff, vdepth):
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _staging(n, col_lo, col_hi, vpos, vnormal, spot_cutoff, vdepth):
     """The staging of :func:`_stage` for blocks of up to BLOCK of the n rows: (rows a block
-    holds, (weights, light pdfs, origins, the columns' coordinates and depths, their roulette
-    keys))."""
+    holds, (weights and light pdfs (columns × rows), origins, the columns' coordinates and
+    depths, their roulette keys, the rows' scratch))."""
     width = 0
     for i in range(n):
         width = max(width, col_hi[i] - col_lo[i])
     rows = max(1, min(BLOCK, n))
     vx, vy, vz, wx, wy, wz, vd = _columns_soa(vpos, vnormal, spot_cutoff, vdepth)
-    return rows, (np.empty((rows, width), np.float32), np.empty((rows, width), np.float32),
-                  np.empty((rows, 3), np.float32), np.empty(rows, np.bool_), vx, vy, vz, wx, wy, wz, vd,
-                  column_keys(vpos.shape[0]))
+    f32 = np.float32
+    block = (np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, f32),
+             np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, np.int32), np.empty(rows, np.bool_),
+             np.empty(rows), np.empty(rows, np.int32), np.empty(rows, f32), np.empty(rows, np.uint32),
+             np.empty((1, width), f32), np.zeros((1, width), f32))
+    return rows, (np.empty((width, rows), f32), np.empty((width, rows), f32),
+                  np.empty((rows, 3), f32), np.empty(rows, np.bool_), vx, vy, vz, wx, wy, wz, vd,
+                  column_keys(vpos.shape[0]), block)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -365,11 +473,11 @@ def _weigh(b0, nb, weighed, staging) -> None:
      direct_count) = columns
     lum, fraction, seed, base = roulette
     planes, col_out = cull
-    sw, spl, so, sin, vx, vy, vz, wx, wy, wz, vd, col_keys = staging
+    sw, spl, so, sin, vx, vy, vz, wx, wy, wz, vd, col_keys, block = staging
     _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi, vpos, vnormal,
            directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf, area,
            direct_count, lum, fraction, seed, base, planes, col_out, sw, spl, so, sin, vx, vy, vz, wx, wy, wz, vd,
-           col_keys)
+           col_keys, block)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -408,14 +516,14 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
             i = b0 + b
             lo = max(col_lo[i], 0)  # (as _stage: j >= 0 known, no wraparound per access)
             for a in range(col_hi[i] - lo):
-                w = sw[b, a]
+                w = sw[a, b]
                 if w < 0.0:
                     continue
                 j = lo + a
                 out_i[k] = i
                 out_j[k] = j
                 out_w[k] = w
-                out_pl[k] = spl[b, a] if row[i] == ROW_GLOSSY else np.float32(0.0)
+                out_pl[k] = spl[a, b] if row[i] == ROW_GLOSSY else np.float32(0.0)
                 out_in[k] = sin[b] and interior_column(col_out, j)
                 d0, d1, d2_ = _to_vpl(so[b, 0], so[b, 1], so[b, 2], vpos, vnormal, directional, j)
                 _write_ray(k, so[b, 0], so[b, 1], so[b, 2], d0, d1, d2_, directional[j], eps2, out_o, out_d,
@@ -456,7 +564,7 @@ def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
     fill = np.zeros(2, np.int64)  # lanes filled per packet
     # the sums per BVH: a row's pairs go to either, each BVH's in column order
     sums = (out, np.zeros((n if planes.shape[0] > 0 else 0, 3)))
-    width = sw.shape[1]
+    width = sw.shape[0]
     # factors: a block's traced pairs, kept until its factors are known
     cap = rows_per_block * width if factors is not None else 0
     held = (np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.float32), np.empty(cap, np.float32),
@@ -475,7 +583,7 @@ def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
             for b in range(nb):
                 i = b0 + b
                 live[nl] = b
-                nl += (a < col_hi[i] - col_lo[i]) & (not (sw[b, a] < 0.0))
+                nl += (a < col_hi[i] - col_lo[i]) & (not (sw[a, b] < 0.0))
             for t in range(nl):
                 b = live[t]
                 i = b0 + b
@@ -492,8 +600,8 @@ def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
                     d0, d1, d2_, directional[j], eps2)
                 lane_i[s, k] = i
                 lane_j[s, k] = j
-                lane_w[s, k] = sw[b, a]
-                lane_pl[s, k] = spl[b, a] if row[i] == ROW_GLOSSY else np.float32(0.0)
+                lane_w[s, k] = sw[a, b]
+                lane_pl[s, k] = spl[a, b] if row[i] == ROW_GLOSSY else np.float32(0.0)
                 k += 1
                 if k == LANES:
                     if factors is None:
