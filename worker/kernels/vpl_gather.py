@@ -223,11 +223,7 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
     inf32 = np.float32(np.inf)
     dcount = np.float32(direct_count)
     vector = vx.shape[0] > 0  # (the columns' SoA coordinates given: no spot column)
-    uniform = vector and nb > 0
-    for b in range(1, nb if uniform else 0):
-        if col_lo[b0 + b] != col_lo[b0] or col_hi[b0 + b] != col_hi[b0]:
-            uniform = False
-            break
+    uniform = vector and _same_columns(b0, nb, col_lo, col_hi)
     if uniform:
         _lambert_columns(b0, nb, x, ns, side, row, vmax, max(col_lo[b0], 0), col_hi[b0], directional, min_d2,
                          cos_factor, vside, mis, light_pdf, area, dcount, lum, fraction, seed, base, sw, vx, vy, vz,
@@ -571,9 +567,18 @@ def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
             np.empty((cap, 3), np.float32), np.empty(cap, np.bool_), np.empty((cap, 3)), np.empty(cap, np.int64))
     traced = 0
     live = np.empty(rows_per_block, np.int64)
+    # a block whose rows all take the same columns: its origins per coordinate, and each
+    # column's rays from all of them made at once (SIMD lanes), before the live ones are packed
+    f32 = np.float32
+    sox, soy, soz = np.zeros(rows_per_block, f32), np.zeros(rows_per_block, f32), np.zeros(rows_per_block, f32)
+    rdx, rdy, rdz, rtf = (np.empty(rows_per_block, f32), np.empty(rows_per_block, f32),
+                          np.empty(rows_per_block, f32), np.empty(rows_per_block, f32))
     for b0 in range(0, n, rows_per_block):
         nb = min(rows_per_block, n - b0)
         _weigh(b0, nb, weighed, staging)
+        uniform = _same_columns(b0, nb, col_lo, col_hi)
+        for b in range(nb if uniform else 0):
+            sox[b], soy[b], soz[b] = so[b, 0], so[b, 1], so[b, 2]
         count = 0  # pairs held
         for a in range(width):
             # the column's live rows listed first, without a branch: most pairs are dead or
@@ -584,20 +589,34 @@ def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
                 i = b0 + b
                 live[nl] = b
                 nl += (a < col_hi[i] - col_lo[i]) & (not (sw[a, b] < 0.0))
+            ic = False
+            if uniform and nl > 0:
+                j = max(col_lo[b0], 0) + a
+                ic = interior_column(col_out, j)
+                _column_rays(nb, sox, soy, soz, vpos, vnormal, directional, j, eps2, rdx, rdy, rdz, rtf)
             for t in range(nl):
                 b = live[t]
                 i = b0 + b
                 j = max(col_lo[i], 0) + a  # (as _stage: j >= 0 known, no wraparound per access)
-                s = 1 if sin[b] and interior_column(col_out, j) else 0
-                k = fill[s]
                 # aimed from the offset origin: the ray ends short of the VPL, never past its surface
-                d0, d1, d2_ = _to_vpl(so[b, 0], so[b, 1], so[b, 2], vpos, vnormal, directional, j)
-                r = ray[s]
-                r[k] = so[b, 0]
-                r[LANES + k] = so[b, 1]
-                r[2 * LANES + k] = so[b, 2]
-                r[4 * LANES + k], r[5 * LANES + k], r[6 * LANES + k], r[8 * LANES + k] = _ray_end(
-                    d0, d1, d2_, directional[j], eps2)
+                if uniform:
+                    s = 1 if sin[b] and ic else 0
+                    ox, oy, oz = sox[b], soy[b], soz[b]
+                    e0, e1, e2, tf = rdx[b], rdy[b], rdz[b], rtf[b]
+                else:
+                    s = 1 if sin[b] and interior_column(col_out, j) else 0
+                    ox, oy, oz = so[b, 0], so[b, 1], so[b, 2]
+                    d0, d1, d2_ = _to_vpl(ox, oy, oz, vpos, vnormal, directional, j)
+                    e0, e1, e2, tf = _ray_end(d0, d1, d2_, directional[j], eps2)
+                k = fill[s]
+                # (ray[s, …], not a view ray[s]: a view per ray counted its array's references)
+                ray[s, k] = ox
+                ray[s, LANES + k] = oy
+                ray[s, 2 * LANES + k] = oz
+                ray[s, 4 * LANES + k] = e0
+                ray[s, 5 * LANES + k] = e1
+                ray[s, 6 * LANES + k] = e2
+                ray[s, 8 * LANES + k] = tf
                 lane_i[s, k] = i
                 lane_j[s, k] = j
                 lane_w[s, k] = sw[a, b]
@@ -633,6 +652,29 @@ def _add_rows(part, out) -> None:
     for i in range(part.shape[0]):
         for c in range(3):
             out[i, c] += part[i, c]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _same_columns(b0, nb, col_lo, col_hi) -> bool:
+    """Whether rows [b0, b0 + nb) all take the same columns (the gather's rows do)."""
+    for b in range(1, nb):
+        if col_lo[b0 + b] != col_lo[b0] or col_hi[b0 + b] != col_hi[b0]:
+            return False
+    return nb > 0
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _column_rays(nb, ox, oy, oz, vpos, vnormal, directional, j, eps2, out_x, out_y, out_z, out_t) -> None:
+    """The shadow rays from origins (ox, oy, oz)[:nb] toward column j (:func:`_to_vpl`,
+    :func:`_ray_end`: the same float32 operations), per coordinate, the rows in SIMD lanes."""
+    dr = directional[j]
+    px, py, pz = vpos[j, 0], vpos[j, 1], vpos[j, 2]
+    nx, ny, nz = -vnormal[j, 0], -vnormal[j, 1], -vnormal[j, 2]
+    for b in range(nb):
+        d0 = nx if dr else px - ox[b]
+        d1 = ny if dr else py - oy[b]
+        d2_ = nz if dr else pz - oz[b]
+        out_x[b], out_y[b], out_z[b], out_t[b] = _ray_end(d0, d1, d2_, dr, eps2)
 
 
 @njit(cache=True, nogil=True, inline="always")
