@@ -448,15 +448,21 @@ def _staging(n, col_lo, col_hi, vpos, vnormal, spot_cutoff, vdepth):
     for i in range(n):
         width = max(width, col_hi[i] - col_lo[i])
     rows = max(1, min(BLOCK, n))
+    return rows, staging_for(rows, width, vpos, vnormal, spot_cutoff, vdepth)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def staging_for(rows, width, vpos, vnormal, spot_cutoff, vdepth):
+    """:func:`_stage`'s staging for blocks of up to ``rows`` rows of up to ``width`` columns
+    (:func:`_staging`; vpl_scoring.scored_draws weighs whole runs of rows)."""
     vx, vy, vz, wx, wy, wz, vd = _columns_soa(vpos, vnormal, spot_cutoff, vdepth)
     f32 = np.float32
     block = (np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, f32),
              np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, np.int32), np.empty(rows, np.bool_),
              np.empty(rows), np.empty(rows, np.int32), np.empty(rows, f32), np.empty(rows, np.uint32),
              np.empty((1, width), f32), np.zeros((1, width), f32))
-    return rows, (np.empty((width, rows), f32), np.empty((width, rows), f32),
-                  np.empty((rows, 3), f32), np.empty(rows, np.bool_), vx, vy, vz, wx, wy, wz, vd,
-                  column_keys(vpos.shape[0]), block)
+    return (np.empty((width, rows), f32), np.empty((width, rows), f32), np.zeros((rows, 3), f32),
+            np.empty(rows, np.bool_), vx, vy, vz, wx, wy, wz, vd, column_keys(vpos.shape[0]), block)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")

@@ -86,11 +86,8 @@ def scored_draws(x, ns, ng, off, side, row, vmax,
         rows = max(rows, r1 - r0)
         width_max = max(width_max, col_hi[r0] - col_lo[r0])
         r0 = r1
-    vx, vy, vz, wx, wy, wz, vd = vg._columns_soa(vpos, vnormal, spot_cutoff, vdepth)
-    sw = np.empty((rows, width_max), np.float32)
-    spl = np.empty((rows, width_max), np.float32)
-    staging = (sw, spl, np.empty((rows, 3), np.float32), np.empty(rows, np.bool_), vx, vy, vz, wx, wy, wz, vd,
-               vg.column_keys(m))
+    staging = vg.staging_for(rows, width_max, vpos, vnormal, spot_cutoff, vdepth)
+    sw, spl = staging[0], staging[1]  # (columns × rows)
     # (roulette arguments typed, not literal: see worker.kernels.eye_paths — a literal would
     # compile _stage once more; no culling planes: the scoring's rays are the caller's,
     # vpl_gather.pair_rays)
@@ -128,7 +125,7 @@ def scored_draws(x, ns, ng, off, side, row, vmax,
                 e0, e1, e2 = eye_weight[i, 0], eye_weight[i, 1], eye_weight[i, 2]
                 for a in range(width):  # branch-free (SIMD lanes)
                     j = lo + a
-                    w = sw[b, a]
+                    w = sw[a, b]
                     live = w >= 0.0
                     v = (cr[j] * e0 * _WR + cg[j] * e1 * _WG + cb[j] * e2 * _WB) * np.float64(w)
                     v = v if (live and math.isfinite(v) and v > 0.0) else 0.0
@@ -225,8 +222,8 @@ def _note(q, i, r0, a, v, sw, spl, row, d_row, d_w, d_pl, d_plain) -> None:
     light pdf read while the run is staged."""
     d_row[q] = i
     d_plain[q] = v
-    d_w[q] = sw[i - r0, a]
-    d_pl[q] = spl[i - r0, a] if row[i] == vg.ROW_GLOSSY else np.float32(0.0)
+    d_w[q] = sw[a, i - r0]
+    d_pl[q] = spl[a, i - r0] if row[i] == vg.ROW_GLOSSY else np.float32(0.0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

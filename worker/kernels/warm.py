@@ -147,6 +147,7 @@ def _direct_calls() -> dict:
         # _stage and the array path's pair_weights: the scoring's rows and columns (empty
         # arrays of the types scored_draws takes) in their order
         "igi.worker.kernels.vpl_gather._stage": lambda: _stage_call(vpl_gather),
+        "igi.worker.kernels.vpl_gather._lambert_columns": lambda: _lambert_columns_call(vpl_gather),
         "igi.worker.kernels.vpl_gather.pair_weights": lambda: _pair_weights_call(vpl_gather),
         # one bounce alone: what chains of mirrors and glass the numpy loops still follow
         "igi.worker.kernels.specular_chain.delta_bounce": _delta_bounce_call,
@@ -207,7 +208,25 @@ def _stage_call(vpl_gather) -> None:
     vpl_gather._stage(0, 0, *a[0:7], *a[20:25], *a[7:20], a[25], 0.0, 0, 0, np.zeros((0, 4), np.float32),
                       np.zeros(1, np.int64), staging, staging.copy(), np.zeros((1, 3), np.float32),
                       np.zeros(1, np.bool_), *(np.zeros(0, np.float32) for _ in range(6)), np.zeros(0, np.int32),
-                      np.zeros(0, np.uint64))
+                      np.zeros(0, np.uint64), _stage_block(1, 0))
+
+
+def _lambert_columns_call(vpl_gather) -> None:
+    """vpl_gather._lambert_columns on empty inputs of the types _stage passes it."""
+    f32 = np.float32
+    v, b = np.zeros(0, f32), np.zeros(0, np.bool_)
+    vpl_gather._lambert_columns(0, 0, np.zeros((0, 3), f32), np.zeros((0, 3), f32), v, np.zeros(0, np.int8),
+                                np.zeros(0, np.int64), 0, 0, b, v, b.copy(), v, b.copy(), v, b.copy(), f32(0.0),
+                                np.zeros(0), 0.0, 0, 0, np.zeros((0, 1), f32), *(np.zeros(0, f32) for _ in range(6)),
+                                np.zeros(0, np.int32), np.zeros(0, np.uint32), _stage_block(1, 0))
+
+
+def _stage_block(rows: int, width: int) -> tuple:
+    """vpl_gather._stage's row scratch (as vpl_gather.staging_for makes it)."""
+    f32 = np.float32
+    return (*(np.zeros(rows, f32) for _ in range(7)), np.zeros(rows, np.int32), np.zeros(rows, np.bool_),
+            np.zeros(rows), np.zeros(rows, np.int32), np.zeros(rows, f32), np.zeros(rows, np.uint32),
+            np.zeros((1, width), f32), np.zeros((1, width), f32))
 
 
 def _pair_weights_call(vpl_gather) -> None:
