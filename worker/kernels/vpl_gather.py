@@ -226,8 +226,8 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
     uniform = vector and _same_columns(b0, nb, col_lo, col_hi)
     if uniform:
         _lambert_columns(b0, nb, x, ns, side, row, vmax, max(col_lo[b0], 0), col_hi[b0], directional, min_d2,
-                         cos_factor, vside, mis, light_pdf, area, dcount, lum, fraction, seed, base, sw, vx, vy, vz,
-                         wx, wy, wz, vd, col_keys, block)
+                         cos_factor, vside, mis, light_pdf, area, dcount, lum, fraction, seed, base, sw, spl, vx, vy,
+                         vz, wx, wy, wz, vd, col_keys, block)
     rb, rpl = block[13], block[14]  # (1, width): one row's weights and light pdfs
     for b in range(nb):
         i = b0 + b
@@ -247,8 +247,8 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
         so[b, 1] = xi1 + ng[i, 1] * off[i]
         so[b, 2] = xi2 + ng[i, 2] * off[i]
         sin[b] = interior_origin(planes, so[b, 0], so[b, 1], so[b, 2])
-        if uniform and r == ROW_LAMBERT:
-            continue  # weighed and thinned by _lambert_columns
+        if uniform and (r == ROW_LAMBERT or r == ROW_GLOSSY):
+            continue  # weighed (and thinned) by _lambert_columns
         q = 0
         total = 0.0
         # (int32 as vd: 64-bit lanes would halve the loop's SIMD width)
@@ -339,14 +339,16 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
 # (a call of its own: numba inlines no call of more than 30 arguments; no reference counting, as _stage)
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def _lambert_columns(b0, nb, x, ns, side, row, vmax, lo, hi, directional, min_d2, cos_factor, vside, mis,
-                     light_pdf, area, dcount, lum, fraction, seed, base, sw, vx, vy, vz, wx, wy, wz, vd, col_keys,
+                     light_pdf, area, dcount, lum, fraction, seed, base, sw, spl, vx, vy, vz, wx, wy, wz, vd, col_keys,
                      block) -> None:
-    """:func:`_stage`'s Lambertian rows of a block whose rows all take columns [lo, hi): each
-    column over the block's rows (their x, ns, side and depth limit copied out per coordinate,
-    ``block``), so the compiler runs the rows in SIMD lanes with no per-row remainder loop — the
-    same float32 operations per pair as the row-by-row loop, each row's total summed in column
-    order, then :func:`roulette_row`'s draws column by column. Every other row is left _NO_RAY."""
-    rx0, rx1, rx2, rn0, rn1, rn2, rs, rl, lam, tot, qq, tt, rkey = block[:13]
+    """:func:`_stage`'s Lambertian and glossy rows of a block whose rows all take columns
+    [lo, hi): each column over the block's rows (their x, ns, side, depth limit and kind copied
+    out per coordinate, ``block``), so the compiler runs the rows in SIMD lanes with no per-row
+    remainder loop — the same float32 operations per pair as the row-by-row loop (a glossy
+    pair's weight its emitter factor, its light pdf in ``spl``), each Lambertian row's total
+    summed in column order, then :func:`roulette_row`'s draws column by column. Every other row
+    is left _NO_RAY."""
+    rx0, rx1, rx2, rn0, rn1, rn2, rs, rl, rk, tot, qq, tt, rkey = block[:13]
     f1e30 = np.float32(1e-30)
     f1e7 = np.float32(1e-7)
     zero = np.float32(0.0)
@@ -357,7 +359,7 @@ def _lambert_columns(b0, nb, x, ns, side, row, vmax, lo, hi, directional, min_d2
         rn0[b], rn1[b], rn2[b] = ns[i, 0], ns[i, 1], ns[i, 2]
         rs[b] = side[i]
         rl[b] = np.int32(min(max(vmax[i], -1), _DEPTH_CAP))
-        lam[b] = row[i] == ROW_LAMBERT
+        rk[b] = row[i]
         tot[b] = 0.0
         qq[b] = 0
     for a in range(hi - lo):
@@ -385,8 +387,14 @@ def _lambert_columns(b0, nb, x, ns, side, row, vmax, lo, hi, directional, min_d2
             v = em * recv
             q2 = pl * pl + recv * recv
             v = v * (pl * pl / (f1e30 if f1e30 > q2 else q2)) if mi else v
-            live = lam[b] & (dj <= rl[b]) & (dot_x * s > zero) & (em > zero) & (v > zero) & (v < inf32)
+            # a glossy row: the emitter factor, its BSDF (every glossy kind reflects only, so
+            # cos_x > 0) and MIS weight the caller's
+            glossy = rk[b] == ROW_GLOSSY
+            v = em if glossy else v
+            live = ((rk[b] == ROW_LAMBERT) | (glossy & (cos_x > zero))) & (dj <= rl[b]) & (dot_x * s > zero) & (
+                em > zero) & (v > zero) & (v < inf32)
             sw[a, b] = v if live else _NO_RAY
+            spl[a, b] = pl if mi else zero
         # the rows' sums in a loop of their own: float64 lanes here would halve the weighing's
         # SIMD width (+0.0 for a dead pair: each row sums its live pairs in column order, as
         # roulette_row's caller does)
@@ -400,7 +408,7 @@ def _lambert_columns(b0, nb, x, ns, side, row, vmax, lo, hi, directional, min_d2
     for b in range(nb):
         tt[b] = no_roulette
         rkey[b] = np.uint32(0)
-        if lam[b] and qq[b] > 0:
+        if rk[b] == ROW_LAMBERT and qq[b] > 0:
             threshold = fraction * tot[b] / qq[b]
             if threshold > 0.0:
                 tt[b] = np.float32(threshold)
@@ -458,7 +466,7 @@ def staging_for(rows, width, vpos, vnormal, spot_cutoff, vdepth):
     vx, vy, vz, wx, wy, wz, vd = _columns_soa(vpos, vnormal, spot_cutoff, vdepth)
     f32 = np.float32
     block = (np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, f32),
-             np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, np.int32), np.empty(rows, np.bool_),
+             np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, np.int32), np.empty(rows, np.int8),
              np.empty(rows), np.empty(rows, np.int32), np.empty(rows, f32), np.empty(rows, np.uint32),
              np.empty((1, width), f32), np.zeros((1, width), f32))
     return (np.empty((width, rows), f32), np.empty((width, rows), f32), np.zeros((rows, 3), f32),
@@ -729,15 +737,21 @@ def _sum_held(count, held, row, factors, color, sums) -> None:
     P_end, end_row, wi, ns, albedo, glossy_col, P_vpl, vpl_row, vwi, vnormal = factors
     pair_factors(hi[:count], hj[:count], hd[:count], hpl[:count], hb[:count], row, np.int64(0), P_end, end_row, wi, ns,
                  albedo, glossy_col, P_vpl, vpl_row, vwi, vnormal, hf[:count])
+    # (the two sums named apart: sums[hs[q]] per pair made an array view and counted its
+    # references)
+    full, inner = sums
     for q in range(count):
         if hb[q]:
             continue
         i = hi[q]
         j = hj[q]
         wq = np.float64(hw[q])
-        acc = sums[hs[q]]
-        for c in range(3):
-            acc[i, c] += wq * color[j, c] * hf[q, c]
+        if hs[q] == 0:
+            for c in range(3):
+                full[i, c] += wq * color[j, c] * hf[q, c]
+        else:
+            for c in range(3):
+                inner[i, c] += wq * color[j, c] * hf[q, c]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
