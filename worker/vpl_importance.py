@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -62,8 +63,10 @@ class View:
         """The view of a camera-to-world matrix (4×4 or 16 numbers)."""
         return View(tuple(np.asarray(camera_to_world, np.float64).ravel()), fov_x, width, height)
 
-    @property
+    @cached_property
     def key(self) -> tuple:
+        """The view rounded to 1e-9 (a hashable key of per-view results); made once per View —
+        every task of a frame asks it several times, ~60 µs each."""
         return (tuple(round(float(v), 9) for v in self.to_world), round(float(self.fov_x), 9),
                 self.width, self.height)
 
