@@ -186,6 +186,46 @@ def pair_rays(x, ng, off, vpos, vnormal, directional, eps2, pi, pj, out_o, out_d
         _write_ray(k, o0, o1, o2, d0, d1, d2, directional[j], eps2, out_o, out_d, out_t)
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _lambert_terms(d0, d1, d2_, n0, n1, n2, s, wxj, wyj, wzj, md2, cf, vsd, lp, ar, mi, dcount):
+    """A pair's terms in the branch-free loops (_stage's SIMD rows, :func:`_lambert_columns`):
+    d from the end point (normal n, eye side s) to the column (normal w, min_d2 ``md2``, cosine
+    factor ``cf`` on side ``vsd``, light pdf ``lp``, an area sample ``ar``, MIS ``mi``) —
+    (n·d·s, cos_x, emitter factor, light pdf, Lambertian MIS-weighted weight), all float32, as the
+    pair-by-pair loop computes them (max(a, b) written as Python's: b only where b > a)."""
+    f1e30 = np.float32(1e-30)
+    f1e7 = np.float32(1e-7)
+    zero = np.float32(0.0)
+    dot_x = d0 * n0 + d1 * n1 + d2_ * n2
+    dd = d0 * d0 + d1 * d1 + d2_ * d2_
+    inv_d = np.float32(1.0) / np.float32(math.sqrt(f1e30 if f1e30 > dd else dd))
+    cos_x = dot_x * inv_d * s
+    cos_y = -(d0 * wxj + d1 * wyj + d2_ * wzj) * inv_d
+    em = np.float32(1.0) / (md2 if md2 > dd else dd)
+    cv = cos_y * vsd
+    em = em * (zero if zero > cv else cv) if cf else em
+    pl = lp
+    pl = pl * dd / (f1e7 if f1e7 > cos_y else cos_y) if ar else pl
+    pl = pl * dcount
+    recv = (zero if zero > cos_x else cos_x) * np.float32(INV_PI)
+    v = em * recv
+    q2 = pl * pl + recv * recv
+    v = v * (pl * pl / (f1e30 if f1e30 > q2 else q2)) if mi else v
+    return dot_x * s, cos_x, em, pl, v
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _roulette_pair(w, lj, key, ck, t):
+    """A weighed pair's weight after :func:`roulette_row`'s draw (row key ``key``, column key
+    ``ck``, threshold ``t``, the column's float32 luminance ``lj``): kept as it is, dropped
+    (_NO_RAY) or counted at the threshold (c / p)."""
+    c = w * lj
+    u = pair_draw(key, ck)
+    small = (w >= 0.0) & (c < t)  # (a dead pair, w < 0, stays as it is)
+    kept = _NO_RAY if u * t >= c else t / lj
+    return kept if small else w
+
+
 # Rows staged per block: their pairs are weighed row by row, then emitted. The gather's rays
 # go to Embree column by column within a block (one VPL from 256 neighbouring end points: more
 # coherent packets, 12% less time than row by row on cornell-box-sphere).
@@ -218,7 +258,6 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
     different columns) one by one, their row in ``block``'s row buffers, then copied in."""
     n_tab = tables.shape[1]
     f1e30 = np.float32(1e-30)
-    f1e7 = np.float32(1e-7)
     zero = np.float32(0.0)
     inf32 = np.float32(np.inf)
     dcount = np.float32(direct_count)
@@ -263,22 +302,10 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
                 d0 = -wx[j] if dr else vx[j] - xi0
                 d1 = -wy[j] if dr else vy[j] - xi1
                 d2_ = -wz[j] if dr else vz[j] - xi2
-                dot_x = d0 * n0 + d1 * n1 + d2_ * n2
-                dd = d0 * d0 + d1 * d1 + d2_ * d2_
-                inv_d = np.float32(1.0) / np.float32(math.sqrt(f1e30 if f1e30 > dd else dd))
-                cos_x = dot_x * inv_d * s
-                cos_y = -(d0 * wx[j] + d1 * wy[j] + d2_ * wz[j]) * inv_d
-                em = np.float32(1.0) / (min_d2[j] if min_d2[j] > dd else dd)
-                cv = cos_y * vside[j]
-                em = em * (zero if zero > cv else cv) if cos_factor[j] else em
-                pl = light_pdf[j]
-                pl = pl * dd / (f1e7 if f1e7 > cos_y else cos_y) if area[j] else pl
-                pl = pl * dcount
-                recv = (zero if zero > cos_x else cos_x) * np.float32(INV_PI)
-                v = em * recv
-                q2 = pl * pl + recv * recv
-                v = v * (pl * pl / (f1e30 if f1e30 > q2 else q2)) if mis[j] else v
-                live = (vd[j] <= lim32) & (dot_x * s > zero) & (em > zero) & (v > zero) & (v < inf32)
+                front, _cos_x, em, _pl, v = _lambert_terms(d0, d1, d2_, n0, n1, n2, s, wx[j], wy[j], wz[j], min_d2[j],
+                                                           cos_factor[j], vside[j], light_pdf[j], area[j], mis[j],
+                                                           dcount)
+                live = (vd[j] <= lim32) & (front > zero) & (em > zero) & (v > zero) & (v < inf32)
                 rb[0, a] = v if live else _NO_RAY
             for a in range(width):
                 w = rb[0, a]
@@ -349,8 +376,6 @@ def _lambert_columns(b0, nb, x, ns, side, row, vmax, lo, hi, directional, min_d2
     summed in column order, then :func:`roulette_row`'s draws column by column. Every other row
     is left _NO_RAY."""
     rx0, rx1, rx2, rn0, rn1, rn2, rs, rl, rk, tot, qq, tt, rkey = block[:13]
-    f1e30 = np.float32(1e-30)
-    f1e7 = np.float32(1e-7)
     zero = np.float32(0.0)
     inf32 = np.float32(np.inf)
     for b in range(nb):
@@ -368,30 +393,16 @@ def _lambert_columns(b0, nb, x, ns, side, row, vmax, lo, hi, directional, min_d2
         md2, cf, vsd, lp, ar, mi, dj, lj = min_d2[j], cos_factor[j], vside[j], light_pdf[j], area[j], mis[j], vd[j], \
             lum[j]
         for b in range(nb):
-            s = rs[b]
             d0 = -nx if dr else cx - rx0[b]
             d1 = -ny if dr else cy - rx1[b]
             d2_ = -nz if dr else cz - rx2[b]
-            dot_x = d0 * rn0[b] + d1 * rn1[b] + d2_ * rn2[b]
-            dd = d0 * d0 + d1 * d1 + d2_ * d2_
-            inv_d = np.float32(1.0) / np.float32(math.sqrt(f1e30 if f1e30 > dd else dd))
-            cos_x = dot_x * inv_d * s
-            cos_y = -(d0 * nx + d1 * ny + d2_ * nz) * inv_d
-            em = np.float32(1.0) / (md2 if md2 > dd else dd)
-            cv = cos_y * vsd
-            em = em * (zero if zero > cv else cv) if cf else em
-            pl = lp
-            pl = pl * dd / (f1e7 if f1e7 > cos_y else cos_y) if ar else pl
-            pl = pl * dcount
-            recv = (zero if zero > cos_x else cos_x) * np.float32(INV_PI)
-            v = em * recv
-            q2 = pl * pl + recv * recv
-            v = v * (pl * pl / (f1e30 if f1e30 > q2 else q2)) if mi else v
+            front, cos_x, em, pl, v = _lambert_terms(d0, d1, d2_, rn0[b], rn1[b], rn2[b], rs[b], nx, ny, nz, md2, cf,
+                                                     vsd, lp, ar, mi, dcount)
             # a glossy row: the emitter factor, its BSDF (every glossy kind reflects only, so
             # cos_x > 0) and MIS weight the caller's
             glossy = rk[b] == ROW_GLOSSY
             v = em if glossy else v
-            live = ((rk[b] == ROW_LAMBERT) | (glossy & (cos_x > zero))) & (dj <= rl[b]) & (dot_x * s > zero) & (
+            live = ((rk[b] == ROW_LAMBERT) | (glossy & (cos_x > zero))) & (dj <= rl[b]) & (front > zero) & (
                 em > zero) & (v > zero) & (v < inf32)
             sw[a, b] = v if live else _NO_RAY
             spl[a, b] = pl if mi else zero
@@ -418,13 +429,7 @@ def _lambert_columns(b0, nb, x, ns, side, row, vmax, lo, hi, directional, min_d2
         lj32 = np.float32(lum[j])
         ck = col_keys[j]
         for b in range(nb):
-            w = sw[a, b]
-            t = tt[b]
-            c = w * lj32
-            u = pair_draw(rkey[b], ck)
-            small = (w >= 0.0) & (c < t)
-            kept = _NO_RAY if u * t >= c else t / lj32
-            sw[a, b] = kept if small else w
+            sw[a, b] = _roulette_pair(sw[a, b], lj32, rkey[b], ck, tt[b])
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -623,7 +628,6 @@ def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
                     d0, d1, d2_ = _to_vpl(ox, oy, oz, vpos, vnormal, directional, j)
                     e0, e1, e2, tf = _ray_end(d0, d1, d2_, directional[j], eps2)
                 k = fill[s]
-                # (ray[s, …], not a view ray[s]: a view per ray counted its array's references)
                 ray[s, k] = ox
                 ray[s, LANES + k] = oy
                 ray[s, 2 * LANES + k] = oz
@@ -737,21 +741,15 @@ def _sum_held(count, held, row, factors, color, sums) -> None:
     P_end, end_row, wi, ns, albedo, glossy_col, P_vpl, vpl_row, vwi, vnormal = factors
     pair_factors(hi[:count], hj[:count], hd[:count], hpl[:count], hb[:count], row, np.int64(0), P_end, end_row, wi, ns,
                  albedo, glossy_col, P_vpl, vpl_row, vwi, vnormal, hf[:count])
-    # (the two sums named apart: sums[hs[q]] per pair made an array view and counted its
-    # references)
-    full, inner = sums
     for q in range(count):
         if hb[q]:
             continue
         i = hi[q]
         j = hj[q]
         wq = np.float64(hw[q])
-        if hs[q] == 0:
-            for c in range(3):
-                full[i, c] += wq * color[j, c] * hf[q, c]
-        else:
-            for c in range(3):
-                inner[i, c] += wq * color[j, c] * hf[q, c]
+        acc = sums[hs[q]]
+        for c in range(3):
+            acc[i, c] += wq * color[j, c] * hf[q, c]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -834,14 +832,8 @@ def roulette_row(sw, b, width, lo, q, total, lum, fraction, seed, row_id, col_ke
     t = np.float32(threshold)
     key = row_key(seed, row_id)
     for a in range(width):
-        w = sw[b, a]
         j = lo + a
-        lj = np.float32(lum[j])
-        c = w * lj
-        u = pair_draw(key, col_keys[j])
-        small = (w >= 0.0) & (c < t)  # (a dead pair, w < 0, stays as it is)
-        kept = _NO_RAY if u * t >= c else t / lj  # c / p
-        sw[b, a] = kept if small else w
+        sw[b, a] = _roulette_pair(sw[b, a], np.float32(lum[j]), key, col_keys[j], t)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
