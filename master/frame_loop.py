@@ -379,8 +379,7 @@ class FrameLoop:
     def requeue_front(self, lost: list) -> None:
         """Put the task keys ``lost`` back at the front of the queue, in their order."""
         if lost:
-            keyed = [(key, t.set_key) for key in lost for _, t in [self._lookup(*key)] if t is not None]
-            self.queue.push_front(keyed)
+            self.queue.push_front([(key, s) for key in lost if (s := self._set_of(key)) is not None])
             self.counters["tasks_requeued"] += len(lost)
 
     def worker_fault(self, w: Worker, quarantined: str | None) -> None:
