@@ -28,7 +28,9 @@ FRAME      M->W  frame, hash, scene_version, seed, camera (16 floats), fov_x, wi
                  before the first TASK of that frame it gets
 TASK       M->W  frame, task, epoch, k, tile [sx0, sy0, sx1, sy1] of sub-image k
 RESULT     W->M  frame, task, epoch, count (pixels), data (common.codec bytes),
-                 timings {name: seconds}, sets [[seed, k], ...] held by the worker (optional:
+                 timings {name: seconds} (wait_scene, render, encode; sets: the part of
+                 render spent building VPL/photon sets, which task timeouts allow for),
+                 sets [[seed, k], ...] held by the worker (optional:
                  sent only when the list changed since the worker's last RESULT on this
                  connection; absent = unchanged plus the task's own set, which the master
                  adds — so a master keeps the last list per worker; an older worker that

@@ -60,7 +60,8 @@ class FrameLoop:
         # None: sized per frame for the render threads connected (frame_assembly.task_pixels_for)
         self.task_pixels = None if task_pixels is None else int(task_pixels)
         self.frames_in_flight = frames_in_flight
-        self.task_timeout = float(task_timeout)
+        self.task_timeout = float(task_timeout)  # the cap of scheduler.task_timeout
+        self._last_pixels = 1  # the last task sent's pixels (current_task_timeout)
         self.queue = TaskQueue()  # (frame, task) keys, front first, by set
         self.frames: collections.OrderedDict[int, Frame] = collections.OrderedDict()
         self.meters = Meters()
@@ -218,12 +219,15 @@ class FrameLoop:
             f = self.frames[key[0]]
             if not self._ensure_frame_sent(w, f):
                 continue
-            if self._send_task(w, f.tasks[key[1]]):
+            if self._send_task(w, f, f.tasks[key[1]]):
                 self.queue.remove(key)
 
-    def _send_task(self, w: Worker, t: Task) -> bool:
+    def _send_task(self, w: Worker, f: Frame, t: Task) -> bool:
         self._epoch += 1
         t.epoch, t.worker, t.sent = self._epoch, w.ident, time.monotonic()
+        t.pixels = tile_pixel_count(t.tile, f.assembler.n, f.spec.width, f.spec.height)
+        t.builds_set = t.set_key not in w.cached
+        self._last_pixels = t.pixels
         tl = t.tile
         msg = P.encode(P.TASK, {"frame": t.frame, "task": t.task, "epoch": t.epoch, "k": tl.k,
                                 "tile": [tl.sx0, tl.sy0, tl.sx1, tl.sy1]}, check=False)
@@ -317,6 +321,7 @@ class FrameLoop:
         w.done += 1
         self.counters["tasks_done"] += 1
         self.meters.latencies.append(now - t.sent)
+        self.meters.latency_per_pixel.append((now - t.sent) / max(t.pixels, 1))
         f.bytes += nbytes
         if f.assembler.complete:
             self._complete_frame(f)
@@ -346,15 +351,18 @@ class FrameLoop:
 
     # ------------------------------------------------------------------ lost tasks
     def expire_tasks(self, now: float) -> bool:
-        """A task unanswered for the task timeout (a wedged worker, results it cannot get
-        through) goes back to the front of the queue. Its slot stays taken on that worker until
+        """A task unanswered for its timeout (a wedged worker, results it cannot get through)
+        goes back to the front of the queue. Its slot stays taken on that worker until
         something comes back, so a worker that never answers runs out of credit. True when
         some task was re-queued."""
         lost = []
-        timeout = self.current_task_timeout()
+        cost = self._task_cost()
         for f in self.frames.values():
             for t in f.tasks.values():
-                if t.worker is not None and now - t.sent > timeout:
+                if t.worker is None:
+                    continue
+                timeout = scheduler.task_timeout(cost, self.task_timeout, t.pixels, t.builds_set)
+                if now - t.sent > timeout:
                     self._expire_task(t, now, timeout)
                     lost.append((t.frame, t.task))
         self.requeue_front(lost)
@@ -371,10 +379,14 @@ class FrameLoop:
         if w is not None:
             self.worker_fault(w, faults.timed_out(w.ident, f"task unanswered for {now - t.sent:.1f} s"))
 
+    def _task_cost(self) -> scheduler.TaskCost:
+        return scheduler.TaskCost.measured(self.meters.latency_per_pixel, self.meters.set_builds)
+
     def current_task_timeout(self) -> float:
-        """Seconds a task may stay unanswered: from the measured task times (issue 20), at most
-        the configured ``task_timeout``."""
-        return scheduler.task_timeout(self.meters.latencies, cap=self.task_timeout)
+        """Seconds a task the size of the last one sent, its set held, may stay unanswered
+        (scheduler.task_timeout: from the measured task times, at most the configured
+        ``task_timeout``)."""
+        return scheduler.task_timeout(self._task_cost(), self.task_timeout, self._last_pixels)
 
     def requeue_front(self, lost: list) -> None:
         """Put the task keys ``lost`` back at the front of the queue, in their order."""

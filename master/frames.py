@@ -58,6 +58,8 @@ class Task:
     epoch: int = 0
     worker: bytes | None = None
     sent: float = 0.0
+    pixels: int = 0  # (set when sent: what its timeout scales with)
+    builds_set: bool = False  # sent to a worker that did not hold its set
     failures: int = 0
     avoid: frozenset = frozenset()  # workers this task failed or timed out on (issue 20)
     trusted_only: bool = False  # lost by a worker that never delivered: to trusted workers first

@@ -22,6 +22,8 @@ class Meters:
 
     def __init__(self) -> None:
         self.latencies = _window()  # TASK sent -> RESULT accepted, s
+        self.latency_per_pixel = _window()  # the same over the task's pixels (task timeouts)
+        self.set_builds = _window()  # reported seconds of the tasks that built their sets
         self.render_times = _window()  # reported by the workers
         self.encode_times = _window()
         self.merge_times = _window()  # decode + scatter of a RESULT's tile
@@ -33,8 +35,8 @@ class Meters:
         self.rays = _window(4096)  # (time, rays traced)
 
     def worker_report(self, rays: int | None, previous_rays: int, timings: dict, now: float) -> int:
-        """Record what a RESULT reports (cumulative ray count, render/encode times); returns the
-        worker's new cumulative ray count."""
+        """Record what a RESULT reports (cumulative ray count, render/encode times, the seconds
+        it spent building sets); returns the worker's new cumulative ray count."""
         if rays is not None:
             delta = rays - previous_rays if rays >= previous_rays else rays  # a new renderer restarts its counter
             previous_rays = rays
@@ -43,6 +45,8 @@ class Meters:
             self.render_times.append(timings["render"])
         if "encode" in timings:
             self.encode_times.append(timings["encode"])
+        if timings.get("sets", 0.0) > 0.0:
+            self.set_builds.append(timings["sets"])
         return previous_rays
 
     def frame_done(self, now: float, nbytes: int) -> None:

@@ -192,7 +192,7 @@ def credit_for(threads: int, per_thread: int | None = None) -> int:
 # ------------------------------------------------------------------ fault accounting (issue 20)
 INITIAL_CREDIT = 2  # slots a new worker gets before it has delivered anything
 QUARANTINE_AFTER = 3  # consecutive failures/timeouts that quarantine a worker
-TIMEOUT_FACTOR = 8.0  # task timeout = max(factor * median recent task time, floor), <= cap
+TIMEOUT_FACTOR = 8.0  # task timeout = max(factor * the task's expected time, floor), <= cap (task_timeout)
 TIMEOUT_FLOOR = 1.5  # seconds: a silent worker may stall a stream ~this long (issue 20: <= 2 s)
 TIMEOUT_WINDOW = 64  # recent task times considered
 
@@ -305,11 +305,32 @@ class FaultLedger:
             del self.records[wid]
 
 
-def task_timeout(recent: Sequence[float], cap: float, factor: float = TIMEOUT_FACTOR,
-                 floor: float = TIMEOUT_FLOOR) -> float:
-    """Seconds a task may stay unanswered: ``max(factor × median of the recent task times,
-    floor)``, at most ``cap``; ``cap`` alone before any task time is known."""
-    if not recent:
+@dataclass(frozen=True)
+class TaskCost:
+    """What the recent tasks took, as :func:`task_timeout` scales it to one task: the median
+    seconds per pixel from TASK sent to RESULT (None: no task measured yet) and the median
+    seconds a worker spent building a task's VPL and photon sets when it had to."""
+    per_pixel: float | None
+    set_build: float = 0.0
+
+    @classmethod
+    def measured(cls, per_pixel: Sequence[float], set_builds: Sequence[float] = ()) -> "TaskCost":
+        """From the recent per-pixel task times and set-build times (the last TIMEOUT_WINDOW)."""
+        px = list(per_pixel)[-TIMEOUT_WINDOW:]
+        sb = list(set_builds)[-TIMEOUT_WINDOW:]
+        return cls(statistics.median(px) if px else None, statistics.median(sb) if sb else 0.0)
+
+
+def task_timeout(cost: TaskCost, cap: float, pixels: int, builds_set: bool = False,
+                 factor: float = TIMEOUT_FACTOR, floor: float = TIMEOUT_FLOOR) -> float:
+    """Seconds a task of ``pixels`` pixels may stay unanswered: ``factor`` × what it is expected
+    to take — the recent median per pixel times its pixels, plus the median set build when its
+    worker did not hold its set (``builds_set``) — at least ``floor``, at most ``cap``; ``cap``
+    alone before any task time is known. Per pixel and per set build, so neither a frame of
+    another size (a quarter-size first frame, then the full one) nor the first task of a set
+    on a worker (a set build can take longer than ten tasks) makes a working worker's task
+    look lost."""
+    if cost.per_pixel is None:
         return float(cap)
-    med = statistics.median(list(recent)[-TIMEOUT_WINDOW:])
-    return min(float(cap), max(float(floor), factor * med))
+    expected = cost.per_pixel * max(int(pixels), 1) + (cost.set_build if builds_set else 0.0)
+    return min(float(cap), max(float(floor), factor * expected))

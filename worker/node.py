@@ -460,7 +460,8 @@ class WorkerNode:
             t1 = time.perf_counter()
             sx0, sy0, sx1, sy1 = body["tile"]
             tile = Tile(body["k"], sx0, sy0, sx1, sy1)
-            bufs = renderer.render_tile(spec, tile)
+            built: dict = {}
+            bufs = renderer.render_tile(spec, tile, built)
             t2 = time.perf_counter()
             data = encode(bufs)
             t3 = time.perf_counter()
@@ -468,7 +469,7 @@ class WorkerNode:
             rays = int(sum(v for v in counters.values() if isinstance(v, int)))
             result = {"frame": body["frame"], "task": body["task"], "epoch": body["epoch"],
                       "count": len(bufs), "data": data, "rays": min(rays, P.INT53),
-                      "timings": {"wait_scene": t1 - t0, "render": t2 - t1, "encode": t3 - t2}}
+                      "timings": {"wait_scene": t1 - t0, "render": t2 - t1, "encode": t3 - t2, **built}}
             with self._sets_lock:  # the list goes out only when it changed, in outbox order
                 sets = self._sets_to_send(renderer, session)
                 if sets is not None:

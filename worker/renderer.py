@@ -11,6 +11,7 @@ import threading
 import time
 from collections import OrderedDict
 from dataclasses import replace
+from typing import Callable
 
 import numpy as np
 from scipy.special import gammaln
@@ -140,6 +141,21 @@ _NO_STAGE = contextlib.nullcontext()
 MAX_VIEW_ENTRIES = 32  # per-view results kept (4 per view: the last 8 views)
 
 
+def _timed(build: Callable[[list], list], timings: dict | None) -> Callable[[list], list]:
+    """``build``, its seconds added to ``timings["sets"]`` (None: ``build`` itself)."""
+    if timings is None:
+        return build
+
+    def timed(keys: list) -> list:
+        t0 = time.perf_counter()
+        try:
+            return build(keys)
+        finally:
+            timings["sets"] = timings.get("sets", 0.0) + time.perf_counter() - t0
+
+    return timed
+
+
 class Renderer:
     """Owns the scene's geometry and light sampler, and caches per-set preprocessing."""
 
@@ -266,10 +282,11 @@ class Renderer:
         return (direct if params.max_depth != 1 else 0), indirect, max(length, 1)
 
     def vpl_set(self, seed: int, k: int, params: Params, roulette: bool = False,
-                view: View | None = None, index: int = 0) -> VPLSet:
+                view: View | None = None, index: int = 0, timings: dict | None = None) -> VPLSet:
         """P_k of the frame with ``seed`` at accumulation index ``index`` (a moving camera's
         frame: of :func:`set_params`' size; importance sampling on or off as for the view's
-        still frames, from one pilot)."""
+        still frames, from one pilot). ``timings``: the seconds spent building sets here are
+        added to its "sets"."""
         importance = self.importance_on(params, view)
         params = set_params(params)
         importance = importance and params.indirect_vpls > 0
@@ -287,10 +304,11 @@ class Renderer:
             return build_vpl_sets(self.scene, self.geom, self.lights, stream, blocks, direct, indirect, length,
                                   roulette=roulette and params.max_depth < 0)
 
-        return self._frame_sets.get((config, seed, index), k, params.interleave ** 2, build,
+        return self._frame_sets.get((config, seed, index), k, params.interleave ** 2, _timed(build, timings),
                                     later_frames(seed, index, params, config))
 
-    def photon_set(self, seed: int, k: int, params: Params, index: int = 0) -> PhotonSet:
+    def photon_set(self, seed: int, k: int, params: Params, index: int = 0,
+                   timings: dict | None = None) -> PhotonSet:
         radius = default_radius(self.geom.diagonal, params.photon_radius)
         # Caustic paths have >= 4 segments (light, specular, diffuse, eye).
         if (self.plan is not None and not self.plan.caustics) or 0 <= params.max_depth < 4:
@@ -305,7 +323,7 @@ class Renderer:
             return build_photon_sets(self.scene, self.geom, self.lights, stream, blocks, params.photons, radii,
                                      params.specular_depth, targets=self._specular_targets)
 
-        return self._frame_sets.get((config, seed, index), k, params.interleave ** 2, build,
+        return self._frame_sets.get((config, seed, index), k, params.interleave ** 2, _timed(build, timings),
                                     later_frames(seed, index, params, config))
 
     @property
@@ -324,7 +342,9 @@ class Renderer:
                 if config[0] == "vpl" and config[1] == self.scene_version}
 
     # -- a task ------------------------------------------------------------------------------
-    def render_tile(self, spec: FrameSpec, tile: Tile) -> TileBuffers:
+    def render_tile(self, spec: FrameSpec, tile: Tile, timings: dict | None = None) -> TileBuffers:
+        """The tile's per-pixel buffers. ``timings``: the seconds this call spent building VPL and
+        photon sets are added to its "sets" (the master's task timeouts allow for them)."""
         params = make_params(**spec.params)
         n = params.interleave
         xs, ys = tile.pixels(n, spec.width, spec.height)
@@ -333,7 +353,8 @@ class Renderer:
         view = View.of(spec.camera_to_world, spec.fov_x, spec.width, spec.height)
         consistent = consistent_frame(params, index)
         with self._stage("VPL set"):
-            vpls = self.vpl_set(spec.seed, tile.k, params, roulette=consistent, view=view, index=index)
+            vpls = self.vpl_set(spec.seed, tile.k, params, roulette=consistent, view=view, index=index,
+                                timings=timings)
         with self._stage("eye paths"):
             # Accumulating: each pixel walks its own rotation of the frames' jitter sequence.
             jitter = spec.jitter if index == 0 else pixel_jitter(spec.jitter, xs, ys)
@@ -359,7 +380,7 @@ class Renderer:
                                    np.sqrt(clamp_d2) if compensate else 0.0,
                                    self._specular_targets if lensed else None)
         with self._stage("photon set"):
-            photons = self.photon_set(spec.seed, tile.k, params, index)
+            photons = self.photon_set(spec.seed, tile.k, params, index, timings)
         arrivals, sky = [], None
         if compensate and compensation_enabled(vpls, clamp_d2):
             # Accumulating: give back what the clamp took (its near points, found by the rays).

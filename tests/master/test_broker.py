@@ -143,6 +143,47 @@ def test_silent_worker_expires_and_its_tasks_move():
         b.close()
 
 
+def test_a_worker_building_a_set_keeps_its_task_for_the_measured_set_build_time():
+    """A task's timeout allows for a set build when its worker did not hold the task's set
+    (the time the workers report building sets), so a working worker's first task of a set is
+    not taken from it; a task of a set it holds still expires at the tasks' own timeout."""
+    from igi.master.scheduler import TIMEOUT_FLOOR
+
+    with Broker(mini_cornell(W, H), bind="tcp://127.0.0.1:*", heartbeat=0.2, liveness=100) as broker:
+        a = FakeWorker(broker.endpoint, "a", credit=1)
+        hello_ok(a)
+
+        def frame(seed):
+            return broker.submit_frame(broker.frame_spec(0, {"interleave": 3, "seed": seed}))
+
+        def answer_all(fut, first=None, **kw):
+            pending = [first] if first else []
+            while not fut.done():
+                pending += a.tasks(1, timeout=0.5)
+                if pending:
+                    a.result(pending.pop(), **kw)
+            return fut.result(5)
+
+        # fast tasks (the floor is their timeout), each reporting a 2 s set build
+        answer_all(frame(1), timings={"render": 0.001, "sets": 2.0})
+        assert broker.current_task_timeout() == TIMEOUT_FLOOR
+        # a new seed: new sets, none held, so each task's timeout adds the set build
+        fut = frame(2)
+        t = a.tasks(1)[0]
+        time.sleep(TIMEOUT_FLOOR + 1.0)
+        assert broker.stats()["tasks_requeued"] == 0, "a worker building a set lost its task"
+        assert answer_all(fut, t).tasks == 9
+        # the same seed again: the worker holds every set, so a silent task expires at the floor
+        fut = frame(2)
+        t = a.tasks(1)[0]
+        t0 = time.monotonic()
+        assert wait_until(lambda: broker.stats()["tasks_requeued"] == 1, 10)
+        assert time.monotonic() - t0 < TIMEOUT_FLOOR + 1.0
+        a.result(t)  # late: stale, the re-queued copy counts
+        assert answer_all(fut).tasks == 9
+        a.close()
+
+
 def test_a_result_that_crosses_the_masters_bye_is_neither_dropped_nor_answered(broker):
     """Shutting down, the master says BYE and forgets its workers; a result already on its way
     is expected, not a stranger's message: no warning, no ERROR asking for HELLO (a stranger

@@ -3,8 +3,10 @@ from __future__ import annotations
 
 import collections
 
-from igi.master.scheduler import (TIMEOUT_FLOOR, FaultLedger, PendingTask, WorkerView, assign, credit_for,
-                                  task_timeout)
+import pytest
+
+from igi.master.scheduler import (TIMEOUT_FLOOR, FaultLedger, PendingTask, TaskCost, WorkerView, assign,
+                                  credit_for, task_timeout)
 from igi.master.task_queue import TaskQueue
 
 
@@ -242,10 +244,30 @@ def test_quarantine_after_consecutive_faults_once():
 
 
 def test_task_timeout_follows_measured_task_times():
-    assert task_timeout([], cap=60.0) == 60.0
-    assert task_timeout([0.05] * 10, cap=60.0) == TIMEOUT_FLOOR
-    assert task_timeout([1.0, 1.0, 50.0], cap=60.0, factor=8) == 8.0
-    assert task_timeout([30.0] * 3, cap=60.0) == 60.0
+    def per_task(times, **kw):  # tasks of one pixel: the per-pixel times are the task times
+        return task_timeout(TaskCost.measured(times), cap=60.0, pixels=1, **kw)
+
+    assert per_task([]) == 60.0
+    assert per_task([0.05] * 10) == TIMEOUT_FLOOR
+    assert per_task([1.0, 1.0, 50.0], factor=8) == 8.0
+    assert per_task([30.0] * 3) == 60.0
+
+
+def test_task_timeout_scales_with_the_tasks_pixels_and_allows_for_a_set_build():
+    # recent tasks: 1e-5 s a pixel (quarter-size tiles of 768 pixels took ~8 ms each)
+    cost = TaskCost.measured([1e-5] * 20, set_builds=[0.5, 0.7, 0.6])
+    assert cost.set_build == 0.6
+    small = task_timeout(cost, cap=60.0, pixels=768)
+    assert small == TIMEOUT_FLOOR  # 8 × 7.7 ms: the floor
+    full = task_timeout(cost, cap=60.0, pixels=12288 * 16)  # a tile 256× the size
+    assert full == pytest.approx(8 * 1e-5 * 12288 * 16)
+    # the first task of a set on a worker: the median set build is added before the factor
+    assert task_timeout(cost, cap=60.0, pixels=768, builds_set=True) == pytest.approx(8 * (768e-5 + 0.6))
+    assert task_timeout(cost, cap=4.0, pixels=768, builds_set=True) == 4.0  # never past the cap
+    # no set build measured yet: nothing added
+    assert task_timeout(TaskCost.measured([1e-5] * 20), cap=60.0, pixels=768, builds_set=True) == TIMEOUT_FLOOR
+    # only the last TIMEOUT_WINDOW times count
+    assert TaskCost.measured([1.0] * 500 + [1e-5] * 64).per_pixel == 1e-5
 
 
 def test_a_late_answer_lifts_a_quarantine_caused_by_timeouts_alone():

@@ -96,8 +96,8 @@ class FakeWorker:
             out.append(m.body)
         return out
 
-    def result(self, task: dict, epoch: int | None = None, value: float = 1.0):
-        """Answer a TASK with constant buffers of the right size."""
+    def result(self, task: dict, epoch: int | None = None, value: float = 1.0, timings: dict | None = None):
+        """Answer a TASK with constant buffers of the right size (and ``timings``, when given)."""
         from igi.common.codec import encode
         from igi.master.frame_assembly import tile_pixel_count
 
@@ -109,9 +109,11 @@ class FakeWorker:
         bufs = TileBuffers(reflectance=ones, irradiance=ones, unfiltered=np.zeros_like(ones),
                            depth=np.ones(count, np.float32),
                            normal=np.tile(np.array([0, 0, 1], np.float32), (count, 1)))
-        self.send(P.RESULT, {"frame": task["frame"], "task": task["task"],
-                             "epoch": task["epoch"] if epoch is None else epoch,
-                             "count": count, "data": encode(bufs)})
+        body = {"frame": task["frame"], "task": task["task"], "epoch": task["epoch"] if epoch is None else epoch,
+                "count": count, "data": encode(bufs)}
+        if timings is not None:
+            body["timings"] = timings
+        self.send(P.RESULT, body)
 
     def close(self):
         self.sock.close(0)

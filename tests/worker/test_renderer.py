@@ -136,3 +136,21 @@ def test_sets_built_ahead_for_later_frames_equal_the_sets_built_alone(monkeypatc
         _same(pa, pb)
     radii = [p.radius for _, p in built_ahead]
     assert all(a > b for a, b in zip(radii, radii[1:]))  # each frame's own radius
+
+
+def test_a_tile_reports_the_seconds_it_spent_building_sets_and_none_when_they_were_held():
+    """render_tile's ``timings``: "sets" (what the master's task timeouts allow for) is there
+    when the call built the tile's VPL or photon sets, absent when both were cached."""
+    scene = load_scene(bundled.resolve("cornell-box"))
+    cam, fov_x, _, _ = resolve_camera(scene, None, None, None)
+    r = Renderer(scene)
+    pd = params_to_dict(make_params(interleave=2))
+    spec = sequence_spec(0, 0, cam, fov_x, 16, 16, pd)
+    tiles = make_tiles(16, 16, 2, 8, 8)
+    first: dict = {}
+    r.render_tile(spec, tiles[0], first)
+    assert first["sets"] > 0.0
+    held: dict = {}
+    r.render_tile(spec, tiles[0], held)
+    assert "sets" not in held
+    r.render_tile(spec, tiles[0])  # no timings asked for: nothing to report to
