@@ -20,9 +20,9 @@ from igi.common.geometry import Geometry
 from igi.common.lights import VPL_DIRECTIONAL, LightSampler, cosine_hemisphere, to_world
 from igi.common.scene import CONSTANT, Scene
 
-BINS_Z, BINS_PHI = 16, 32  # equal-area bins: uniform in cos θ and φ about the world z axis
+from .kernels.environment_bins import BINS_PHI, BINS_Z, UNIFORM_SHARE, direction_bins, guide_pdfs
+
 RAYS_PER_POINT = 8
-UNIFORM_SHARE = 0.5
 # Sky-only scenes take at least this many environment samples per set: each is one shadow ray
 # per pixel, and the sky through a window needs more than the paper's 4 point-light samples to be
 # smooth (grey-white-room ¼ size, 8 frames, direct light 4×4-block relMSE: 0.030 uniform, 0.025
@@ -43,8 +43,10 @@ class EnvGuide:
     escape_direction: np.ndarray | None = None
 
     def pdf(self, d: np.ndarray) -> np.ndarray:
-        """q(ω) per steradian for unit world directions (N, 3)."""
-        return UNIFORM_SHARE / (4 * np.pi) + (1 - UNIFORM_SHARE) * self.density[_bin(d)]
+        """q(ω) per steradian for unit world directions (N, 3) (kernels.environment_bins)."""
+        out = np.empty(len(d))
+        guide_pdfs(self.density, np.ascontiguousarray(d, np.float64), out)
+        return out
 
     def sample(self, u: np.ndarray) -> np.ndarray:
         """Directions from q for uniforms (N, 3)."""
@@ -63,11 +65,10 @@ class EnvGuide:
 
 
 def _bin(d: np.ndarray) -> np.ndarray:
-    z = np.clip(d[:, 2], -1.0, 1.0)
-    bz = np.minimum(((z + 1) * 0.5 * BINS_Z).astype(np.int64), BINS_Z - 1)
-    phi = np.mod(np.arctan2(d[:, 1], d[:, 0]), 2 * np.pi)
-    bp = np.minimum((phi / (2 * np.pi) * BINS_PHI).astype(np.int64), BINS_PHI - 1)
-    return bz * BINS_PHI + bp
+    """The equal-area bin of each unit direction (N, 3) (kernels.environment_bins)."""
+    out = np.empty(len(d), np.int64)
+    direction_bins(np.ascontiguousarray(d, np.float64), out)
+    return out
 
 
 def single_environment(scene: Scene, lights: LightSampler) -> int:

@@ -210,14 +210,16 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
     return EyeResult(end, unf, depth, normal)
 
 
+_NO_DENSITY = np.zeros(0)  # (an unguided sky: the kernel takes the environment's pdf)
+
+
 def _compiled_eye(scene, geom, lights, origins, dirs, max_depth, specular_depth, rng, glossy_split_alpha,
                   light_mis) -> EyeResult | None:
     """:func:`trace_eye` in one compiled call (kernels.eye_paths.trace_eye: the same rays, draws,
     end points and per-pixel buffers as its numpy form), or None where that form must run: the
-    rays must go through Geometry.intersect (closest_terms), a mirror/glass or split smooth
+    rays must go through Geometry.intersect (closest_terms), or a mirror/glass or split smooth
     glossy material takes its specular or transmittance colour from a bitmap
-    (common.bsdf.chain_materials), or split lobes' rays under a sky
-    take MIS weights against an environment guide."""
+    (common.bsdf.chain_materials)."""
     terms = geom.closest_terms()
     tables = bsdf.chain_materials(scene.materials, glossy_split_alpha) if terms is not None else None
     if tables is None:
@@ -227,11 +229,14 @@ def _compiled_eye(scene, geom, lights, origins, dirs, max_depth, specular_depth,
     split = bool(smooth.any())
     count = int(light_mis.direct_count) if light_mis is not None and light_mis.direct_count > 0 else 0
     sky = bool(np.any(env > 0))
-    if split and count and sky and light_mis.env_guide is not None:
-        return None
     pmf = light_mis.emitter_pmf if light_mis is not None else None
     area_pdf = np.append(lights.area_pdf(np.arange(len(scene.emitters)), pmf), 0.0)
-    lobes = (split, smooth, P_lobe, count, area_pdf, float(lights.environment_pdf(pmf)) if sky else 0.0)
+    # the sky's pdf along an escaping lobe ray (emitter_pdf): the environment's, or its guide's
+    # pmf × q(ω) (q from the guide's histogram, per direction in the kernel)
+    guide = light_mis.env_guide if sky and light_mis is not None else None
+    env_pdf = (float(guide.pmf) if guide is not None else float(lights.environment_pdf(pmf))) if sky else 0.0
+    density = np.ascontiguousarray(guide.density, np.float64) if guide is not None else _NO_DENSITY
+    lobes = (split, smooth, P_lobe, count, area_pdf, env_pdf, density)
     p = len(origins)
     unf, depth, normal = np.zeros((p, 3)), np.empty(p), np.empty((p, 3))
     n = 3 * p  # room enough unless chains keep meeting smooth glossy surfaces (then: the numpy form)

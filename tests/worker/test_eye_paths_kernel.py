@@ -138,3 +138,32 @@ def test_split_plastics_with_textured_diffuse_layers_take_the_kernel_and_equal_t
     assert len(np.unique(textured[:, 0])) > 50  # texels, not one colour per material
     assert chain_materials(load_shared("grey-white-room").materials, 0.3) is not None
     assert chain_materials(load_shared("veach-ajar").materials, 0.3) is None
+
+
+def test_lobe_rays_escaping_to_a_guided_sky_take_the_kernel_and_equal_the_numpy_eye_paths(monkeypatch):
+    """grey-white-room's sky, seen through its windows, is sampled by an environment guide
+    (worker.env_guide); the smooth floor's and table's lobe rays that escape weigh the sky
+    against the guide's q(ω) (kernels.environment_bins.guide_pdf) — in the kernel as in the
+    numpy form, bit for bit; and the guide changes what those rays add."""
+    from igi.common.camera import resolve_camera
+    from igi.common.params import make_params
+    from igi.worker.kernels import eye_paths
+    from igi.worker.renderer import Renderer
+    from igi.worker.shading import LightMIS
+    from igi.worker.vpl_importance import View
+
+    scene = load_shared("grey-white-room")
+    cam, fov, w, h = resolve_camera(scene, None, 96, 72)
+    vpls = Renderer(scene).vpl_set(0, 0, make_params(), view=View.of(cam, fov, w, h))
+    assert vpls.env_guide is not None
+    mis = LightMIS(4, vpls.env_guide, vpls.emitter_pmf)
+    calls = []
+    real = eye_paths.trace_eye
+    monkeypatch.setattr(eye_paths, "trace_eye", lambda *a: calls.append(1) or real(*a))
+    got = _eye(monkeypatch, True, -1, False, "grey-white-room", mis)
+    assert calls, "the guided sky kept the tile out of the kernel"
+    monkeypatch.undo()
+    want = _eye(monkeypatch, False, -1, False, "grey-white-room", mis)
+    _same_eye(got, want)
+    unguided = _eye(monkeypatch, True, -1, False, "grey-white-room", LightMIS(4, None, vpls.emitter_pmf))
+    assert not np.array_equal(got[0].unfiltered, unguided[0].unfiltered)

@@ -20,6 +20,7 @@ from igi.common.kernels.ray_packets import closest_surfaces, hit_buffers
 from igi.common.lights import LUMINANCE_WEIGHTS
 from igi.common.scene import ROUGHCONDUCTOR
 
+from .environment_bins import guide_pdf
 from .specular_chain import delta_bounce
 
 _WR, _WG, _WB = LUMINANCE_WEIGHTS  # (frozen into the kernels as constants)
@@ -84,7 +85,9 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
     brighter one the pixel's main) followed by :func:`_chains`, their end points after.
     ``lobes``: (split smooth glossy hits?, smooth per material row, P with the plastics' kind
     their lobe's, light samples per set (0: the lobes take none, no MIS), area pdf per emitter
-    (a last row of 0), the environment's pdf). The main chain ends' distance and ns replace their
+    (a last row of 0), the environment's pdf — its emitter-choice probability where guided — and
+    the environment guide's histogram density (empty: not guided; worker.env_guide, its mixture
+    q(ω) per direction: kernels.environment_bins.guide_pdf)). The main chain ends' distance and ns replace their
     pixels' depth and normal. Returns (end points written, rays traced); (-1, rays) where
     ``ends`` was too small."""
     center = closest[1]
@@ -251,7 +254,8 @@ def _chains(P, kind, specular, null_kind, rng, closest, rays, live, specular_dep
     on: the delta samples', then the lobes'. Returns (ends written in all, rays traced); -1 for
     the first where ``ends`` was too small."""
     center = closest[1]
-    split, smooth, P_lobe, direct_count, area_pdf, env_pdf = lobes
+    split, smooth, P_lobe, direct_count, area_pdf, env_pdf, env_density = lobes
+    guided = env_density.shape[0] > 0
     cur = rays
     n = cur[0].shape[0]
     nxt = (np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_),
@@ -280,7 +284,9 @@ def _chains(P, kind, specular, null_kind, rng, closest, rays, live, specular_dep
             if sky:
                 for i in range(live):
                     if not valid[i]:
-                        w = _emission_mis(direct_count, area_pdf, env_pdf, mis[i], False, -1, htt[i], 0.0)
+                        # a guided sky's pdf along the ray (worker.shading.emitter_pdf: pmf × q(ω))
+                        pe = env_pdf * guide_pdf(env_density, d[i, 0], d[i, 1], d[i, 2]) if guided else env_pdf
+                        w = _emission_mis(direct_count, area_pdf, pe, mis[i], False, -1, htt[i], 0.0)
                         for a in range(3):
                             unf[pix[i], a] += thr[i, a] * env[a] * w
             for i in range(live):

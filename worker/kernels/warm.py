@@ -126,7 +126,7 @@ def _direct_calls() -> dict:
     """Tiny calls of the kernels the render does not register: the worker never decodes,
     and helpers that are loaded from the cache inside their caller keep no signature."""
     from igi.common.kernels import shading_frame, texture, wire_decode
-    from igi.worker.kernels import light_paths, photon_query, vpl_gather
+    from igi.worker.kernels import environment_bins, light_paths, photon_query, vpl_gather
 
     z = np.zeros(0, np.uint8)
     out1 = np.zeros(0, np.float32)
@@ -144,6 +144,11 @@ def _direct_calls() -> dict:
         "igi.worker.kernels.vpl_gather.accumulate": lambda: vpl_gather.accumulate(
             0, np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, bool),
             np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, bool), np.zeros((0, 3))),
+        # the environment guide's bins (the tiny scene has no sky)
+        "igi.worker.kernels.environment_bins.direction_bins": lambda: environment_bins.direction_bins(
+            np.zeros((0, 3)), np.zeros(0, np.int64)),
+        "igi.worker.kernels.environment_bins.guide_pdfs": lambda: environment_bins.guide_pdfs(
+            np.zeros(1), np.zeros((0, 3)), np.zeros(0)),
         # _stage and the array path's pair_weights: the scoring's rows and columns (empty
         # arrays of the types scored_draws takes) in their order
         "igi.worker.kernels.vpl_gather._stage": lambda: _stage_call(vpl_gather),
