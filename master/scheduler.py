@@ -308,8 +308,10 @@ class FaultLedger:
 @dataclass(frozen=True)
 class TaskCost:
     """What the recent tasks took, as :func:`task_timeout` scales it to one task: the median
-    seconds per pixel from TASK sent to RESULT (None: no task measured yet) and the median
-    seconds a worker spent building a task's VPL and photon sets when it had to."""
+    seconds per pixel from TASK sent to RESULT (None: no task measured yet) and the longest
+    recent set build a worker reported — the longest, not the median: most builds are one small
+    set (~10 ms), but a worker's first task of a new view also prepares it (pilot, camera points,
+    portals: seconds), and that is the task a median would time out."""
     per_pixel: float | None
     set_build: float = 0.0
 
@@ -318,14 +320,14 @@ class TaskCost:
         """From the recent per-pixel task times and set-build times (the last TIMEOUT_WINDOW)."""
         px = list(per_pixel)[-TIMEOUT_WINDOW:]
         sb = list(set_builds)[-TIMEOUT_WINDOW:]
-        return cls(statistics.median(px) if px else None, statistics.median(sb) if sb else 0.0)
+        return cls(statistics.median(px) if px else None, max(sb) if sb else 0.0)
 
 
 def task_timeout(cost: TaskCost, cap: float, pixels: int, builds_set: bool = False,
                  factor: float = TIMEOUT_FACTOR, floor: float = TIMEOUT_FLOOR) -> float:
     """Seconds a task of ``pixels`` pixels may stay unanswered: ``factor`` × what it is expected
-    to take — the recent median per pixel times its pixels, plus the median set build when its
-    worker did not hold its set (``builds_set``) — at least ``floor``, at most ``cap``; ``cap``
+    to take — the recent median per pixel times its pixels, plus the longest recent set build
+    when its worker did not hold its set (``builds_set``) — at least ``floor``, at most ``cap``; ``cap``
     alone before any task time is known. Per pixel and per set build, so neither a frame of
     another size (a quarter-size first frame, then the full one) nor the first task of a set
     on a worker (a set build can take longer than ten tasks) makes a working worker's task

@@ -141,21 +141,6 @@ _NO_STAGE = contextlib.nullcontext()
 MAX_VIEW_ENTRIES = 32  # per-view results kept (4 per view: the last 8 views)
 
 
-def _timed(build: Callable[[list], list], timings: dict | None) -> Callable[[list], list]:
-    """``build``, its seconds added to ``timings["sets"]`` (None: ``build`` itself)."""
-    if timings is None:
-        return build
-
-    def timed(keys: list) -> list:
-        t0 = time.perf_counter()
-        try:
-            return build(keys)
-        finally:
-            timings["sets"] = timings.get("sets", 0.0) + time.perf_counter() - t0
-
-    return timed
-
-
 class Renderer:
     """Owns the scene's geometry and light sampler, and caches per-set preprocessing."""
 
@@ -180,6 +165,7 @@ class Renderer:
             self.geom.need_uv = False  # no bitmap is read: skip uv interpolation on every hit
         self._frame_sets = FrameSets(max_cached_sets)
         self._lock = threading.Lock()
+        self._task = threading.local()  # per render thread: the running task's ``timings`` (render_tile)
         self._specular_targets = specular_targets(scene, self.geom)  # mirror/glass bounding spheres
         # Per view: importance sampling on? (pilot), the camera pool, the portals, the emitter
         # choice; the most recent views only (a drag visits a new view every frame).
@@ -212,7 +198,8 @@ class Renderer:
         with self._lock:
             if key in self._views:
                 return self._views[key], False
-        value = compute()
+        with self._set_time():  # (set preparation: pilot, camera points, portals)
+            value = compute()
         with self._lock:
             self._views[key] = value
             while len(self._views) > MAX_VIEW_ENTRIES:  # the oldest views' go first
@@ -282,11 +269,10 @@ class Renderer:
         return (direct if params.max_depth != 1 else 0), indirect, max(length, 1)
 
     def vpl_set(self, seed: int, k: int, params: Params, roulette: bool = False,
-                view: View | None = None, index: int = 0, timings: dict | None = None) -> VPLSet:
+                view: View | None = None, index: int = 0) -> VPLSet:
         """P_k of the frame with ``seed`` at accumulation index ``index`` (a moving camera's
         frame: of :func:`set_params`' size; importance sampling on or off as for the view's
-        still frames, from one pilot). ``timings``: the seconds spent building sets here are
-        added to its "sets"."""
+        still frames, from one pilot)."""
         importance = self.importance_on(params, view)
         params = set_params(params)
         importance = importance and params.indirect_vpls > 0
@@ -304,11 +290,10 @@ class Renderer:
             return build_vpl_sets(self.scene, self.geom, self.lights, stream, blocks, direct, indirect, length,
                                   roulette=roulette and params.max_depth < 0)
 
-        return self._frame_sets.get((config, seed, index), k, params.interleave ** 2, _timed(build, timings),
+        return self._frame_sets.get((config, seed, index), k, params.interleave ** 2, self._timed(build),
                                     later_frames(seed, index, params, config))
 
-    def photon_set(self, seed: int, k: int, params: Params, index: int = 0,
-                   timings: dict | None = None) -> PhotonSet:
+    def photon_set(self, seed: int, k: int, params: Params, index: int = 0) -> PhotonSet:
         radius = default_radius(self.geom.diagonal, params.photon_radius)
         # Caustic paths have >= 4 segments (light, specular, diffuse, eye).
         if (self.plan is not None and not self.plan.caustics) or 0 <= params.max_depth < 4:
@@ -323,7 +308,7 @@ class Renderer:
             return build_photon_sets(self.scene, self.geom, self.lights, stream, blocks, params.photons, radii,
                                      params.specular_depth, targets=self._specular_targets)
 
-        return self._frame_sets.get((config, seed, index), k, params.interleave ** 2, _timed(build, timings),
+        return self._frame_sets.get((config, seed, index), k, params.interleave ** 2, self._timed(build),
                                     later_frames(seed, index, params, config))
 
     @property
@@ -342,9 +327,43 @@ class Renderer:
                 if config[0] == "vpl" and config[1] == self.scene_version}
 
     # -- a task ------------------------------------------------------------------------------
+    def _timed(self, build: Callable[[list], list]) -> Callable[[list], list]:
+        """``build`` (a set cache's builder), its seconds counted as the running task's set time."""
+        def timed(keys: list) -> list:
+            with self._set_time():
+                return build(keys)
+
+        return timed
+
+    @contextlib.contextmanager
+    def _set_time(self):
+        """Count the block's seconds (set building, per-view preparation) in the running task's
+        ``timings["sets"]`` when render_tile was given one; a block inside another is counted
+        with it, not twice."""
+        task = self._task
+        timings = getattr(task, "timings", None)
+        if timings is None or getattr(task, "timing", False):
+            yield
+            return
+        task.timing = True
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            task.timing = False
+            timings["sets"] = timings.get("sets", 0.0) + time.perf_counter() - t0
+
     def render_tile(self, spec: FrameSpec, tile: Tile, timings: dict | None = None) -> TileBuffers:
         """The tile's per-pixel buffers. ``timings``: the seconds this call spent building VPL and
-        photon sets are added to its "sets" (the master's task timeouts allow for them)."""
+        photon sets and the view's set preparation (pilot, camera points, portals) are added to
+        its "sets" — the master's task timeouts allow for them."""
+        self._task.timings = timings
+        try:
+            return self._render_tile(spec, tile)
+        finally:
+            self._task.timings = None
+
+    def _render_tile(self, spec: FrameSpec, tile: Tile) -> TileBuffers:
         params = make_params(**spec.params)
         n = params.interleave
         xs, ys = tile.pixels(n, spec.width, spec.height)
@@ -353,8 +372,7 @@ class Renderer:
         view = View.of(spec.camera_to_world, spec.fov_x, spec.width, spec.height)
         consistent = consistent_frame(params, index)
         with self._stage("VPL set"):
-            vpls = self.vpl_set(spec.seed, tile.k, params, roulette=consistent, view=view, index=index,
-                                timings=timings)
+            vpls = self.vpl_set(spec.seed, tile.k, params, roulette=consistent, view=view, index=index)
         with self._stage("eye paths"):
             # Accumulating: each pixel walks its own rotation of the frames' jitter sequence.
             jitter = spec.jitter if index == 0 else pixel_jitter(spec.jitter, xs, ys)
@@ -380,7 +398,7 @@ class Renderer:
                                    np.sqrt(clamp_d2) if compensate else 0.0,
                                    self._specular_targets if lensed else None)
         with self._stage("photon set"):
-            photons = self.photon_set(spec.seed, tile.k, params, index, timings)
+            photons = self.photon_set(spec.seed, tile.k, params, index)
         arrivals, sky = [], None
         if compensate and compensation_enabled(vpls, clamp_d2):
             # Accumulating: give back what the clamp took (its near points, found by the rays).

@@ -255,13 +255,13 @@ def test_task_timeout_follows_measured_task_times():
 
 def test_task_timeout_scales_with_the_tasks_pixels_and_allows_for_a_set_build():
     # recent tasks: 1e-5 s a pixel (quarter-size tiles of 768 pixels took ~8 ms each)
-    cost = TaskCost.measured([1e-5] * 20, set_builds=[0.5, 0.7, 0.6])
+    cost = TaskCost.measured([1e-5] * 20, set_builds=[0.01, 0.6, 0.012])  # one view's preparation
     assert cost.set_build == 0.6
     small = task_timeout(cost, cap=60.0, pixels=768)
     assert small == TIMEOUT_FLOOR  # 8 × 7.7 ms: the floor
     full = task_timeout(cost, cap=60.0, pixels=12288 * 16)  # a tile 256× the size
     assert full == pytest.approx(8 * 1e-5 * 12288 * 16)
-    # the first task of a set on a worker: the median set build is added before the factor
+    # the first task of a set on a worker: the longest recent set build is added before the factor
     assert task_timeout(cost, cap=60.0, pixels=768, builds_set=True) == pytest.approx(8 * (768e-5 + 0.6))
     assert task_timeout(cost, cap=4.0, pixels=768, builds_set=True) == 4.0  # never past the cap
     # no set build measured yet: nothing added
