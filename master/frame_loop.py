@@ -279,11 +279,14 @@ class FrameLoop:
         self._task_done(w, f, t, len(body["data"]), now)
 
     def _note_report(self, w: Worker, body: dict, now: float) -> None:
-        """What the RESULT says about the worker: rays traced, render and encode times."""
+        """What the RESULT says about the worker: rays traced, render and encode times, the
+        seconds it spent building sets."""
         timings = body.get("timings", {})
         w.rays = self.meters.worker_report(body["rays"] if "rays" in body else None, w.rays, timings, now)
         if "render" in timings:
             w.busy_s += timings["render"]
+        if timings.get("sets", 0.0) > 0.0:
+            w.set_builds.append(timings["sets"])
 
     def _stale_result(self, w: Worker, key: tuple, epoch: int, answered: bool) -> None:
         if answered and self.links.faults.answered(w.ident):  # late, not silent
@@ -294,7 +297,7 @@ class FrameLoop:
     def _merge_tile(self, w: Worker, f: Frame, t: Task, body: dict) -> bool:
         """Validate and store the tile of a RESULT; a bad one fails the task (False)."""
         try:
-            count = tile_pixel_count(t.tile, f.assembler.n, f.spec.width, f.spec.height)
+            count = t.pixels  # (counted when the task was sent)
             if body["count"] != count:
                 raise ValueError(f"{body['count']} pixels, tile has {count}")
             # validated and decompressed here; float conversion, scatter and filter happen
@@ -380,7 +383,8 @@ class FrameLoop:
             self.worker_fault(w, faults.timed_out(w.ident, f"task unanswered for {now - t.sent:.1f} s"))
 
     def _task_cost(self) -> scheduler.TaskCost:
-        return scheduler.TaskCost.measured(self.meters.latency_per_pixel, self.meters.set_builds)
+        return scheduler.TaskCost.measured(self.meters.latency_per_pixel,
+                                           [w.set_builds for w in self.links.workers.values()])
 
     def current_task_timeout(self) -> float:
         """Seconds a task the size of the last one sent, its set held, may stay unanswered

@@ -59,6 +59,9 @@ class Worker:
     done: int = 0
     rays: int = 0  # last cumulative ray count reported
     busy_s: float = 0.0  # sum of reported render time
+    # its recent reported set-build seconds (scheduler.TaskCost: task timeouts)
+    set_builds: collections.deque = field(
+        default_factory=lambda: collections.deque(maxlen=scheduler.TIMEOUT_WINDOW))
     joined: float = 0.0
     first_task_s: float | None = None  # HELLO -> first TASK sent (a joiner gets work within a second)
 

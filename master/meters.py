@@ -9,6 +9,8 @@ import collections
 
 import numpy as np
 
+from .scheduler import TIMEOUT_WINDOW
+
 LATENCY_WINDOW = 2000  # task latencies kept for the stats
 RAYS_WINDOW_S = 5.0  # rays per second: over the reports of the last 5 s
 
@@ -22,8 +24,7 @@ class Meters:
 
     def __init__(self) -> None:
         self.latencies = _window()  # TASK sent -> RESULT accepted, s
-        self.latency_per_pixel = _window()  # the same over the task's pixels (task timeouts)
-        self.set_builds = _window()  # reported seconds of the tasks that built their sets
+        self.latency_per_pixel = _window(TIMEOUT_WINDOW)  # the same over the task's pixels (task timeouts)
         self.render_times = _window()  # reported by the workers
         self.encode_times = _window()
         self.merge_times = _window()  # decode + scatter of a RESULT's tile
@@ -35,8 +36,8 @@ class Meters:
         self.rays = _window(4096)  # (time, rays traced)
 
     def worker_report(self, rays: int | None, previous_rays: int, timings: dict, now: float) -> int:
-        """Record what a RESULT reports (cumulative ray count, render/encode times, the seconds
-        it spent building sets); returns the worker's new cumulative ray count."""
+        """Record what a RESULT reports (cumulative ray count, render/encode times); returns the
+        worker's new cumulative ray count."""
         if rays is not None:
             delta = rays - previous_rays if rays >= previous_rays else rays  # a new renderer restarts its counter
             previous_rays = rays
@@ -45,8 +46,6 @@ class Meters:
             self.render_times.append(timings["render"])
         if "encode" in timings:
             self.encode_times.append(timings["encode"])
-        if timings.get("sets", 0.0) > 0.0:
-            self.set_builds.append(timings["sets"])
         return previous_rays
 
     def frame_done(self, now: float, nbytes: int) -> None:

@@ -308,19 +308,22 @@ class FaultLedger:
 @dataclass(frozen=True)
 class TaskCost:
     """What the recent tasks took, as :func:`task_timeout` scales it to one task: the median
-    seconds per pixel from TASK sent to RESULT (None: no task measured yet) and the longest
-    recent set build a worker reported — the longest, not the median: most builds are one small
-    set (~10 ms), but a worker's first task of a new view also prepares it (pilot, camera points,
-    portals: seconds), and that is the task a median would time out."""
+    seconds per pixel from TASK sent to RESULT (None: no task measured yet) and a set build's
+    allowance — each worker's longest recent set build, the lower median of those over the
+    workers. The longest, not the median of the builds: most are one small set (~10 ms), but a
+    worker's first task of a new view also prepares it (pilot, camera points, portals: seconds),
+    and that is the task a median would time out. Over the workers, a lower median: one worker
+    reporting huge builds (issue 20: a peer may lie) cannot lengthen everyone's timeouts."""
     per_pixel: float | None
     set_build: float = 0.0
 
     @classmethod
-    def measured(cls, per_pixel: Sequence[float], set_builds: Sequence[float] = ()) -> "TaskCost":
-        """From the recent per-pixel task times and set-build times (the last TIMEOUT_WINDOW)."""
+    def measured(cls, per_pixel: Sequence[float], set_builds: Iterable[Sequence[float]] = ()) -> "TaskCost":
+        """From the recent per-pixel task times and each worker's set-build times (the last
+        TIMEOUT_WINDOW of each)."""
         px = list(per_pixel)[-TIMEOUT_WINDOW:]
-        sb = list(set_builds)[-TIMEOUT_WINDOW:]
-        return cls(statistics.median(px) if px else None, max(sb) if sb else 0.0)
+        longest = [max(list(b)[-TIMEOUT_WINDOW:]) for b in set_builds if b]
+        return cls(statistics.median(px) if px else None, statistics.median_low(longest) if longest else 0.0)
 
 
 def task_timeout(cost: TaskCost, cap: float, pixels: int, builds_set: bool = False,

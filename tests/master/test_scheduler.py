@@ -255,7 +255,7 @@ def test_task_timeout_follows_measured_task_times():
 
 def test_task_timeout_scales_with_the_tasks_pixels_and_allows_for_a_set_build():
     # recent tasks: 1e-5 s a pixel (quarter-size tiles of 768 pixels took ~8 ms each)
-    cost = TaskCost.measured([1e-5] * 20, set_builds=[0.01, 0.6, 0.012])  # one view's preparation
+    cost = TaskCost.measured([1e-5] * 20, set_builds=[[0.01, 0.6, 0.012]])  # one view's preparation
     assert cost.set_build == 0.6
     small = task_timeout(cost, cap=60.0, pixels=768)
     assert small == TIMEOUT_FLOOR  # 8 × 7.7 ms: the floor
@@ -268,6 +268,17 @@ def test_task_timeout_scales_with_the_tasks_pixels_and_allows_for_a_set_build():
     assert task_timeout(TaskCost.measured([1e-5] * 20), cap=60.0, pixels=768, builds_set=True) == TIMEOUT_FLOOR
     # only the last TIMEOUT_WINDOW times count
     assert TaskCost.measured([1.0] * 500 + [1e-5] * 64).per_pixel == 1e-5
+    assert TaskCost.measured([1e-5], [[5.0] + [0.01] * 64]).set_build == 0.01
+
+
+def test_one_worker_reporting_huge_set_builds_cannot_lengthen_every_timeout():
+    """Issue 20: a peer may report anything; the allowance is the lower median over the workers
+    of each one's longest recent build, so one liar among honest workers moves nothing."""
+    honest = [[0.01, 0.9, 0.012], [0.011, 0.7]]
+    assert TaskCost.measured([1e-5], honest + [[1e6]]).set_build == 0.9
+    assert TaskCost.measured([1e-5], [[0.9], [1e6]]).set_build == 0.9  # one honest, one liar
+    assert TaskCost.measured([1e-5], [[], [0.3]]).set_build == 0.3  # a worker with no builds yet
+    assert TaskCost.measured([1e-5], [[], []]).set_build == 0.0
 
 
 def test_a_late_answer_lifts_a_quarantine_caused_by_timeouts_alone():
