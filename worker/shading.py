@@ -308,9 +308,16 @@ def emitter_pdf(lights: LightSampler, hits, valid: np.ndarray, dirs: np.ndarray,
                      / np.maximum(np.abs(cos_front), 1e-7))
     miss = ~valid
     if miss.any() and np.any(lights.environment() > 0):
-        g = light_mis.env_guide
-        pl[miss] = g.pmf * g.pdf(dirs[miss]) if g is not None else lights.environment_pdf(light_mis.emitter_pmf)
+        pl[miss] = sky_pdf(lights, light_mis, dirs[miss])
     return pl * light_mis.direct_count
+
+
+def sky_pdf(lights: LightSampler, light_mis: LightMIS, dirs: np.ndarray) -> np.ndarray | float:
+    """Density with which one of the set's emitter samples picks the sky along unit ``dirs``:
+    its guide's pmf × q(ω) where the set's sky samples are guided, else the environment's pdf
+    (the compiled eye paths take the same two: worker.shading._compiled_eye)."""
+    g = light_mis.env_guide
+    return g.pmf * g.pdf(dirs) if g is not None else lights.environment_pdf(light_mis.emitter_pmf)
 
 
 def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis_pdf, unf, env,
@@ -975,9 +982,7 @@ def add_bsdf_direct(lights: LightSampler, ray_sets: Sequence[tuple[BSDFRays, int
             miss = ~h.valid
             env_pl = np.zeros(len(miss))
             if miss.any():
-                g = light_mis.env_guide
-                env_pl[miss] = (g.pmf * g.pdf(rays.direction[miss]) if g is not None
-                                else lights.environment_pdf(light_mis.emitter_pmf))
+                env_pl[miss] = sky_pdf(lights, light_mis, rays.direction[miss])
         kbd.add_emission(rays.rows, int(base), rays.weight, rays.pdf, rays.delta, rays.direction, h.valid, h.t, h.ns,
                          h.emitter, lights.area_radiance, area_pdf, env, sky, env_pl, float(light_mis.direct_count),
                          alb, irr)
