@@ -438,8 +438,9 @@ def render(scene: Scene, frames: int = 1, params: dict | None = None, width: int
 
 # ------------------------------------------------------------- VPLs on the shading point
 
-def eye_end_points(renderer, width: int = 24, height: int = 24, max_depth: int = -1):
-    """End points of one eye ray per pixel centre of a width x height image (worker.shading)."""
+def eye_end_points(renderer, width: int = 24, height: int = 24, max_depth: int = -1, glossy_split_alpha: float = 0.0):
+    """End points of one eye ray per pixel centre of a width x height image (worker.shading;
+    ``glossy_split_alpha`` > 0: smooth plastics split into their diffuse layer and lobe)."""
     from igi.common.camera import camera_rays
     from igi.common.sobol_stream import rng
     from igi.worker.shading import trace_eye
@@ -447,7 +448,7 @@ def eye_end_points(renderer, width: int = 24, height: int = 24, max_depth: int =
     cam = renderer.scene.camera
     ys, xs = np.mgrid[0:height, 0:width]
     o, d = camera_rays(cam.to_world, cam.fov_x, width, height, xs.ravel(), ys.ravel())
-    return trace_eye(renderer.scene, renderer.geom, renderer.lights, o, d, max_depth, 8, rng(0, 1)).end
+    return trace_eye(renderer.scene, renderer.geom, renderer.lights, o, d, max_depth, 8, rng(0, 1), glossy_split_alpha).end
 
 
 def with_nonfinite_positions(end, nan_every: int, inf_every: int):

@@ -215,6 +215,18 @@ def _lambert_terms(d0, d1, d2_, n0, n1, n2, s, wxj, wyj, wzj, md2, cf, vsd, lp, 
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _coat_weight(v, cos_x, tables, g, inv_t):
+    """A plastic layer's (ROW_LAYER) pair weight: the Lambertian weight ``v`` times the coat's
+    transmittance toward the VPL at cos θ_x (common.microfacet.lerp_gather of table ``g``) over
+    its mean (``inv_t``: 1/t_avg), in float64, rounded to float32 once."""
+    n_tab = tables.shape[1]
+    xs = min(float(max(cos_x, 0.0)), 1.0) * (n_tab - 1)
+    idx = min(int(xs), n_tab - 2)
+    t_o = tables[g, idx] + (tables[g, idx + 1] - tables[g, idx]) * (xs - idx)
+    return np.float32(v * t_o * inv_t)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _roulette_pair(w, lj, key, ck, t):
     """A weighed pair's weight after :func:`roulette_row`'s draw (row key ``key``, column key
     ``ck``, threshold ``t``, the column's float32 luminance ``lj``): kept as it is, dropped
@@ -256,7 +268,6 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
     rows are weighed and thinned column by column, each column over the block's rows in SIMD
     lanes (:func:`_lambert_columns`); the other rows (and every row of a block whose rows take
     different columns) one by one, their row in ``block``'s row buffers, then copied in."""
-    n_tab = tables.shape[1]
     f1e30 = np.float32(1e-30)
     zero = np.float32(0.0)
     inf32 = np.float32(np.inf)
@@ -264,9 +275,9 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
     vector = vx.shape[0] > 0  # (the columns' SoA coordinates given: no spot column)
     uniform = vector and _same_columns(b0, nb, col_lo, col_hi)
     if uniform:
-        _lambert_columns(b0, nb, x, ns, side, row, vmax, max(col_lo[b0], 0), col_hi[b0], directional, min_d2,
-                         cos_factor, vside, mis, light_pdf, area, dcount, lum, fraction, seed, base, sw, spl, vx, vy,
-                         vz, wx, wy, wz, vd, col_keys, block)
+        _lambert_columns(b0, nb, x, ns, side, row, vmax, tables, row_tab, inv_tavg, max(col_lo[b0], 0), col_hi[b0],
+                         directional, min_d2, cos_factor, vside, mis, light_pdf, area, dcount, lum, fraction, seed, base,
+                         sw, spl, vx, vy, vz, wx, wy, wz, vd, col_keys, block)
     rb, rpl = block[13], block[14]  # (1, width): one row's weights and light pdfs
     for b in range(nb):
         i = b0 + b
@@ -286,7 +297,7 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
         so[b, 1] = xi1 + ng[i, 1] * off[i]
         so[b, 2] = xi2 + ng[i, 2] * off[i]
         sin[b] = interior_origin(planes, so[b, 0], so[b, 1], so[b, 2])
-        if uniform and (r == ROW_LAMBERT or r == ROW_GLOSSY):
+        if uniform:
             continue  # weighed (and thinned) by _lambert_columns
         q = 0
         total = 0.0
@@ -341,12 +352,7 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
                             if mis[j]:
                                 v *= pl * pl / max(pl * pl + recv * recv, f1e30)
                             if r == ROW_LAYER:
-                                # common.microfacet.lerp_gather of the coat transmittance at cos θ_x
-                                g = row_tab[i]
-                                xs = min(float(max(cos_x, 0.0)), 1.0) * (n_tab - 1)
-                                idx = min(int(xs), n_tab - 2)
-                                t_o = tables[g, idx] + (tables[g, idx + 1] - tables[g, idx]) * (xs - idx)
-                                v = np.float32(v * t_o * inv_tavg[i])
+                                v = _coat_weight(v, cos_x, tables, row_tab[i], inv_tavg[i])
                         elif cos_x > 0.0:  # every glossy kind reflects only: below the horizon f = 0
                             v = em
                             rpl[0, a] = pl
@@ -365,19 +371,22 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
 
 # (a call of its own: numba inlines no call of more than 30 arguments; no reference counting, as _stage)
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _lambert_columns(b0, nb, x, ns, side, row, vmax, lo, hi, directional, min_d2, cos_factor, vside, mis,
-                     light_pdf, area, dcount, lum, fraction, seed, base, sw, spl, vx, vy, vz, wx, wy, wz, vd, col_keys,
-                     block) -> None:
-    """:func:`_stage`'s Lambertian and glossy rows of a block whose rows all take columns
-    [lo, hi): each column over the block's rows (their x, ns, side, depth limit and kind copied
-    out per coordinate, ``block``), so the compiler runs the rows in SIMD lanes with no per-row
-    remainder loop — the same float32 operations per pair as the row-by-row loop (a glossy
-    pair's weight its emitter factor, its light pdf in ``spl``), each Lambertian row's total
-    summed in column order, then :func:`roulette_row`'s draws column by column. Every other row
-    is left _NO_RAY."""
+def _lambert_columns(b0, nb, x, ns, side, row, vmax, tables, row_tab, inv_tavg, lo, hi, directional, min_d2,
+                     cos_factor, vside, mis, light_pdf, area, dcount, lum, fraction, seed, base, sw, spl, vx, vy, vz, wx,
+                     wy, wz, vd, col_keys, block) -> None:
+    """:func:`_stage`'s rows of a block whose rows all take columns [lo, hi): each column over
+    the block's rows (their x, ns, side, depth limit and kind copied out per coordinate,
+    ``block``), so the compiler runs the rows in SIMD lanes with no per-row remainder loop — the
+    same float32 operations per pair as the row-by-row loop (a glossy pair's weight its emitter
+    factor, its light pdf in ``spl``; a plastic layer's its Lambertian weight times the coat's
+    :func:`_coat_weight`, applied to the column's live layer pairs after the lanes), each
+    Lambertian and layer row's total summed in column order, then :func:`roulette_row`'s draws
+    column by column. A ROW_NONE row is left _NO_RAY."""
     rx0, rx1, rx2, rn0, rn1, rn2, rs, rl, rk, tot, qq, tt, rkey = block[:13]
+    cx, layers = block[15], block[16]  # a column's cos θ_x per row; the block's layer rows
     zero = np.float32(0.0)
     inf32 = np.float32(np.inf)
+    n_layers = 0
     for b in range(nb):
         i = b0 + b
         rx0[b], rx1[b], rx2[b] = x[i, 0], x[i, 1], x[i, 2]
@@ -387,13 +396,15 @@ def _lambert_columns(b0, nb, x, ns, side, row, vmax, lo, hi, directional, min_d2
         rk[b] = row[i]
         tot[b] = 0.0
         qq[b] = 0
+        layers[n_layers] = b
+        n_layers += row[i] == ROW_LAYER
     for a in range(hi - lo):
         j = lo + a
-        dr, cx, cy, cz, nx, ny, nz = directional[j], vx[j], vy[j], vz[j], wx[j], wy[j], wz[j]
+        dr, cx_, cy, cz, nx, ny, nz = directional[j], vx[j], vy[j], vz[j], wx[j], wy[j], wz[j]
         md2, cf, vsd, lp, ar, mi, dj, lj = min_d2[j], cos_factor[j], vside[j], light_pdf[j], area[j], mis[j], vd[j], \
             lum[j]
         for b in range(nb):
-            d0 = -nx if dr else cx - rx0[b]
+            d0 = -nx if dr else cx_ - rx0[b]
             d1 = -ny if dr else cy - rx1[b]
             d2_ = -nz if dr else cz - rx2[b]
             front, cos_x, em, pl, v = _lambert_terms(d0, d1, d2_, rn0[b], rn1[b], rn2[b], rs[b], nx, ny, nz, md2, cf,
@@ -402,10 +413,20 @@ def _lambert_columns(b0, nb, x, ns, side, row, vmax, lo, hi, directional, min_d2
             # cos_x > 0) and MIS weight the caller's
             glossy = rk[b] == ROW_GLOSSY
             v = em if glossy else v
-            live = ((rk[b] == ROW_LAMBERT) | (glossy & (cos_x > zero))) & (dj <= rl[b]) & (front > zero) & (
+            live = ((rk[b] == ROW_LAMBERT) | (rk[b] == ROW_LAYER) | (glossy & (cos_x > zero))) & (dj <= rl[b]) & (front > zero) & (
                 em > zero) & (v > zero) & (v < inf32)
             sw[a, b] = v if live else _NO_RAY
             spl[a, b] = pl if mi else zero
+            cx[b] = cos_x
+        # the layer rows' coat, out of the lanes (a table look-up in float64 per pair); a pair
+        # it leaves at 0 or not finite carries nothing, as in the row-by-row loop
+        for t in range(n_layers):
+            b = layers[t]
+            w = sw[a, b]
+            if w >= 0.0:
+                i = b0 + b
+                v = _coat_weight(w, cx[b], tables, row_tab[i], inv_tavg[i])
+                sw[a, b] = v if v > 0.0 and math.isfinite(v) else _NO_RAY
         # the rows' sums in a loop of their own: float64 lanes here would halve the weighing's
         # SIMD width (+0.0 for a dead pair: each row sums its live pairs in column order, as
         # roulette_row's caller does)
@@ -419,7 +440,7 @@ def _lambert_columns(b0, nb, x, ns, side, row, vmax, lo, hi, directional, min_d2
     for b in range(nb):
         tt[b] = no_roulette
         rkey[b] = np.uint32(0)
-        if rk[b] == ROW_LAMBERT and qq[b] > 0:
+        if (rk[b] == ROW_LAMBERT or rk[b] == ROW_LAYER) and qq[b] > 0:
             threshold = fraction * tot[b] / qq[b]
             if threshold > 0.0:
                 tt[b] = np.float32(threshold)
@@ -473,7 +494,7 @@ def staging_for(rows, width, vpos, vnormal, spot_cutoff, vdepth):
     block = (np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, f32),
              np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, np.int32), np.empty(rows, np.int8),
              np.empty(rows), np.empty(rows, np.int32), np.empty(rows, f32), np.empty(rows, np.uint32),
-             np.empty((1, width), f32), np.zeros((1, width), f32))
+             np.empty((1, width), f32), np.zeros((1, width), f32), np.empty(rows, f32), np.empty(rows, np.int64))
     return (np.empty((width, rows), f32), np.empty((width, rows), f32), np.zeros((rows, 3), f32),
             np.empty(rows, np.bool_), vx, vy, vz, wx, wy, wz, vd, column_keys(vpos.shape[0]), block)
 

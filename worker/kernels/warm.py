@@ -221,7 +221,8 @@ def _lambert_columns_call(vpl_gather) -> None:
     f32 = np.float32
     v, b = np.zeros(0, f32), np.zeros(0, np.bool_)
     vpl_gather._lambert_columns(0, 0, np.zeros((0, 3), f32), np.zeros((0, 3), f32), v, np.zeros(0, np.int8),
-                                np.zeros(0, np.int64), 0, 0, b, v, b.copy(), v, b.copy(), v, b.copy(), f32(0.0),
+                                np.zeros(0, np.int64), np.ones((1, 2)), np.zeros(0, np.int64), np.zeros(0), 0, 0, b,
+                                v, b.copy(), v, b.copy(), v, b.copy(), f32(0.0),
                                 np.zeros(0), 0.0, 0, 0, np.zeros((0, 1), f32), np.zeros((0, 1), f32),
                                 *(np.zeros(0, f32) for _ in range(6)),
                                 np.zeros(0, np.int32), np.zeros(0, np.uint32), _stage_block(1, 0))
@@ -232,7 +233,7 @@ def _stage_block(rows: int, width: int) -> tuple:
     f32 = np.float32
     return (*(np.zeros(rows, f32) for _ in range(7)), np.zeros(rows, np.int32), np.zeros(rows, np.int8),
             np.zeros(rows), np.zeros(rows, np.int32), np.zeros(rows, f32), np.zeros(rows, np.uint32),
-            np.zeros((1, width), f32), np.zeros((1, width), f32))
+            np.zeros((1, width), f32), np.zeros((1, width), f32), np.zeros(rows, f32), np.zeros(rows, np.int64))
 
 
 def _pair_weights_call(vpl_gather) -> None:
