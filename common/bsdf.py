@@ -350,6 +350,13 @@ def texture_atlas(materials: list) -> tuple:
     return t["atlas"]
 
 
+def split_smooth(kind: np.ndarray, alpha: np.ndarray, glossy_split_alpha: float) -> np.ndarray:
+    """(N,) bool: the points split at their hit per BSDF component (paper §4): rough conductors
+    and plastics smoother than ``glossy_split_alpha`` (0: none). Defined once for the eye paths,
+    their kernels' material tables and the filter's choice of end points."""
+    return kind_in(kind, (ROUGHCONDUCTOR, ROUGHPLASTIC)) & (alpha < glossy_split_alpha) & (glossy_split_alpha > 0)
+
+
 def chain_materials(materials: list, glossy_split_alpha: float = 0.0) -> tuple | None:
     """``(P, kind, specular, smooth, P_lobe)`` per material row (the NULL kind at row
     len(materials)) for the compiled paths (worker.kernels.eye_paths, specular_chain,
@@ -365,8 +372,7 @@ def chain_materials(materials: list, glossy_split_alpha: float = 0.0) -> tuple |
         P, _textured = material_packed(materials)
         sp = gather(materials, np.arange(len(materials) + 1), None)
         specular = kind_in(sp.kind, SPECULAR_KINDS)
-        smooth = kind_in(sp.kind, (ROUGHCONDUCTOR, ROUGHPLASTIC)) & (sp.alpha < glossy_split_alpha)
-        smooth &= glossy_split_alpha > 0
+        smooth = split_smooth(sp.kind, sp.alpha, glossy_split_alpha)
         P_lobe = (np.where(P[0] == ROUGHPLASTIC, ROUGHPLASTIC_LOBE, P[0]).astype(P[0].dtype),) + tuple(P[1:])
         # The kernels read the material rows of P where they sample a mirror/glass component or
         # a split lobe: the specular and transmittance colours, never the diffuse one (a split

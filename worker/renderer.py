@@ -421,7 +421,7 @@ class Renderer:
         # their highlights smeared by it, so their radiance stays unfiltered.
         kind = end.sp.kind
         filterable = (kind == DIFFUSE) | (kind == PLASTIC) | (kind == ROUGHPLASTIC_DIFFUSE) | (
-            kind_in(kind, GLOSSY_KINDS) & (end.sp.alpha >= params.filter_glossy_alpha))
+            kind_in(kind, GLOSSY_KINDS) & ~bsdf.split_smooth(kind, end.sp.alpha, params.filter_glossy_alpha))
         tile_buffers.compose(np.ascontiguousarray(end.pixel, np.int64), end.main & filterable,
                              np.ascontiguousarray(albedo, np.float64), np.ascontiguousarray(end.throughput, np.float64),
                              np.ascontiguousarray(irr, np.float64), refl, irr_buf, unf)

@@ -414,13 +414,13 @@ def delta_bounce(materials: list, geom: Geometry, src: np.ndarray, pos: np.ndarr
 
 
 def _split_smooth(sp, nd_mask: np.ndarray, alpha: float):
-    """The per-component split of smooth glossy hits (rough conductors and plastics smoother
-    than ``alpha``): ``(sp with the plastics relabelled ROUGHPLASTIC_DIFFUSE, lobe rows,
+    """The per-component split of smooth glossy hits (bsdf.split_smooth: rough conductors and
+    plastics smoother than ``alpha``): ``(sp with the plastics relabelled ROUGHPLASTIC_DIFFUSE, lobe rows,
     their whole BSDFs for sampling the lobe, end-point mask without the conductors)``."""
     none = np.zeros(0, np.int64)
     if alpha <= 0:
         return sp, none, None, nd_mask
-    smooth = kind_in(sp.kind, (ROUGHCONDUCTOR, ROUGHPLASTIC)) & (sp.alpha < alpha)
+    smooth = bsdf.split_smooth(sp.kind, sp.alpha, alpha)
     if not smooth.any():
         return sp, none, None, nd_mask
     lobe = np.nonzero(smooth)[0]
