@@ -196,7 +196,7 @@ def shadow_roulette(k, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base) -
         while e < k and pi[e] == pi[s]:
             e += 1
         i = int(pi[s])
-        eligible = row[i] in (vg.ROW_LAMBERT, vg.ROW_LAYER)
+        eligible = row[i] in (vg.ROW_LAMBERT, vg.ROW_LAYER, vg.ROW_GLOSSY)
         total = float(np.sum(w[s:e].astype(np.float64) * lum[pj[s:e]]))
         threshold = fraction * total / (e - s) if eligible else 0.0
         t32 = np.float32(threshold)

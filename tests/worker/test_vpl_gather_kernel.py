@@ -120,9 +120,9 @@ def test_kernel_matches_numpy_on_split_diffuse_layers():
 
 @pytest.mark.parametrize("name", ["cornell-box", "cornell-box-glossy"])
 def test_shadow_roulette_is_unbiased_and_traces_fewer_rays(name):
-    """Russian roulette on the small pairs' shadow rays: over many seeds the mean of the
-    gathered light equals the gather that traces every pair (per end point, within its
-    standard error), with fewer shadow rays."""
+    """Russian roulette on the small pairs' shadow rays (glossy receivers' too): over many seeds
+    the mean of the gathered light equals the gather that traces every pair (per end point,
+    within its standard error), with fewer shadow rays."""
     r = Renderer(load_shared(name))
     end = eye_end_points(r, 16, 16)
     vpls = _set(r, 2)
@@ -139,6 +139,15 @@ def test_shadow_roulette_is_unbiased_and_traces_fewer_rays(name):
     assert rays < 0.9 * all_rays
     mean, se = runs.mean(axis=0), runs.std(axis=0) / np.sqrt(len(runs))
     assert np.any(se > 0)  # some pairs were rouletted: the comparison is not vacuous
+    if name == "cornell-box-glossy":  # glossy receivers' pairs (BSDF factor after the ray) too
+        from igi.worker import shading
+        from igi.worker.kernels import vpl_gather as vg
+
+        cols = shading.vpl_columns(vpls, r.geom, c2)
+        pairs = [shading._pair_rays(r.geom, end, slice(0, len(end)), vpls, cols, -1, roulette=rr)
+                 for rr in (None, (0.5, 7))]
+        glossy = [np.sum(p[3][p[0]] == vg.ROW_GLOSSY) for p in pairs]
+        assert 0 < glossy[1] < glossy[0]
     z = np.abs(mean - exact) / np.maximum(se, 1e-12 * np.abs(exact).max())
     assert np.mean(z > 4) < 0.002
     assert abs(mean.sum() / exact.sum() - 1) < 0.005
