@@ -448,7 +448,8 @@ def eye_end_points(renderer, width: int = 24, height: int = 24, max_depth: int =
     cam = renderer.scene.camera
     ys, xs = np.mgrid[0:height, 0:width]
     o, d = camera_rays(cam.to_world, cam.fov_x, width, height, xs.ravel(), ys.ravel())
-    return trace_eye(renderer.scene, renderer.geom, renderer.lights, o, d, max_depth, 8, rng(0, 1), glossy_split_alpha).end
+    return trace_eye(renderer.scene, renderer.geom, renderer.lights, o, d, max_depth, 8, rng(0, 1),
+                     glossy_split_alpha).end
 
 
 def with_nonfinite_positions(end, nan_every: int, inf_every: int):

@@ -229,9 +229,9 @@ def test_roulette_while_writing_the_pairs_equals_the_separate_pass(name):
 @pytest.mark.parametrize("roulette", [None, (0.5, 11)])
 def test_the_column_by_column_weighing_equals_the_row_by_row_loop_bit_for_bit(name, roulette):
     """A block whose rows all take the same VPLs weighs its rows column by column
-    (vpl_gather._lambert_columns, the rows in SIMD lanes, plastic layers' coats after); a block whose rows take different
-    VPLs, row by row. Every row both blocks share gives the same pairs, weights, rays and
-    roulette draws bit for bit."""
+    (vpl_gather._lambert_columns, the rows in SIMD lanes, plastic layers' coats after); a block
+    whose rows take different VPLs, row by row. Every row both blocks share gives the same
+    pairs, weights, rays and roulette draws bit for bit."""
     from igi.worker import shading
     from igi.worker.kernels import vpl_gather as vg
 

@@ -275,9 +275,9 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
     vector = vx.shape[0] > 0  # (the columns' SoA coordinates given: no spot column)
     uniform = vector and _same_columns(b0, nb, col_lo, col_hi)
     if uniform:
-        _lambert_columns(b0, nb, x, ns, side, row, vmax, tables, row_tab, inv_tavg, max(col_lo[b0], 0), col_hi[b0],
-                         directional, min_d2, cos_factor, vside, mis, light_pdf, area, dcount, lum, fraction, seed, base,
-                         sw, spl, vx, vy, vz, wx, wy, wz, vd, col_keys, block)
+        _lambert_columns(b0, nb, x, ns, side, row, vmax, tables, row_tab, inv_tavg, max(col_lo[b0], 0),
+                         col_hi[b0], directional, min_d2, cos_factor, vside, mis, light_pdf, area, dcount, lum,
+                         fraction, seed, base, sw, spl, vx, vy, vz, wx, wy, wz, vd, col_keys, block)
     rb, rpl = block[13], block[14]  # (1, width): one row's weights and light pdfs
     for b in range(nb):
         i = b0 + b
@@ -371,8 +371,8 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
 # (a call of its own: numba inlines no call of more than 30 arguments; no reference counting, as _stage)
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def _lambert_columns(b0, nb, x, ns, side, row, vmax, tables, row_tab, inv_tavg, lo, hi, directional, min_d2,
-                     cos_factor, vside, mis, light_pdf, area, dcount, lum, fraction, seed, base, sw, spl, vx, vy, vz, wx,
-                     wy, wz, vd, col_keys, block) -> None:
+                     cos_factor, vside, mis, light_pdf, area, dcount, lum, fraction, seed, base, sw, spl, vx, vy, vz,
+                     wx, wy, wz, vd, col_keys, block) -> None:
     """:func:`_stage`'s rows of a block whose rows all take columns [lo, hi): each column over
     the block's rows (their x, ns, side, depth limit and kind copied out per coordinate,
     ``block``), so the compiler runs the rows in SIMD lanes with no per-row remainder loop — the
@@ -412,8 +412,8 @@ def _lambert_columns(b0, nb, x, ns, side, row, vmax, tables, row_tab, inv_tavg, 
             # cos_x > 0) and MIS weight the caller's
             glossy = rk[b] == ROW_GLOSSY
             v = em if glossy else v
-            live = ((rk[b] == ROW_LAMBERT) | (rk[b] == ROW_LAYER) | (glossy & (cos_x > zero))) & (dj <= rl[b]) & (front > zero) & (
-                em > zero) & (v > zero) & (v < inf32)
+            kind_live = (rk[b] == ROW_LAMBERT) | (rk[b] == ROW_LAYER) | (glossy & (cos_x > zero))
+            live = kind_live & (dj <= rl[b]) & (front > zero) & (em > zero) & (v > zero) & (v < inf32)
             sw[a, b] = v if live else _NO_RAY
             spl[a, b] = pl if mi else zero
             cx[b] = cos_x
