@@ -66,11 +66,11 @@ PARAMS: tuple[Param, ...] = (
           "radius while accumulating consistently; 0: off",
           "vpl", 0.0, 1.0),
     Param("shadow_roulette", float, 1.0,
-          "Russian roulette on shadow rays: an (end point, VPL) pair (a glossy one's light guessed "
-          "before its BSDF) whose unshadowed light is below this fraction of the end point's mean "
-          "pair traces its ray with probability light/(fraction x mean) and counts 1/p (unbiased; skips the rays of pairs "
-          "that carry little light; 1 gave 2-4% less error at equal time than 0.5 on six shared "
-          "scenes); 0: every pair traces", "vpl", 0.0, 1.0),
+          "Russian roulette on shadow rays: an (end point, VPL) pair (a glossy end point's light "
+          "guessed by its lobe's shape) whose unshadowed light is below this fraction of the end "
+          "point's mean pair traces its ray with probability light/(fraction x mean) and counts 1/p "
+          "(unbiased; skips the rays of pairs that carry little light; 1 gave 2-4% less error at equal "
+          "time than 0.5 on six shared scenes); 0: every pair traces", "vpl", 0.0, 1.0),
     Param("lobe_light_samples", int, 4,
           "emitter samples per set that a split glossy lobe takes for its direct light (MIS with the "
           "lobe's sampled ray; the first of the set's, reweighted): the lobe's direct light costs "

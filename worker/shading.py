@@ -544,14 +544,29 @@ def _gather_packets(geom: Geometry, end: EndPoints, cols: "_VPLColumns", max_dep
         factors = (P_end, end_row, receivers.wi, receivers.ns, receivers.albedo, cols.glossy, P_vpl, cols.p_row,
                    cols.vwi, cols.vnormal)
     n, m = len(x), len(cols.depth)
+    lobes = _lobes(row, receivers, slice(0, n), roulette)
     geom.counters["occluded_rays"] += vg.gather_packets(
         scene, geom.interior_bvh()[0].handle, x, ns, ng, off, side, row, end.vpl_depth_limit(max_depth), cols.pos,
         cols.normal, cols.directional, cols.min_d2, cols.cos_y_factor, cols.side, cols.spot_cutoff, cols.spot_beam,
         cols.depth, cols.mis, cols.light_pdf, cols.area, cols.direct_count, np.float32(2 * geom.eps), tables, row_tab,
         inv_tavg,
         np.zeros(n, np.int64), np.full(n, m, np.int64), cols.lum, float(roulette[0]) if roulette else 0.0,
-        int(roulette[1]) if roulette else 0, 0, cols.planes, cols.col_out, cols.color, irr, factors)
+        int(roulette[1]) if roulette else 0, 0, lobes, cols.planes, cols.col_out, cols.color, irr, factors)
     return True
+
+
+_NO_LOBES = np.zeros((0, vg.LOBE_FIELDS), np.float32)
+
+
+def _lobes(row: np.ndarray, receivers: "_Receivers", sl: slice, roulette: tuple | None) -> np.ndarray:
+    """The chunk's glossy rows' lobes, which shape the shadow roulette's guesses of their pairs'
+    light (kernels.vpl_gather.lobe_rows): none without a roulette or a glossy row."""
+    if roulette is None or not np.any(row == vg.ROW_GLOSSY):
+        return _NO_LOBES
+    P, end_row = receivers.packed
+    out = np.empty((len(row), vg.LOBE_FIELDS), np.float32)
+    vg.lobe_rows(P, end_row[sl], row, receivers.wi[sl], receivers.ns[sl], out)
+    return out
 
 
 def _chunks(e: int, m: int):
@@ -786,7 +801,8 @@ def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, c
     scalar weight, blocked, per-pair RGB factor or an empty (0, 3) array, traced on the inner
     BVH (Geometry.interior_bvh)). ``roulette``:
     (fraction, seed) of the shadow rays' Russian roulette, None for none."""
-    pi, pj, w, row, pl, o, d, t, inner = _pair_rays(geom, end, sl, vpls, cols, max_depth, col_range, roulette)
+    pi, pj, w, row, pl, o, d, t, inner = _pair_rays(geom, end, sl, vpls, cols, max_depth, col_range, roulette,
+                                                    receivers)
     blocked = geom.occluded_local(o, d, t, inner) if len(pi) else np.zeros(0, bool)
     factor = _bsdf_factors(sl, cols, row, pi, pj, pl, d, blocked, receivers)
     return pi, pj, w, blocked, factor, inner
@@ -836,13 +852,15 @@ def _receivers(geom: Geometry, end: EndPoints, sl: slice) -> tuple:
 
 
 def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,
-               max_depth: int, col_range: tuple | None = None, roulette: tuple | None = None) -> tuple:
+               max_depth: int, col_range: tuple | None = None, roulette: tuple | None = None,
+               receivers: _Receivers | None = None) -> tuple:
     """The chunk's live (end point, VPL) pairs and their shadow rays, untraced: (row, column,
     scalar weight, receiver row kind, light pdf, origins, directions, tfar, whether the ray may
     skip the supporting planes' triangles (Geometry.interior_bvh)) — the rays in the
     centred float32 frame for Embree. ``col_range`` (lo, hi) per end point: its VPLs (None:
     all). ``roulette`` (fraction, seed): the shadow rays' Russian roulette, applied per row as
-    the pairs are written (kernels.vpl_gather.roulette_row)."""
+    the pairs are written (kernels.vpl_gather.roulette_row; glossy rows' guesses by their lobes,
+    of ``receivers``' packed BSDFs, packed here when not given)."""
     f32 = np.float32
     x, ns, ng, side, off, row, tables, row_tab, inv_tavg = _receivers(geom, end, sl)
     n, m = len(x), len(vpls)
@@ -865,7 +883,8 @@ def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _V
                         cols.light_pdf, cols.area, cols.direct_count, f32(2 * geom.eps),
                         tables, row_tab, inv_tavg, lo, hi, cols.lum,
                         float(roulette[0]) if roulette else 0.0, int(roulette[1]) if roulette else 0, sl.start,
-                        cols.planes, cols.col_out, pi, pj, w, pl, o, d, t, inner)
+                        _lobes(row, receivers or _Receivers(end, None), sl, roulette), cols.planes, cols.col_out,
+                        pi, pj, w, pl, o, d, t, inner)
     return pi[:k], pj[:k], w[:k], row, pl[:k], o[:k], d[:k], t[:k], inner[:k]
 
 

@@ -484,6 +484,53 @@ def eval_pdf(P, i: int, wix: float, wiy: float, wiz: float, wox: float, woy: flo
 
 
 @njit(**_KERNEL, inline="always")
+def _luminance(r: float, g: float, b: float) -> float:
+    """Y of an RGB value (common.lights.LUMINANCE_WEIGHTS)."""
+    return 0.212671 * r + 0.715160 * g + 0.072169 * b
+
+
+@njit(**_KERNEL, inline="always")
+def lobe_shape(P, i: int, wix: float, wiy: float, wiz: float) -> tuple:
+    """A cheap over-guess of the shape over wo of f(wi, wo)|cos θ_o| and of pdf(wi, wo) at a
+    point seen from wi, for guesses that must be positive wherever f is (the shadow-ray
+    roulette of worker.kernels.vpl_gather): ``(α², spec, diffuse, F0, pdf_spec, pdf_diffuse)``,
+
+        f ≈ spec · F(cos θ_d) · Dn(h) + diffuse · cos θ_o,  pdf ≈ pdf_spec · Dn(h) + pdf_diffuse · cos θ_o,
+
+    Dn the GGX distribution over its peak (a Beckmann lobe falls faster: GGX's tails over-guess
+    it), F Schlick's from F0 (1: flat), Smith's G1 of wi at the lobe's centre (wo's, ≤ 1, left
+    out); colours by their luminance. α² = 0 where a kind has no such shape (a flat guess)."""
+    k = P[0][i]
+    ci = abs(wiz)
+    if not ci > 1e-4:
+        ci = 1e-4
+    if k == PLASTIC:
+        eta = P[5][i]
+        f_i = fresnel_dielectric(ci, eta)[0]
+        dif = _luminance(_diffuse_coef(P, i, 0), _diffuse_coef(P, i, 1), _diffuse_coef(P, i, 2)) * INV_PI \
+            * (1.0 - f_i) / (eta * eta)
+        return 1.0, 0.0, dif, 1.0, 0.0, INV_PI * (1.0 - _lobe_probability(f_i, 1.0 - f_i, P[11][i]))
+    if not (k == ROUGHCONDUCTOR or k == ROUGHPLASTIC or k == ROUGHPLASTIC_LOBE):
+        return 0.0, 0.0, 0.0, 1.0, 0.0, 0.0
+    a = max(P[4][i], 1e-4)
+    g1 = smith_g1(wix, wiy, ci, 0.0, 0.0, 1.0, a, P[8][i])
+    peak = g1 / (4.0 * ci * math.pi * a * a)  # G1 · D(n) / (4 cos θ_i)
+    s = P[2]
+    spec = _luminance(s[i, 0], s[i, 1], s[i, 2]) * peak
+    if k == ROUGHCONDUCTOR:
+        return a * a, spec, 0.0, 1.0, peak, 0.0
+    eta = P[5][i]
+    f0 = (eta - 1.0) * (eta - 1.0) / ((eta + 1.0) * (eta + 1.0))
+    if k == ROUGHPLASTIC_LOBE:
+        return a * a, spec, 0.0, f0, peak, 0.0
+    t_i = _coat_t(P, i, ci)
+    ps = _lobe_probability(1.0 - t_i, t_i, P[11][i])
+    dif = _luminance(_diffuse_coef(P, i, 0), _diffuse_coef(P, i, 1), _diffuse_coef(P, i, 2)) * INV_PI \
+        * t_i * _coat_t(P, i, 1.0) / (eta * eta)
+    return a * a, spec, dif, f0, ps * peak, (1.0 - ps) * INV_PI
+
+
+@njit(**_KERNEL, inline="always")
 def _well_posed(wix, wiy, wiz, mx, my, mz) -> bool:
     """A reflection about m is usable: wi·m not ~0. There wo ≈ -wi (both on the horizon), the
     half vector eval/pdf recover from wi + wo cancels, and pdf(wi, wo) no longer equals the

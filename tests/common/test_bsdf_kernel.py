@@ -351,3 +351,45 @@ def test_erfinv_matches_scipy_to_float64_precision_including_the_tails():
     np.testing.assert_array_equal(got[~fin & ~np.isnan(want)], want[~fin & ~np.isnan(want)])  # ±inf at ±1
     np.testing.assert_allclose(got[fin], want[fin], rtol=4e-15, atol=0)
 
+
+
+@pytest.mark.parametrize("dist", ["ggx", "beckmann"])
+@pytest.mark.parametrize("alpha", [0.02, 0.15, 0.6])
+@pytest.mark.parametrize("kind", (ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGHPLASTIC_LOBE, PLASTIC),
+                         ids=lambda k: KIND_NAMES.get(k, str(k)))
+def test_lobe_shape_guesses_the_bsdf_positive_and_never_far_below_it(kind, alpha, dist):
+    """kb.lobe_shape's guess of f(wi, wo)|cos θ_o| — spec · F(cos θ_d) · Dn(h) + diffuse · cos θ_o
+    (the shadow roulette's guess of a glossy row's pairs, worker.kernels.vpl_gather._lobe_guess)
+    — is positive wherever f is and above half of it (its luminance) at random directions above
+    the horizon, grazing ones included, textured parameters too: the roulette never keeps a
+    bright pair of a lobe with a tiny probability."""
+    rng = np.random.default_rng(107)
+    n = 3000
+    sp = _points([_material(kind, dist, alpha=alpha)], n, rng, relabel_diffuse_layer=kind == ROUGHPLASTIC_LOBE,
+                 part=ROUGHPLASTIC_LOBE)
+    if kind != ROUGHPLASTIC_LOBE:  # (a rough plastic's coat tables are per material: only its colours vary)
+        sp = _textured(sp, rng) if kind != ROUGHPLASTIC else dataclasses.replace(
+            sp, diffuse=rng.random((n, 3)).astype(np.float32), specular=rng.random((n, 3)).astype(np.float32))
+    wi, wo = _unit(rng, n), _unit(rng, n)
+    wi[:, 2], wo[:, 2] = np.abs(wi[:, 2]), np.abs(wo[:, 2])
+    wi[::7, 2] *= 1e-3  # grazing eyes
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    # half of them in and around the lobe: wi mirrored about normals spread by ~2α
+    m = np.column_stack([2 * alpha * rng.normal(size=(n, 2)), np.ones(n)])
+    m /= np.linalg.norm(m, axis=1, keepdims=True)
+    mirror = 2 * np.sum(wi * m, axis=1, keepdims=True) * m - wi
+    near = (np.arange(n) % 2 == 0) & (mirror[:, 2] > 0)
+    wo[near] = mirror[near]
+    f = bsdf.eval(sp, wi, wo) @ np.array([0.212671, 0.715160, 0.072169])
+    P = sp.packed()
+    guess = np.empty(n)
+    for i in range(n):
+        a2, spec, diffuse, f0, _ps, _pd = kb.lobe_shape(P, i, *wi[i])
+        h = (wi[i] + wo[i]) / np.linalg.norm(wi[i] + wo[i])
+        dn = a2 * a2 / (h[2] ** 2 * (a2 - 1) + 1) ** 2
+        fresnel = f0 + (1 - f0) * (1 - min(h @ wo[i], 1.0)) ** 5
+        guess[i] = spec * fresnel * dn + diffuse * wo[i, 2]
+    lit = f > 1e-12
+    assert lit.sum() > n // 3  # not vacuous
+    assert np.all(guess[lit] > 0)
+    assert np.all(f[lit] <= 2.0 * guess[lit])

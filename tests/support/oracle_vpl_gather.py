@@ -184,12 +184,49 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
     return np.nan_to_num(out.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
 
 
-def shadow_roulette(k, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base) -> int:
+def lobe_guesses_numpy(x, ns, side, lobes, vpos, vnormal, directional, pi, pj, pl) -> np.ndarray:
+    """The shadow roulette's guess of each listed pair's BSDF share (worker.kernels.vpl_gather
+    ._lobe_guess) in numpy float32, operation by operation: 1 where its row has no lobe."""
+    f32 = np.float32
+    one = f32(1.0)
+    lo = lobes[pi]
+    d = np.where(directional[pj][:, None], -vnormal[pj], vpos[pj] - x[pi]).astype(f32)
+    d0, d1, d2 = d[:, 0], d[:, 1], d[:, 2]
+    dd = d0 * d0 + d1 * d1 + d2 * d2
+    inv_d = one / np.sqrt(np.maximum(dd, f32(1e-30)))
+    n = ns[pi]
+    cos_x = (d0 * n[:, 0] + d1 * n[:, 1] + d2 * n[:, 2]) * inv_d * side[pi]
+    a2 = lo[:, 4]
+    e = (d0 * lo[:, 0] + d1 * lo[:, 1] + d2 * lo[:, 2]) * inv_d
+    h2 = np.maximum(one + e, f32(1e-7))
+    ch = lo[:, 3] + cos_x
+    c2 = np.minimum(ch * ch / (f32(2.0) * h2), one)
+    den = c2 * (a2 - one) + one
+    with np.errstate(all="ignore"):
+        dn = a2 * a2 / (den * den)
+        u = one - np.minimum(np.sqrt(f32(0.5) * h2), one)
+        u2 = u * u
+        fr = lo[:, 7] + (one - lo[:, 7]) * (u2 * u2 * u)
+        f = lo[:, 5] * fr * dn + lo[:, 6] * cos_x
+        pb = lo[:, 8] * dn + lo[:, 9] * cos_x
+        pl2 = pl * pl
+        m = np.where(pl > 0, pl2 / (pl2 + pb * pb), one)
+        g = f * m
+    g = np.where(g < np.inf, np.maximum(g, f32(1e-30)), one)
+    return np.where(a2 > 0, g, one).astype(f32)
+
+
+def shadow_roulette(k, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base, guess=None) -> int:
     """The shadow rays' Russian roulette as a separate pass over the first ``k`` pairs
     (row-major), in place, in plain Python: what worker.kernels.vpl_gather.pair_weights does per
-    row while it writes them. Returns how many pairs remain."""
+    row while it writes them. ``guess``: each pair's weight is taken times it for the draw and
+    divided by it after (:func:`lobe_guesses_numpy`; None: 1). Returns how many pairs remain."""
     from igi.worker.kernels import vpl_gather as vg
 
+    g = np.ones(k, np.float32) if guess is None else guess
+    wg = w[:k] * g  # (float32, as the kernel weighs)
+    g = np.where(wg < np.inf, g, np.float32(1.0))
+    wg = np.where(wg < np.inf, wg, w[:k])
     out, s = 0, 0
     while s < k:
         e = s
@@ -197,16 +234,18 @@ def shadow_roulette(k, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base) -
             e += 1
         i = int(pi[s])
         eligible = row[i] in (vg.ROW_LAMBERT, vg.ROW_LAYER, vg.ROW_GLOSSY)
-        total = float(np.sum(w[s:e].astype(np.float64) * lum[pj[s:e]]))
+        total = float(np.sum(wg[s:e].astype(np.float64) * lum[pj[s:e]]))
         threshold = fraction * total / (e - s) if eligible else 0.0
         t32 = np.float32(threshold)
-        c = w[s:e] * lum[pj[s:e]].astype(np.float32)  # float32, as the kernel compares
+        c = wg[s:e] * lum[pj[s:e]].astype(np.float32)  # float32, as the kernel compares
         for a in range(s, e):
             j = int(pj[a])
+            w[a] = wg[a]
             if threshold > 0.0 and c[a - s] < t32:
                 if vg.pair_uniform(seed, base + i, j) * t32 >= c[a - s]:
                     continue
                 w[a] = t32 / np.float32(lum[j])
+            w[a] = w[a] / g[a]
             pi[out], pj[out], w[out], pl[out], t[out] = pi[a], j, w[a], pl[a], t[a]
             o[out], d[out] = o[a], d[a]
             out += 1

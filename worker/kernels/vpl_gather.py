@@ -8,7 +8,8 @@ Three steps per chunk of end points, none with an (end points × VPLs) temporary
    light are written, in row-major order, straight into Embree's float32 shadow-ray arrays.
    :func:`roulette_row` thins each row's pairs before they are written: those whose
    unshadowed contribution is small against their end point's mean (Russian roulette on
-   shadow rays: kept pairs count 1/p).
+   shadow rays: kept pairs count 1/p; a glossy end point's guess of its pairs' light takes
+   the shape of its lobe, :func:`lobe_rows`).
 2. Embree's occlusion query on that batch (outside: it releases the GIL itself).
 3. :func:`accumulate` — the unoccluded pairs' weight × VPL colour (× per-pair BSDF factors
    for glossy receivers or senders, computed by the caller on the compact pair list) summed
@@ -226,6 +227,74 @@ def _coat_weight(v, cos_x, tables, g, inv_t):
     return np.float32(v * t_o * inv_t)
 
 
+# A glossy row's lobe as its roulette guess takes it (:func:`lobe_rows`): the eye direction
+# (world, unit), its |cos θ| to the shading normal, then common.kernels.bsdf.lobe_shape's six.
+LOBE_FIELDS = 10
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def lobe_rows(P, end_row, row, wi, ns, out) -> None:
+    """out[i] (float32, LOBE_FIELDS): the lobe of ROW_GLOSSY end point i (BSDF row
+    ``end_row[i]`` of P, eye direction ``wi`` local to the float64 shading normal ``ns``) for
+    :func:`_lobe_guess`; other rows, and kinds of no lobe shape, α² = 0 (a flat guess)."""
+    for i in range(row.shape[0]):
+        for f in range(LOBE_FIELDS):
+            out[i, f] = 0.0
+        if row[i] != ROW_GLOSSY:
+            continue
+        wix, wiy, wiz = wi[i, 0], wi[i, 1], wi[i, 2]
+        a2, spec, diffuse, f0, p_spec, p_diffuse = kb.lobe_shape(P, end_row[i], wix, wiy, wiz)
+        ox, oy, oz = shading_frame.to_world(wix, wiy, wiz, ns[i, 0], ns[i, 1], ns[i, 2])
+        lobe = (ox, oy, oz, abs(wiz), a2, spec, diffuse, f0, p_spec, p_diffuse)
+        if not (math.isfinite(a2) and math.isfinite(spec) and math.isfinite(diffuse) and math.isfinite(p_spec)
+                and math.isfinite(p_diffuse) and math.isfinite(ox + oy + oz)):
+            continue  # (a NaN eye or BSDF: the flat guess)
+        for f in range(LOBE_FIELDS):
+            out[i, f] = lobe[f]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _lobe_guess(d0, d1, d2_, cos_x, pl, lobes, i):
+    """The roulette's guess (float32 > 0) of how much a glossy row's BSDF passes of the light
+    from direction d (unnormalized, toward the VPL; ``cos_x`` its cosine to the row's normal on
+    the eye's side; ``pl`` the MIS light pdf, 0: no MIS) — f · (MIS weight) by
+    common.kernels.bsdf.lobe_shape, relative to the row's other pairs only, so no constant
+    factor matters. 1 (flat) where the row has no lobe (``lobes[i]``'s α² = 0) or the guess is
+    not finite; never below 1e-30. Unbiased whatever it returns: a pair's 1/p undoes it."""
+    one = np.float32(1.0)
+    a2 = lobes[i, 4]
+    if not a2 > 0.0:
+        return one
+    _dd, inv_d = _length(d0, d1, d2_)
+    e = (d0 * lobes[i, 0] + d1 * lobes[i, 1] + d2_ * lobes[i, 2]) * inv_d  # cos of eye to light
+    h2 = max(one + e, np.float32(1e-7))  # |wo + ω|² / 2
+    ch = lobes[i, 3] + cos_x  # (wo + ω)·n
+    c2 = min(ch * ch / (np.float32(2.0) * h2), one)  # cos² θ_h
+    den = c2 * (a2 - one) + one
+    dn = a2 * a2 / (den * den)  # GGX's D(h) / D(n)
+    u = one - min(np.float32(math.sqrt(np.float32(0.5) * h2)), one)  # 1 - cos θ_d
+    u2 = u * u
+    fr = lobes[i, 7] + (one - lobes[i, 7]) * (u2 * u2 * u)
+    f = lobes[i, 5] * fr * dn + lobes[i, 6] * cos_x
+    pb = lobes[i, 8] * dn + lobes[i, 9] * cos_x
+    pl2 = pl * pl
+    m = pl2 / (pl2 + pb * pb) if pl > 0.0 else one
+    g = f * m
+    if not g < np.float32(np.inf):
+        return one
+    return max(g, np.float32(1e-30))
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _guessed(w, g):
+    """A glossy pair's weight ``w`` times its guess ``g`` (:func:`_lobe_guess`) as the roulette
+    weighs it, and the guess that gives (1 where the product would not be finite)."""
+    wg = w * g
+    if not wg < np.float32(np.inf):
+        return w, np.float32(1.0)
+    return wg, g
+
+
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _roulette_pair(w, lj, key, ck, t):
     """A weighed pair's weight after :func:`roulette_row`'s draw (row key ``key``, column key
@@ -253,15 +322,16 @@ _DEPTH_CAP = 1 << 30
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi,
            vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf,
-           area, direct_count, lum, fraction, seed, base, planes, col_out, sw, spl, so, sin, vx, vy, vz, wx, wy,
-           wz, vd, col_keys, block) -> None:
+           area, direct_count, lum, fraction, seed, base, lobes, planes, col_out, sw, spl, so, sin, vx, vy, vz, wx,
+           wy, wz, vd, col_keys, block) -> None:
     """Weigh the pairs of rows [b0, b0 + nb) (the arguments as :func:`pair_weights` takes
     them): sw[a, b] the weight of row b0 + b with column col_lo + a (_NO_RAY: no pair), spl the
     MIS light pdf of glossy-row pairs, so the row's offset shadow-ray origin, sin whether it
     lies on the inner side of the supporting ``planes`` (:func:`interior_origin`). Every row then
-    goes through :func:`roulette_row` (``fraction`` > 0; ``col_keys``: the
-    columns' :func:`column_key`). vx … wz, vd: the columns' positions and normals per coordinate
-    and their depths as int32 (:func:`_columns_soa`; empty: every row weighed pair by pair), for
+    goes through :func:`roulette_row` (``fraction`` > 0; ``col_keys``: the columns'
+    :func:`column_key`), a glossy row's pairs weighed there by its ``lobes`` (:func:`lobe_rows`,
+    :func:`_lobe_guess`; no rows: a flat guess). vx … wz, vd: the columns' positions and
+    normals per coordinate and their depths as int32 (:func:`_columns_soa`; empty: every row weighed pair by pair), for
     the Lambertian rows' branch-free loops; ``block``: :func:`_staging`'s scratch.
 
     Where every row of the block takes the same columns (the gather's rows do), its Lambertian
@@ -277,8 +347,10 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
     if uniform:
         _lambert_columns(b0, nb, x, ns, side, row, vmax, tables, row_tab, inv_tavg, max(col_lo[b0], 0),
                          col_hi[b0], directional, min_d2, cos_factor, vside, mis, light_pdf, area, dcount, lum,
-                         fraction, seed, base, sw, spl, vx, vy, vz, wx, wy, wz, vd, col_keys, block)
+                         fraction, seed, base, lobes, sw, spl, vx, vy, vz, wx, wy, wz, vd, col_keys, block)
     rb, rpl = block[13], block[14]  # (1, width): one row's weights and light pdfs
+    sg = block[18]  # the glossy pairs' roulette guesses (as sw)
+    guess = fraction > 0.0 and lobes.shape[0] > 0
     for b in range(nb):
         i = b0 + b
         r = row[i]
@@ -356,6 +428,8 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
                         elif cos_x > 0.0:  # every glossy kind reflects only: below the horizon f = 0
                             v = em
                             rpl[0, a] = pl
+                            if guess:  # the roulette weighs the pair by its lobe; undone below
+                                v, sg[a, b] = _guessed(v, _lobe_guess(d0, d1, d2_, cos_x, pl, lobes, i))
                         if v > 0.0 and math.isfinite(v):
                             w = v
                             total += np.float64(v) * lum[j]
@@ -363,29 +437,35 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
             rb[0, a] = w
         if q > 0 and fraction > 0.0:
             roulette_row(rb, 0, width, lo, q, total, lum, fraction, seed, base + i, col_keys)
+        unguess = guess and r == ROW_GLOSSY
         for a in range(width):
-            sw[a, b] = rb[0, a]
+            w = rb[0, a]
+            sw[a, b] = w / sg[a, b] if unguess and w >= 0.0 else w
             spl[a, b] = rpl[0, a]
 
 
 # (a call of its own: numba inlines no call of more than 30 arguments; no reference counting, as _stage)
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def _lambert_columns(b0, nb, x, ns, side, row, vmax, tables, row_tab, inv_tavg, lo, hi, directional, min_d2,
-                     cos_factor, vside, mis, light_pdf, area, dcount, lum, fraction, seed, base, sw, spl, vx, vy, vz,
-                     wx, wy, wz, vd, col_keys, block) -> None:
+                     cos_factor, vside, mis, light_pdf, area, dcount, lum, fraction, seed, base, lobes, sw, spl, vx,
+                     vy, vz, wx, wy, wz, vd, col_keys, block) -> None:
     """:func:`_stage`'s rows of a block whose rows all take columns [lo, hi): each column over
     the block's rows (their x, ns, side, depth limit and kind copied out per coordinate,
     ``block``), so the compiler runs the rows in SIMD lanes with no per-row remainder loop — the
     same float32 operations per pair as the row-by-row loop (a glossy pair's weight its emitter
     factor, its light pdf in ``spl``; a plastic layer's its Lambertian weight times the coat's
-    :func:`_coat_weight`, applied to the column's live layer pairs after the lanes), each
-    row's total summed in column order, then :func:`roulette_row`'s draws
-    column by column. A ROW_NONE row is left _NO_RAY."""
+    :func:`_coat_weight`, applied to the column's live layer pairs after the lanes; a glossy
+    pair's weight times its roulette guess, :func:`_lobe_guess`, likewise, and divided out
+    after the draws), each row's total summed in column order, then :func:`roulette_row`'s
+    draws column by column. A ROW_NONE row is left _NO_RAY."""
     rx0, rx1, rx2, rn0, rn1, rn2, rs, rl, rk, tot, qq, tt, rkey = block[:13]
     cx, layers = block[15], block[16]  # a column's cos θ_x per row; the block's layer rows
+    glossies, sg = block[17], block[18]  # the block's glossy rows (when guessed); their guesses
+    guess = fraction > 0.0 and lobes.shape[0] > 0
     zero = np.float32(0.0)
     inf32 = np.float32(np.inf)
     n_layers = 0
+    n_glossy = 0
     for b in range(nb):
         i = b0 + b
         rx0[b], rx1[b], rx2[b] = x[i, 0], x[i, 1], x[i, 2]
@@ -397,6 +477,8 @@ def _lambert_columns(b0, nb, x, ns, side, row, vmax, tables, row_tab, inv_tavg, 
         qq[b] = 0
         layers[n_layers] = b
         n_layers += row[i] == ROW_LAYER
+        glossies[n_glossy] = b
+        n_glossy += guess and row[i] == ROW_GLOSSY
     for a in range(hi - lo):
         j = lo + a
         dr, cx_, cy, cz, nx, ny, nz = directional[j], vx[j], vy[j], vz[j], wx[j], wy[j], wz[j]
@@ -426,6 +508,16 @@ def _lambert_columns(b0, nb, x, ns, side, row, vmax, tables, row_tab, inv_tavg, 
                 i = b0 + b
                 v = _coat_weight(w, cx[b], tables, row_tab[i], inv_tavg[i])
                 sw[a, b] = v if v > 0.0 and math.isfinite(v) else _NO_RAY
+        # the glossy rows' roulette guesses, out of the lanes too (as the row-by-row loop
+        # makes them: the same direction, cosine and light pdf)
+        for t in range(n_glossy):
+            b = glossies[t]
+            w = sw[a, b]
+            if w >= 0.0:
+                d0 = -nx if dr else cx_ - rx0[b]
+                d1 = -ny if dr else cy - rx1[b]
+                d2_ = -nz if dr else cz - rx2[b]
+                sw[a, b], sg[a, b] = _guessed(w, _lobe_guess(d0, d1, d2_, cx[b], spl[a, b], lobes, b0 + b))
         # the rows' sums in a loop of their own: float64 lanes here would halve the weighing's
         # SIMD width (+0.0 for a dead pair: each row sums its live pairs in column order, as
         # roulette_row's caller does)
@@ -450,6 +542,12 @@ def _lambert_columns(b0, nb, x, ns, side, row, vmax, tables, row_tab, inv_tavg, 
         ck = col_keys[j]
         for b in range(nb):
             sw[a, b] = _roulette_pair(sw[a, b], lj32, rkey[b], ck, tt[b])
+    for t in range(n_glossy):  # the guesses out of the kept pairs' weights
+        b = glossies[t]
+        for a in range(hi - lo):
+            w = sw[a, b]
+            if w >= 0.0:
+                sw[a, b] = w / sg[a, b]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -493,7 +591,8 @@ def staging_for(rows, width, vpos, vnormal, spot_cutoff, vdepth):
     block = (np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, f32),
              np.empty(rows, f32), np.empty(rows, f32), np.empty(rows, np.int32), np.empty(rows, np.int8),
              np.empty(rows), np.empty(rows, np.int32), np.empty(rows, f32), np.empty(rows, np.uint32),
-             np.empty((1, width), f32), np.zeros((1, width), f32), np.empty(rows, f32), np.empty(rows, np.int64))
+             np.empty((1, width), f32), np.zeros((1, width), f32), np.empty(rows, f32), np.empty(rows, np.int64),
+             np.empty(rows, np.int64), np.empty((width, rows), f32))
     return (np.empty((width, rows), f32), np.empty((width, rows), f32), np.zeros((rows, 3), f32),
             np.empty(rows, np.bool_), vx, vy, vz, wx, wy, wz, vd, column_keys(vpos.shape[0]), block)
 
@@ -506,20 +605,20 @@ def _weigh(b0, nb, weighed, staging) -> None:
     x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi = rows
     (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf, area,
      direct_count) = columns
-    lum, fraction, seed, base = roulette
+    lum, fraction, seed, base, lobes = roulette
     planes, col_out = cull
     sw, spl, so, sin, vx, vy, vz, wx, wy, wz, vd, col_keys, block = staging
     _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi, vpos, vnormal,
            directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf, area,
-           direct_count, lum, fraction, seed, base, planes, col_out, sw, spl, so, sin, vx, vy, vz, wx, wy, wz, vd,
-           col_keys, block)
+           direct_count, lum, fraction, seed, base, lobes, planes, col_out, sw, spl, so, sin, vx, vy, vz, wx, wy, wz,
+           vd, col_keys, block)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def pair_weights(x, ns, ng, off, side, row, vmax,
                  vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam,
                  vdepth, mis, light_pdf, area, direct_count, eps2,
-                 tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base, planes, col_out,
+                 tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base, lobes, planes, col_out,
                  out_i, out_j, out_w, out_pl, out_o, out_d, out_t, out_in):
     """Fill the live pairs of rows x (n, 3) × VPL columns [col_lo[i], col_hi[i]), row by row
     (row-major); returns how many were written (the out arrays hold at least Σ (col_hi - col_lo)).
@@ -533,16 +632,17 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
     1/t_avg ``inv_tavg[i]``. out_pl: the MIS light pdf of glossy-row pairs (0 elsewhere) — their BSDF pdf
     is the caller's, so their MIS weight is applied by the caller. ``fraction`` > 0: each row's
     pairs go through :func:`roulette_row` (``lum``, ``seed``, ``base``) once the row is
-    weighed (0: every live pair is kept). out_in: whether the pair's ray may skip the triangles
-    of the supporting ``planes`` (its origin and column on their inner side:
-    :func:`interior_origin`, :func:`interior_column`).
+    weighed (0: every live pair is kept), glossy rows' pairs weighed by their ``lobes``
+    (float32 (n, LOBE_FIELDS), :func:`lobe_rows`; (0, LOBE_FIELDS): flat guesses). out_in:
+    whether the pair's ray may skip the triangles of the supporting ``planes`` (its origin and
+    column on their inner side: :func:`interior_origin`, :func:`interior_column`).
     """
     n = x.shape[0]
     rows_per_block, staging = _staging(n, col_lo, col_hi, vpos, vnormal, spot_cutoff, vdepth)
     sw, spl, so, sin = staging[0], staging[1], staging[2], staging[3]
     weighed = ((x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi),
                (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis,
-                light_pdf, area, direct_count), (lum, fraction, seed, base), (planes, col_out))
+                light_pdf, area, direct_count), (lum, fraction, seed, base, lobes), (planes, col_out))
     k = 0
     for b0 in range(0, n, rows_per_block):
         nb = min(rows_per_block, n - b0)
@@ -571,8 +671,8 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
 def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
                    vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam,
                    vdepth, mis, light_pdf, area, direct_count, eps2,
-                   tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base, planes, col_out, color, out,
-                   factors):
+                   tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base, lobes, planes, col_out, color,
+                   out, factors):
     """Steps 1-3 of the module in one pass: :func:`pair_weights`' pairs go LANES at a time straight
     into an Embree packet (``scene``: the shadow BVH's RTCScene handle, see
     common.kernels.ray_packets; ``inner``: the BVH without the triangles of the supporting
@@ -591,7 +691,7 @@ def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
     sw, spl, so, sin = staging[0], staging[1], staging[2], staging[3]
     weighed = ((x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi),
                (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis,
-                light_pdf, area, direct_count), (lum, fraction, seed, base), (planes, col_out))
+                light_pdf, area, direct_count), (lum, fraction, seed, base, lobes), (planes, col_out))
     # one LANES-ray packet per BVH, side by side: [0] the full scene's, [1] the inner one's
     packets = _two_packets()
     ray, lane_i, lane_j, lane_w, lane_pl, _valid = packets
@@ -838,10 +938,11 @@ def roulette_row(sw, b, width, lo, q, total, lum, fraction, seed, row_id, col_ke
     keeps its shadow ray with probability p = c / (fraction · mean) and then counts 1/p
     (unbiased; the added variance per end point is at most fraction · mean · Σc); a dropped pair
     becomes _NO_RAY. A glossy column's lum[j] is a guess (a Lambertian sender of its albedo), and
-    so is a glossy row's w (its emitter factor: the receiver's BSDF is applied after the ray):
-    their true light, applied later by the BSDF factors, only makes p less apt, never the
-    estimate biased (modern-hall, whose lobes take the emitter samples of 13 lamps of unequal
-    power: 11% fewer shadow rays a frame). Pair (row, j) draws
+    so is a glossy row's w (its emitter factor times its lobe's :func:`_lobe_guess`, divided out
+    after the draws: the receiver's BSDF is applied after the ray): their true light, applied
+    later by the BSDF factors, only makes p less apt, never the estimate biased (modern-hall:
+    the roulette on glossy rows 11% fewer shadow rays a frame; their lobes' shape ~30x less of
+    the variance it adds than a flat guess). Pair (row, j) draws
     pair_uniform(seed, row_id, j) (``col_keys``: every column's :func:`column_key`). A row of no
     light (or of negative luminance) has no threshold: every pair is kept as it is. The draw,
     c and the threshold are float32 (c < threshold and u · threshold >= c compared there)."""
