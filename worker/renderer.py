@@ -39,6 +39,9 @@ from .vpl_importance import (AUTO_ESS, CameraPool, View, build_importance_vpl_se
                              view_portals)
 
 DEFAULT_CLAMP = 1e-3  # minimum squared VPL distance, as a fraction of the squared scene diagonal
+# A split plastic's lobe joins its layer's filtered irradiance (params.filter_lobe_alpha) only where
+# the layer's reflectance is at least this in every channel: the lobe's radiance is divided by it.
+LOBE_REFLECTANCE_FLOOR = 0.02
 
 
 def radius_scale(index: int, params: Params) -> float:
@@ -425,6 +428,12 @@ class Renderer:
         tile_buffers.compose(np.ascontiguousarray(end.pixel, np.int64), end.main & filterable,
                              np.ascontiguousarray(albedo, np.float64), np.ascontiguousarray(end.throughput, np.float64),
                              np.ascontiguousarray(irr, np.float64), refl, irr_buf, unf)
+        # A split plastic's lobe (all of its pixel's unfiltered radiance) joins the layer's
+        # filtered irradiance where it is rough enough that the filter's blur stays inside it.
+        carry = end.main & filterable & (kind == ROUGHPLASTIC_DIFFUSE) & (end.sp.alpha >= params.filter_lobe_alpha)
+        if carry.any():
+            tile_buffers.filter_lobes(np.ascontiguousarray(end.pixel, np.int64), carry, refl, LOBE_REFLECTANCE_FLOOR,
+                                      irr_buf, unf)
         return TileBuffers(
             reflectance=refl.astype(np.float32),
             irradiance=irr_buf.astype(np.float32),

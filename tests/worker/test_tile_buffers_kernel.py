@@ -49,3 +49,27 @@ def test_no_end_points_leave_the_buffers_as_they_were():
     z3 = np.zeros((0, 3))
     tile_buffers.compose(np.zeros(0, np.int64), np.zeros(0, bool), z3, z3, z3, refl, irr_buf, unf)
     assert not refl.any() and not irr_buf.any() and np.all(unf == 1)
+
+
+def test_filter_lobes_moves_a_layer_pixels_unfiltered_radiance_into_its_irradiance_keeping_its_radiance():
+    """filter_lobes: at a pixel whose main end point is flagged (a split plastic's layer) and whose
+    reflectance is at least the floor in every channel, the unfiltered radiance moves into the
+    irradiance over the reflectance (reflectance × irradiance + unfiltered unchanged, unfiltered 0);
+    elsewhere — unflagged, or a channel below the floor — nothing moves."""
+    rng = np.random.default_rng(5)
+    p = 400
+    pixel = rng.permutation(p)  # one main end point a pixel
+    carry = rng.random(p) < 0.5
+    refl, irr, unf = rng.random((p, 3)), rng.random((p, 3)) * 4, rng.random((p, 3)) * 2
+    refl[::7, 1] = 0.01  # below the floor in one channel
+    before = refl * irr + unf
+    irr2, unf2 = irr.copy(), unf.copy()
+    tile_buffers.filter_lobes(pixel, carry, refl, 0.02, irr2, unf2)
+    moved = np.zeros(p, bool)
+    moved[pixel[carry]] = True
+    moved &= np.all(refl >= 0.02, axis=1)
+    assert moved.sum() > 100 and (~moved).sum() > 100  # both kinds of pixel exercised
+    np.testing.assert_allclose(refl * irr2 + unf2, before, rtol=1e-12)
+    assert not unf2[moved].any()
+    np.testing.assert_array_equal(unf2[~moved], unf[~moved])
+    np.testing.assert_array_equal(irr2[~moved], irr[~moved])
