@@ -490,6 +490,12 @@ def _luminance(r: float, g: float, b: float) -> float:
 
 
 @njit(**_KERNEL, inline="always")
+def _diffuse_luminance(P, i: int) -> float:
+    """Y of a plastic's :func:`_diffuse_coef`."""
+    return _luminance(_diffuse_coef(P, i, 0), _diffuse_coef(P, i, 1), _diffuse_coef(P, i, 2))
+
+
+@njit(**_KERNEL, inline="always")
 def lobe_shape(P, i: int, wix: float, wiy: float, wiz: float) -> tuple:
     """A cheap over-guess of the shape over wo of f(wi, wo)|cos θ_o| and of pdf(wi, wo) at a
     point seen from wi, for guesses that must be positive wherever f is (the shadow-ray
@@ -507,8 +513,7 @@ def lobe_shape(P, i: int, wix: float, wiy: float, wiz: float) -> tuple:
     if k == PLASTIC:
         eta = P[5][i]
         f_i = fresnel_dielectric(ci, eta)[0]
-        dif = _luminance(_diffuse_coef(P, i, 0), _diffuse_coef(P, i, 1), _diffuse_coef(P, i, 2)) * INV_PI \
-            * (1.0 - f_i) / (eta * eta)
+        dif = _diffuse_luminance(P, i) * INV_PI * (1.0 - f_i) / (eta * eta)
         return 1.0, 0.0, dif, 1.0, 0.0, INV_PI * (1.0 - _lobe_probability(f_i, 1.0 - f_i, P[11][i]))
     if not (k == ROUGHCONDUCTOR or k == ROUGHPLASTIC or k == ROUGHPLASTIC_LOBE):
         return 0.0, 0.0, 0.0, 1.0, 0.0, 0.0
@@ -525,8 +530,7 @@ def lobe_shape(P, i: int, wix: float, wiy: float, wiz: float) -> tuple:
         return a * a, spec, 0.0, f0, peak, 0.0
     t_i = _coat_t(P, i, ci)
     ps = _lobe_probability(1.0 - t_i, t_i, P[11][i])
-    dif = _luminance(_diffuse_coef(P, i, 0), _diffuse_coef(P, i, 1), _diffuse_coef(P, i, 2)) * INV_PI \
-        * t_i * _coat_t(P, i, 1.0) / (eta * eta)
+    dif = _diffuse_luminance(P, i) * INV_PI * t_i * _coat_t(P, i, 1.0) / (eta * eta)
     return a * a, spec, dif, f0, ps * peak, (1.0 - ps) * INV_PI
 
 

@@ -43,6 +43,16 @@ def _set(renderer, k=0, direct=4, indirect=18):
     return build_vpl_set(renderer.scene, renderer.geom, renderer.lights, 0, k, direct, indirect, 4)
 
 
+def _scene_columns(scene_name, width, height, k, glossy_split_alpha=0.0):
+    """(renderer, eye end points of a width × height image, set k, its gather columns at CLAMP)."""
+    from igi.worker import shading
+
+    r = Renderer(load_shared(scene_name))
+    end = eye_end_points(r, width, height, glossy_split_alpha=glossy_split_alpha)
+    vpls = _set(r, k)
+    return r, end, vpls, shading.vpl_columns(vpls, r.geom, CLAMP * r.geom.diagonal ** 2)
+
+
 @pytest.mark.parametrize("name", ["cornell-box-sphere", "cornell-box-glossy", "veach-ajar", "grey-white-room"])
 @pytest.mark.parametrize("force_general", [False, True])
 def test_kernel_matches_numpy_on_shared_scenes(name, force_general):
@@ -208,11 +218,7 @@ def test_roulette_while_writing_the_pairs_equals_the_separate_pass(name):
     drawn by their lobes' guesses (lobe_guesses_numpy)."""
     from igi.worker import shading
 
-    r = Renderer(load_shared(name))
-    end = eye_end_points(r, 32, 24)
-    vpls = _set(r, 3)
-    c2 = CLAMP * r.geom.diagonal ** 2
-    cols = shading.vpl_columns(vpls, r.geom, c2)
+    r, end, vpls, cols = _scene_columns(name, 32, 24, 3)
     sl = slice(5, len(end))  # a chunk not starting at row 0: base offsets the pair uniforms
     plain = shading._pair_rays(r.geom, end, sl, vpls, cols, -1)
     pi, pj, w, row, pl, o, d, t, inner = (a.copy() for a in plain)
@@ -242,11 +248,7 @@ def test_glossy_rows_drawn_by_their_lobes_trace_fewer_rays_with_less_roulette_va
     from igi.worker import shading
     from igi.worker.kernels import vpl_gather as vg
 
-    r = Renderer(load_shared("modern-hall"))
-    end = eye_end_points(r, 24, 18)
-    vpls = _set(r, 1)
-    c2 = CLAMP * r.geom.diagonal ** 2
-    cols = shading.vpl_columns(vpls, r.geom, c2)
+    r, end, vpls, cols = _scene_columns("modern-hall", 24, 18, 1)
     sl = slice(0, len(end))
     receivers = shading._Receivers(end, bsdf.albedo(end.sp, end.wi))
     weights = np.array(LUMINANCE_WEIGHTS)
@@ -288,11 +290,8 @@ def test_the_column_by_column_weighing_equals_the_row_by_row_loop_bit_for_bit(na
     from igi.worker import shading
     from igi.worker.kernels import vpl_gather as vg
 
-    r = Renderer(load_shared(name))
-    end = eye_end_points(r, 40, 30, glossy_split_alpha=0.3)  # (smooth plastics: a diffuse layer row each)
-    vpls = _set(r, 3)
-    c2 = CLAMP * r.geom.diagonal ** 2
-    cols = shading.vpl_columns(vpls, r.geom, c2)
+    # (smooth plastics split: a diffuse layer row each)
+    r, end, vpls, cols = _scene_columns(name, 40, 30, 3, glossy_split_alpha=0.3)
     n, m = len(end), len(vpls)
     sl = slice(3, n)
     lo, hi = np.zeros(n, np.int64), np.full(n, m, np.int64)
@@ -343,11 +342,7 @@ def test_glossy_rows_trace_no_shadow_ray_below_their_horizon():
     from igi.worker import shading
     from igi.worker.kernels import vpl_gather as vg
 
-    r = Renderer(load_shared("cornell-box-glossy"))
-    end = eye_end_points(r, 32, 24)
-    vpls = _set(r, 2)
-    c2 = CLAMP * r.geom.diagonal ** 2
-    cols = shading.vpl_columns(vpls, r.geom, c2)
+    r, end, vpls, cols = _scene_columns("cornell-box-glossy", 32, 24, 2)
     sl = slice(0, len(end))
     pi, pj, w, row, pl, o, d, t, _inner = shading._pair_rays(r.geom, end, sl, vpls, cols, -1)
     glossy = row[pi] == vg.ROW_GLOSSY
