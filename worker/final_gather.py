@@ -37,7 +37,9 @@ from igi.common.kernels.ray_packets import hit_buffers
 from igi.common.lights import VPL_SURFACE, LightSampler, to_local
 from igi.common.scene import NULL, SPECULAR_KINDS, Scene, kind_in
 
+from .arrivals import Arrivals
 from .caustics import PhotonSet, gather_photons
+from .indirect_caustics import lensed_arrivals
 from .kernels import final_gather_levels as flv
 from .regularization import regularization_gain, regularized_senders, sender_rows
 from .shading import BSDFRays, EndPoints, LightMIS, add_bsdf_direct, gather_vpls, trace_bsdf_rays
@@ -47,41 +49,8 @@ from .vpl import VPLSet
 # compensation) a near hit goes on with probability 1/2 (Russian roulette, weight 2).
 COMPENSATION_ROULETTE_LEVEL = 2
 COMPENSATION_MAX_LEVEL = 3  # deeper levels hold ~0.1% of the light (furnace at a 0.2 clamp) for ~1/5 of the cost
-
-
-@dataclass
-class Arrivals:
-    """Surface points y reached by rays, each sending its light back to a receiver: the
-    receiver's row ``parent`` gets ``factor`` × the radiance y reflects along -``direction``."""
-
-    position: np.ndarray  # (n, 3)
-    ns: np.ndarray  # (n, 3)
-    ng: np.ndarray  # (n, 3)
-    material: np.ndarray  # (n,) material index (negative: none)
-    uv: np.ndarray  # (n, 2)
-    t: np.ndarray  # (n,) ray length to y
-    direction: np.ndarray  # (n, 3) world direction of the ray that reached y
-    segments: np.ndarray  # (n,) eye segments once y is reached
-    parent: np.ndarray  # (n,) receiver row
-    factor: np.ndarray  # (n, 3) sample weight toward the receiver
-    level: np.ndarray  # (n,) compensation level of y (0: y's own clamped light is not compensated)
-
-    def __len__(self) -> int:
-        return len(self.parent)
-
-    @staticmethod
-    def concat(parts: "list[Arrivals | None]") -> "Arrivals | None":
-        """The arrivals of ``parts`` in order (None: there are none)."""
-        parts = [p for p in parts if p is not None and len(p)]
-        if len(parts) <= 1:
-            return parts[0] if parts else None
-        return Arrivals(*(np.concatenate([getattr(p, f) for p in parts]) for f in _FIELDS))
-
-    def rows(self, idx: np.ndarray) -> "Arrivals":
-        return Arrivals(*(getattr(self, f).take(idx, axis=0) for f in _FIELDS))
-
-
-_FIELDS = tuple(Arrivals.__dataclass_fields__)
+# Mirror/glass chains followed behind an end point, its own included (lensed_levels).
+LENSED_DEPTH = 4
 
 
 def compensation_enabled(vpls: VPLSet, clamp_d2: float) -> bool:
@@ -139,17 +108,20 @@ class Levels:
 
 
 def find_levels(scene: Scene, geom: Geometry, lights: LightSampler, first: Arrivals | None, vpls: VPLSet,
-                clamp_d2: float, max_depth: int, rng: np.random.Generator, lobe_alpha: float = 0.0) -> Levels | None:
+                clamp_d2: float, max_depth: int, rng: np.random.Generator, lobe_alpha: float = 0.0,
+                targets: tuple[np.ndarray, np.ndarray] | None = None) -> Levels | None:
     """The points y of ``first`` that reflect, their continuation rays and, for compensated
     points, the near points those rays find, level by level (None: no point reflects). A
-    level's rays serve its BSDF-direct light and, when compensated, its near points; the others'
-    reach only emitters (those that provably reach none are traced 0 far). Compiled in one call
+    level's rays serve its BSDF-direct light, the chains of the mirror/glass ``targets``
+    (bounding spheres: the rays that may meet one are traced in full for :func:`lensed_levels`)
+    and, when compensated, its near points; the others reach only emitters (those that provably
+    reach none are traced 0 far). Compiled in one call
     (kernels.final_gather_levels: the same draws, points, rays and hits); level by level in
     numpy where the rays must pass through Geometry.intersect."""
     if first is None or len(first) == 0:
         return None
     compensate = compensation_enabled(vpls, clamp_d2)
-    compiled = _compiled_levels(scene, geom, lights, first, compensate, clamp_d2, max_depth, rng, lobe_alpha)
+    compiled = _compiled_levels(scene, geom, lights, first, compensate, clamp_d2, max_depth, rng, lobe_alpha, targets)
     if compiled is not None:
         return compiled if compiled.sizes else None
     ends, rays, arrivals, gains = [], [], [], []
@@ -160,7 +132,7 @@ def find_levels(scene: Scene, geom: Geometry, lights: LightSampler, first: Arriv
         if len(arr) == 0:
             break
         lv = arr.level if compensate else np.zeros(len(arr), np.int64)
-        y_rays = trace_bsdf_rays(geom, lights, y, max_depth, rng, np.where(lv > 0, short, 0.0))
+        y_rays = trace_bsdf_rays(geom, lights, y, max_depth, rng, np.where(lv > 0, short, 0.0), targets)
         ends.append(y)
         rays.append(y_rays)
         arrivals.append(arr)
@@ -181,7 +153,8 @@ def _room_after(f: np.ndarray, rows: int) -> np.ndarray:
 
 
 def _compiled_levels(scene: Scene, geom: Geometry, lights: LightSampler, first: Arrivals, compensate: bool,
-                     clamp_d2: float, max_depth: int, rng: np.random.Generator, lobe_alpha: float) -> Levels | None:
+                     clamp_d2: float, max_depth: int, rng: np.random.Generator, lobe_alpha: float,
+                     targets: tuple[np.ndarray, np.ndarray] | None) -> Levels | None:
     """:func:`find_levels` in one compiled call (kernels.final_gather_levels.find_levels); None
     where its numpy loop must run: rays that must pass through Geometry.intersect (a benchmark
     timing or recording them)."""
@@ -209,9 +182,11 @@ def _compiled_levels(scene: Scene, geom: Geometry, lights: LightSampler, first: 
                 c(first.material, np.int32), c(first.uv, np.float64), c(first.t, np.float64),
                 c(first.direction, np.float64), c(first.segments, np.int64), c(first.parent, np.int64),
                 c(first.factor, np.float64), c(level, np.int64))
+    lens_c, lens_r = _NO_TARGETS if targets is None else targets
     count = flv.find_levels(P, reflects, atlas, terms, rng, *geom.offset_terms(),
-                            reach_all, c(centres, np.float64), c(np.asarray(radii, np.float64) ** 2), float(clamp_d2),
-                            float(np.sqrt(clamp_d2)) if compensate else 0.0, int(max_depth),
+                            reach_all, c(centres, np.float64), c(np.asarray(radii, np.float64) ** 2),
+                            c(lens_c, np.float64).reshape(-1, 3), c(np.asarray(lens_r, np.float64) ** 2),
+                            float(clamp_d2), float(np.sqrt(clamp_d2)) if compensate else 0.0, int(max_depth),
                             np.int64(COMPENSATION_ROULETTE_LEVEL), np.int64(COMPENSATION_MAX_LEVEL), arrivals, points,
                             np.empty(cap, np.int64), level_stop, rays, hits, ray_stop)
     n, nr = int(level_stop[count]), int(ray_stop[count])
@@ -266,24 +241,37 @@ def final_gather(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoi
                  lobe_alpha: float = 0.0, photons: PhotonSet | None = None, shadow_roulette: float = 0.0,
                  force_general: bool = False, lobe_lights: int = 0,
                  stage: Callable[[str], AbstractContextManager] = lambda _name: nullcontext(),
-                 ) -> tuple[np.ndarray, np.ndarray]:
+                 lensed: Arrivals | None = None, specular_depth: int = 0,
+                 targets: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The light at the end points ``end``, split as (albedo, irradiance) as gather_vpls splits
     it: the VPL set's (gather_vpls; ``force_general``, ``lobe_lights``, ``shadow_roulette`` as
     there), BSDF-direct light along their traced continuation ``rays`` (trace_bsdf_rays), the
-    caustic ``photons``, and Σ factor × L_y over the points y of ``first`` (Arrivals: parent =
-    end point row), L_y the radiance y reflects back along its ray — the VPL set's light and the
-    emitter samples at y with y's own MIS-weighted BSDF ray, the caustic photons there (L S+ D:
-    the light walks behind the VPLs pass through glass, so the VPLs stand for it too), and for
-    a point of compensation level > 0 the compensation of its own clamp (its near points,
-    recursively: :func:`find_levels`); y's emission is not included. The end points and every
-    level's y are shaded in one batch. ``stage``: a context manager per named step (Renderer's
-    stage timer)."""
+    caustic ``photons``, and Σ factor × L_y over the points y of ``first`` and ``lensed``
+    (Arrivals: parent = end point row), L_y the radiance y reflects back along its ray — the
+    VPL set's light and the emitter samples at y with y's own MIS-weighted BSDF ray, the
+    caustic photons there (L S+ D: the light walks behind the VPLs pass through glass, so the
+    VPLs stand for it too), for a point of compensation level > 0 the compensation of its own
+    clamp (its near points, recursively: :func:`find_levels`) and, for the ends of the end
+    points' mirror/glass chains (``lensed``), given the mirror/glass ``targets`` and a positive
+    ``specular_depth``, what reaches y through a chain of its own (:func:`lensed_levels`); y's
+    emission is not included. The end points and every level's y are shaded in one batch.
+    ``stage``: a context manager per named step (Renderer's stage timer)."""
     with stage("final gather points"):
+        batches, skies = [], []
         found = find_levels(scene, geom, lights, first, vpls, clamp_d2, max_depth, rng, lobe_alpha)
-        points, ray_sets = end, [(rays, 0)]
+        base = len(end)
         if found is not None:
-            points = EndPoints.concat([end, found.y])
-            ray_sets.append((found.rays, len(end)))  # the y's rays light rows len(end) on
+            batches.append((found, base))
+            base += len(found.y)
+        if lensed is not None and len(lensed):
+            chains = targets is not None and len(targets[1]) > 0 and specular_depth > 0
+            more, skies = lensed_levels(scene, geom, lights, lensed, base, vpls, clamp_d2, max_depth, rng, lobe_alpha,
+                                        specular_depth, targets if chains else None)
+            batches += more
+        points, ray_sets = end, [(rays, 0)]
+        if batches:
+            points = EndPoints.concat([end, *(b.y for b, _ in batches)])
+            ray_sets += [(b.rays, start) for b, start in batches]  # a batch's rays light its rows start on
     with stage("VPL gather"):
         albedo, irr = gather_vpls(geom, points, vpls, clamp_d2, max_depth, force_general=force_general,
                                   lobe_alpha=lobe_alpha, shadow_roulette=shadow_roulette,
@@ -295,10 +283,71 @@ def final_gather(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoi
     if photons is not None and len(photons):
         with stage("photon gather"):
             irr += gather_photons(points, photons, albedo, max_depth)
-    if found is not None:
-        carry_back([len(end), *found.sizes], found.parents, found.factors, found.gains, albedo, irr)
+    for start, sky in skies:  # the environment seen through a point's chain
+        rows = slice(start, start + len(sky))
+        irr[rows] += bsdf.finite_or_zero(sky / np.maximum(albedo[rows], 1e-6))
+    if batches:
+        carry_batches(batches, albedo, irr)
     e = len(end)
     return albedo[:e], irr[:e]
+
+
+def lensed_levels(scene: Scene, geom: Geometry, lights: LightSampler, lensed: Arrivals, base: int, vpls: VPLSet,
+                  clamp_d2: float, max_depth: int, rng: np.random.Generator, lobe_alpha: float, specular_depth: int,
+                  targets: tuple[np.ndarray, np.ndarray] | None) -> tuple[list, list]:
+    """Chains of chains. The end of an end point's mirror/glass chain, y, whose own BSDF ray
+    meets a mirror or glass surface follows that chain too (worker.indirect_caustics.
+    lensed_arrivals) to a point y', whose light (gathered like y's, its own chain in turn)
+    reaches y: D S+ D S+ D … paths, which no VPL (its shadow rays stop at glass) and no caustic
+    photon (it starts at an emitter) carries — a floor under water lit by the floor itself
+    through the surface's total internal reflection, the walls above the water lit by that
+    floor. Up to LENSED_DEPTH chains behind an end point (its own, worker.indirect_caustics, is
+    the first); from the second on a chain goes on with probability min(1, its largest weight)
+    (Russian roulette, weight / probability). None ``targets`` (the mirror/glass objects'
+    bounding spheres): the end points' chains only. The points are shaded as rows ``base`` on.
+    Returns ([(levels, first row)] per chain depth, [(first row, (n, 3) the environment's
+    radiance toward each point of a depth's levels through its chains)])."""
+    batches, skies = [], []
+    arrivals = lensed
+    for depth in range(1, LENSED_DEPTH + 1):
+        last = targets is None or depth == LENSED_DEPTH
+        found = find_levels(scene, geom, lights, arrivals, vpls, clamp_d2, max_depth, rng, lobe_alpha,
+                            None if last else targets)
+        if found is None:
+            break
+        batches.append((found, base))
+        if last:
+            break
+        sky, ends = lensed_arrivals(scene, geom, lights, found.y, found.rays, max_depth, specular_depth, rng)
+        if np.any(sky):
+            skies.append((base, sky))
+        if ends is None:
+            break
+        q = np.minimum(np.max(ends.factor, axis=1), 1.0)
+        keep = np.flatnonzero(rng.random(len(ends)) < q)
+        if len(keep) == 0:
+            break
+        arrivals = ends.rows(keep)
+        arrivals.factor = arrivals.factor / q[keep, None]
+        arrivals.parent = arrivals.parent + base  # rows of the points shaded, not of the depth's levels
+        base += len(found.y)
+    return batches, skies
+
+
+def carry_batches(batches: list, albedo: np.ndarray, irr: np.ndarray) -> None:
+    """carry_back over batches of levels (:func:`lensed_levels`): each batch's first level
+    sends its light to rows of any earlier batch (or the end points), its other levels to the
+    level before within it. Every level is carried after all levels made after it (their
+    parents are always older), so a point's light is complete when it is sent on."""
+    levels = []
+    for found, base in batches:
+        stops = base + np.cumsum([0, *found.sizes])
+        for i in range(len(found.sizes)):
+            parent = found.parents[i] if i == 0 else found.parents[i] + stops[i - 1]
+            levels.append((int(stops[i]), parent, found.factors[i], found.gains[i]))
+    for start, parent, factor, g in reversed(levels):
+        flv.carry_level(start, 0, np.ascontiguousarray(parent, np.int64), np.ascontiguousarray(factor, np.float64),
+                        _NO_GAIN if g is None else g, albedo, irr)
 
 
 def carry_back(sizes: list[int], parent: list[np.ndarray], factor: list[np.ndarray], gain: list[np.ndarray | None],
@@ -317,3 +366,4 @@ def carry_back(sizes: list[int], parent: list[np.ndarray], factor: list[np.ndarr
 
 
 _NO_GAIN = np.zeros((0, 3))
+_NO_TARGETS = (np.zeros((0, 3)), np.zeros(0))

@@ -11,7 +11,9 @@ which shades them with the compensation's near points) is the sample. Emission a
 end is left to the caustic photons (L S+ D E); the environment seen through the chain is added
 here (no photons leave distant lights, and shadow rays of the environment samples are blocked
 by the glass).
-No other estimator covers these paths, so no MIS weight is needed.
+No other estimator covers these paths, so no MIS weight is needed. The chain's end y follows
+chains of its own the same way (worker.final_gather.lensed_levels: light that crossed glass
+twice between diffuse bounces, as under a water surface).
 """
 from __future__ import annotations
 
@@ -22,7 +24,7 @@ from igi.common.geometry import Geometry
 from igi.common.lights import LightSampler
 from igi.common.scene import SPECULAR_KINDS, Scene, kind_in
 
-from .final_gather import Arrivals
+from .arrivals import Arrivals
 from .kernels import specular_chain as sc
 from .shading import BSDFRays, EndPoints, delta_bounce
 

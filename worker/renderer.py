@@ -28,7 +28,7 @@ from igi.common.sobol_stream import rng as make_rng
 from igi.common.specular import specular_targets
 
 from .caustics import PhotonSet, build_photon_sets, default_radius
-from .final_gather import Arrivals, compensation_enabled, final_gather, near_arrivals
+from .final_gather import compensation_enabled, final_gather, near_arrivals
 from .indirect_caustics import lensed_arrivals
 from .shading import LightMIS, lobe_light_count, trace_bsdf_rays, trace_eye
 from .kernels import tile_buffers
@@ -298,8 +298,8 @@ class Renderer:
 
     def photon_set(self, seed: int, k: int, params: Params, index: int = 0) -> PhotonSet:
         radius = default_radius(self.geom.diagonal, params.photon_radius)
-        # Caustic paths have >= 4 segments (light, specular, diffuse, eye).
-        if (self.plan is not None and not self.plan.caustics) or 0 <= params.max_depth < 4:
+        # Caustic paths have >= 3 segments (eye -> diffuse -> specular -> light, as Mitsuba counts).
+        if (self.plan is not None and not self.plan.caustics) or 0 <= params.max_depth < 3:
             return PhotonSet(*(np.zeros((0, 3)),) * 4, np.zeros(0, np.int32), radius * radius_scale(index, params),
                              None)
         config = ("photons", self.scene_version, params.interleave, params.photons, params.photon_radius,
@@ -402,18 +402,19 @@ class Renderer:
                                    self._specular_targets if lensed else None)
         with self._stage("photon set"):
             photons = self.photon_set(spec.seed, tile.k, params, index)
-        arrivals, sky = [], None
+        near, sky, ends = None, None, None
         if compensate and compensation_enabled(vpls, clamp_d2):
             # Accumulating: give back what the clamp took (its near points, found by the rays).
-            arrivals.append(near_arrivals(end, rays, 1, clamp_d2, params.max_depth, rng))
+            near = near_arrivals(end, rays, 1, clamp_d2, params.max_depth, rng)
         if lensed:
             with self._stage("lensed chains"):
                 sky, ends = lensed_arrivals(self.scene, self.geom, self.lights, end, rays, params.max_depth,
                                             params.specular_depth, rng)
-                arrivals.append(ends)
-        albedo, irr = final_gather(self.scene, self.geom, self.lights, end, rays, Arrivals.concat(arrivals), vpls,
+        albedo, irr = final_gather(self.scene, self.geom, self.lights, end, rays, near, vpls,
                                    clamp_d2, params.max_depth, rng, lobe_alpha, photons, params.shadow_roulette,
-                                   force_general=self.plan is None, lobe_lights=lobe_lights, stage=self._stage)
+                                   force_general=self.plan is None, lobe_lights=lobe_lights, stage=self._stage,
+                                   lensed=ends, specular_depth=params.specular_depth,
+                                   targets=self._specular_targets if lensed else None)
         if sky is not None:
             irr += bsdf.finite_or_zero(sky / np.maximum(albedo, 1e-6))
         refl = np.zeros((p, 3))

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from igi.common import bsdf
-from igi.worker.final_gather import COMPENSATION_MAX_LEVEL, COMPENSATION_ROULETTE_LEVEL, Arrivals
+from igi.worker.arrivals import Arrivals
+from igi.worker.final_gather import COMPENSATION_MAX_LEVEL, COMPENSATION_ROULETTE_LEVEL
 
 
 def near_arrivals_numpy(end, rays, level, clamp_d2: float, max_depth: int, rng) -> Arrivals | None:

@@ -167,3 +167,14 @@ def test_photons_are_shared_by_power_and_each_light_keeps_its_flux():
     alone_a, alone_b = flux([base.emitters[0]])[0], flux([side])[0]
     assert alone_a > 2 * alone_b  # the weights matter: the dim light carries most of the caustic
     assert both == pytest.approx(alone_a + alone_b, rel=0.02)
+
+
+def test_photons_are_built_from_the_shortest_path_depth_a_caustic_has():
+    """A caustic seen directly, eye -> diffuse -> glass -> light, has 3 segments as Mitsuba
+    counts them: --max-depth 3 keeps the caustic photons (it once dropped them below 4);
+    direct light only (2) needs none."""
+    from igi.common.params import make_params
+
+    r = Renderer(load_scene(SHARED / "scenes" / "cornell-box-sphere" / "scene.xml"))
+    assert len(r.photon_set(0, 0, make_params(photons=500, max_depth=3))) > 0
+    assert len(r.photon_set(0, 0, make_params(photons=500, max_depth=2))) == 0

@@ -99,7 +99,7 @@ def _lensed(monkeypatch, compiled: bool, max_depth: int, sky: bool):
     sky seen through the chains, the chains' ends (as one array), the next draw of its generator
     and the rays it traced, with its chains followed by the compiled kernel (``compiled``) or by
     its numpy loop."""
-    from igi.worker.final_gather import _FIELDS
+    from igi.worker.arrivals import _FIELDS
     from igi.worker.indirect_caustics import lensed_arrivals
     from tests.support.end_points import traced_end_points
 

@@ -26,8 +26,8 @@ from .bsdf_rays import sample_rays
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def find_levels(P, reflects, atlas, closest, rng, center, eps, ulps, reach_all, emitter_c, emitter_r2, clamp_d2,
-                short, max_depth, roulette_level, max_level, first, points, prow, level_stop, rays, hits,
+def find_levels(P, reflects, atlas, closest, rng, center, eps, ulps, reach_all, emitter_c, emitter_r2, lens_c, lens_r2,
+                clamp_d2, short, max_depth, roulette_level, max_level, first, points, prow, level_stop, rays, hits,
                 ray_stop) -> int:
     """Every level's points from the ``first`` arrivals (position, ns, ng, material, uv, t,
     direction, segments, parent, factor, level: worker.final_gather.Arrivals' fields) into
@@ -36,8 +36,9 @@ def find_levels(P, reflects, atlas, closest, rng, center, eps, ulps, reach_all, 
     Each level's points with a segment left sample a ray (u1 then u2 drawn from ``rng``) into
     ``rays`` (row within its level, weight, pdf, delta, direction, origin; ``ray_stop``) traced
     into ``hits`` (common.kernels.ray_packets.hit_buffers), unbounded where it may reach an
-    emitter (``reach_all``, or it meets an emitter sphere), else ``short`` far for a point of
-    compensation level > 0 and 0 far otherwise. Its near hits (closer than √clamp_d2, not a
+    emitter (``reach_all``, or it meets an emitter sphere) or a mirror/glass object whose
+    chain the point follows (it meets a sphere of ``lens_c``, ``lens_r2``; none: no chain),
+    else ``short`` far for a point of compensation level > 0 and 0 far otherwise. Its near hits (closer than √clamp_d2, not a
     delta sample, a segment left; from ``roulette_level`` on each goes on with probability 1/2)
     are the next level's arrivals. A point reads its material's row of P (``prow[n]``), or, on
     a material with bitmap textures (``atlas``: common.bsdf.texture_atlas), a row of its own
@@ -86,6 +87,11 @@ def find_levels(P, reflects, atlas, closest, rng, center, eps, ulps, reach_all, 
         reach = np.ones(c, np.bool_)
         if not reach_all:
             any_hit(r_o[r0:r1], r_d[r0:r1], emitter_c, emitter_r2, reach)
+            if lens_r2.shape[0] > 0:
+                lens = np.empty(c, np.bool_)
+                any_hit(r_o[r0:r1], r_d[r0:r1], lens_c, lens_r2, lens)
+                for j in range(c):
+                    reach[j] = reach[j] or lens[j]
         for j in range(c):
             i = p0 + r_row[r0 + j]
             h_tfar[r0 + j] = np.float32(3.0e38) if reach[j] else np.float32(short if p_level[i] > 0 else 0.0)
