@@ -24,6 +24,8 @@ import re
 
 import numpy as np
 
+from igi.common.params import PARAM_BY_NAME, PHOTON_BOOST_MAX
+
 GiB = 1 << 30
 DEFAULT_BUDGET = 8 * GiB
 ENV = "IGI_MEMORY_BUDGET"
@@ -121,7 +123,10 @@ def check_params(params, emitters: int = 1) -> None:
     try:
         n2 = int(get("interleave")) ** 2
         vpls = int(get("direct_vpls")) + int(get("indirect_vpls")) * int(get("light_path_length"))
-        photons = int(get("photons")) * max(1, int(emitters))
+        photons = int(get("photons"))
+        if float(get("photon_share")) > 0:  # a scene rich in caustics takes up to this many more
+            photons = min(photons * PHOTON_BOOST_MAX, int(PARAM_BY_NAME["photons"].max))
+        photons *= max(1, int(emitters))
     except (KeyError, AttributeError, TypeError, ValueError):
         return  # not a full parameter set: make_params validates the values themselves
     need = n2 * (vpls * VPL_BYTES + photons * PHOTON_BYTES)

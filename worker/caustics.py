@@ -17,7 +17,8 @@ import numpy as np
 
 from igi.common import bsdf
 from igi.common.geometry import Geometry
-from igi.common.lights import LightSampler, spot_falloff, uniform_sphere
+from igi.common.lights import LightSampler, luminance, spot_falloff, uniform_sphere
+from igi.common.params import PARAM_BY_NAME, PHOTON_BOOST_MAX
 from igi.common.scene import AREA, NULL, POINT, SPECULAR_KINDS, SPOT, Scene, kind_in
 from igi.common.sobol_stream import SobolStream, stream_seed
 from igi.common.specular import specular_targets
@@ -63,6 +64,33 @@ def _empty(radius: float) -> PhotonSet:
 
 
 MIN_PHOTON_SHARE = 0.01  # a light's photons at least this share of photons_per_light (>= 1)
+
+
+def caustic_share(scene: Scene, geom: Geometry, lights: LightSampler, photons_per_light: int, max_bounces: int,
+                  targets: tuple | None = None) -> float:
+    """The share of the shooting lights' flux (luminance) that a pilot photon set (seed 0,
+    block 0 of ``photons_per_light``) stores as caustics: deterministic, the same on every
+    worker. 0 without specular surfaces or shooting lights."""
+    shooting = [ei for ei, e in enumerate(scene.emitters) if e.kind in (AREA, POINT, SPOT) and lights.powers[ei] > 0]
+    total = float(lights.powers[shooting].sum()) if shooting else 0.0
+    if photons_per_light <= 0 or total <= 0:
+        return 0.0
+    pilot = build_photon_set(scene, geom, lights, 0, 0, photons_per_light, default_radius(geom.diagonal, -1.0),
+                             max_bounces, targets=targets)
+    return float(luminance(pilot.power.sum(axis=0))) / total if len(pilot) else 0.0
+
+
+def boosted_photons(photons_per_light: int, share: float, reference: float) -> int:
+    """Photons per light per set for a scene whose caustics take ``share`` of the lights' flux:
+    photons_per_light × (share / reference)², between 1× and PHOTON_BOOST_MAX× (and at most
+    the parameter's bound). A caustic's relative noise goes as its share² over the photon
+    count, so a scene with twice the reference share needs four times the photons to be as
+    smooth as one at the reference; a scene at or below it keeps the count (``reference`` 0:
+    always)."""
+    if reference <= 0 or share <= reference:
+        return photons_per_light
+    boost = min((share / reference) ** 2, PHOTON_BOOST_MAX)
+    return int(min(round(photons_per_light * boost), PARAM_BY_NAME["photons"].max))
 
 
 def photon_counts(powers: np.ndarray, photons_per_light: int) -> np.ndarray:

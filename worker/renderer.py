@@ -27,7 +27,7 @@ from igi.common.scene import DIFFUSE, GLOSSY_KINDS, PLASTIC, ROUGHPLASTIC_DIFFUS
 from igi.common.sobol_stream import rng as make_rng
 from igi.common.specular import specular_targets
 
-from .caustics import PhotonSet, build_photon_sets, default_radius
+from .caustics import PhotonSet, boosted_photons, build_photon_sets, caustic_share, default_radius
 from .final_gather import compensation_enabled, final_gather, near_arrivals
 from .indirect_caustics import lensed_arrivals
 from .shading import LightMIS, lobe_light_count, trace_bsdf_rays, trace_eye
@@ -296,19 +296,31 @@ class Renderer:
         return self._frame_sets.get((config, seed, index), k, params.interleave ** 2, self._timed(build),
                                     later_frames(seed, index, params, config))
 
+    def photon_count(self, params: Params) -> int:
+        """Caustic photons per light per set: --photons, boosted where the scene's caustics carry
+        more than --photon-share of the lights' flux (worker.caustics.boosted_photons; the
+        share from a pilot set, once per scene and chain length) — not on a moving view's frames."""
+        if params.photon_share <= 0 or params.photons <= 0 or params.moving_camera:
+            return params.photons  # (a moving view's frame is shown once: its frame rate counts)
+        key = ("caustic share", self.scene_version, params.photons, params.specular_depth)
+        share, _fresh = self._per_view(key, lambda: caustic_share(self.scene, self.geom, self.lights, params.photons,
+                                                                  params.specular_depth, self._specular_targets))
+        return boosted_photons(params.photons, share, params.photon_share)
+
     def photon_set(self, seed: int, k: int, params: Params, index: int = 0) -> PhotonSet:
         radius = default_radius(self.geom.diagonal, params.photon_radius)
         # Caustic paths have >= 3 segments (eye -> diffuse -> specular -> light, as Mitsuba counts).
         if (self.plan is not None and not self.plan.caustics) or 0 <= params.max_depth < 3:
             return PhotonSet(*(np.zeros((0, 3)),) * 4, np.zeros(0, np.int32), radius * radius_scale(index, params),
                              None)
-        config = ("photons", self.scene_version, params.interleave, params.photons, params.photon_radius,
+        photons = self.photon_count(params)
+        config = ("photons", self.scene_version, params.interleave, photons, params.photon_radius,
                   params.consistent, params.ppm_alpha, params.specular_depth)
 
         def build(keys: list[tuple]) -> list[PhotonSet]:
             stream, blocks = _set_blocks(keys, params)
             radii = [radius * radius_scale(frame[2], params) for frame, _ in keys]
-            return build_photon_sets(self.scene, self.geom, self.lights, stream, blocks, params.photons, radii,
+            return build_photon_sets(self.scene, self.geom, self.lights, stream, blocks, photons, radii,
                                      params.specular_depth, targets=self._specular_targets)
 
         return self._frame_sets.get((config, seed, index), k, params.interleave ** 2, self._timed(build),

@@ -178,3 +178,41 @@ def test_photons_are_built_from_the_shortest_path_depth_a_caustic_has():
     r = Renderer(load_scene(SHARED / "scenes" / "cornell-box-sphere" / "scene.xml"))
     assert len(r.photon_set(0, 0, make_params(photons=500, max_depth=3))) > 0
     assert len(r.photon_set(0, 0, make_params(photons=500, max_depth=2))) == 0
+
+
+def test_caustic_share_is_the_flux_the_pilot_set_stores_over_the_lights_flux():
+    """worker.caustics.caustic_share of the slab scene: the Fresnel-transmitted flux through the
+    slab over the point light's 4π I (~6% of it), from a pilot set of 4000 photons."""
+    from igi.worker.caustics import caustic_share
+
+    scene = slab_scene()
+    geom = Geometry(scene)
+    share = caustic_share(scene, geom, LightSampler(scene, geom), 4000, 8)
+    assert share == pytest.approx(expected_transmitted_flux() / (4 * np.pi), rel=0.05)
+    assert caustic_share(scene, geom, LightSampler(scene, geom), 0, 8) == 0.0
+
+
+def test_boosted_photons_grow_with_the_square_of_the_caustic_share_up_to_the_bound():
+    from igi.common.params import PARAM_BY_NAME, PHOTON_BOOST_MAX
+    from igi.worker.caustics import boosted_photons
+
+    assert boosted_photons(500, 0.05, 0.1) == 500  # at most the reference share: the count as given
+    assert boosted_photons(500, 0.1, 0.1) == 500
+    assert boosted_photons(500, 0.2, 0.1) == 2000  # twice the share: four times the photons
+    assert boosted_photons(500, 0.9, 0.1) == 500 * PHOTON_BOOST_MAX
+    assert boosted_photons(500, 0.9, 0.0) == 500  # photon_share 0: off
+    assert boosted_photons(90000, 0.9, 0.1) == PARAM_BY_NAME["photons"].max
+
+
+def test_a_scene_rich_in_caustics_builds_its_sets_with_the_boosted_count():
+    """The renderer's sets take photon_count(params): the slab scene (~6% of the light in
+    caustics) keeps --photons at the default reference 0.1 and takes the 16x bound at 0.01 —
+    but not on a moving view's frames."""
+    from igi.common.params import PHOTON_BOOST_MAX, make_params
+
+    r = Renderer(slab_scene())
+    for share, want in ((0.1, 500), (0.0, 500), (0.01, 500 * PHOTON_BOOST_MAX)):
+        params = make_params(photons=500, photon_share=share)
+        assert r.photon_count(params) == want
+        assert r.photon_set(0, 0, params).shot == want
+    assert r.photon_count(make_params(photons=500, photon_share=0.01, moving_camera=True)) == 500
