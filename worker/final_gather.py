@@ -335,10 +335,14 @@ def lensed_levels(scene: Scene, geom: Geometry, lights: LightSampler, lensed: Ar
 
 
 def carry_batches(batches: list, albedo: np.ndarray, irr: np.ndarray) -> None:
-    """carry_back over batches of levels (:func:`lensed_levels`): each batch's first level
-    sends its light to rows of any earlier batch (or the end points), its other levels to the
-    level before within it. Every level is carried after all levels made after it (their
-    parents are always older), so a point's light is complete when it is sent on."""
+    """Add each level's light to its parents' irradiance, in place. ``batches``: [(levels, first
+    row)] (:func:`find_levels`' Levels; rows from ``first row`` on of ``albedo``/``irr``, the
+    end points before them): a batch's first level sends its light to rows of the end points or
+    of an earlier batch (its parents are rows of the points shaded), its level i ≥ 1 to its
+    level i - 1. Each point sends factor × gain × albedo × irradiance per unit of its parent's
+    albedo (summed in point order, as np.add.at sums; compiled: kernels.final_gather_levels.
+    carry_level). Levels go newest first: a parent is always older than its children, so a
+    point's light is complete (its own near points' and chains' in) when it is sent on."""
     levels = []
     for found, base in batches:
         stops = base + np.cumsum([0, *found.sizes])
@@ -348,21 +352,6 @@ def carry_batches(batches: list, albedo: np.ndarray, irr: np.ndarray) -> None:
     for start, parent, factor, g in reversed(levels):
         flv.carry_level(start, 0, np.ascontiguousarray(parent, np.int64), np.ascontiguousarray(factor, np.float64),
                         _NO_GAIN if g is None else g, albedo, irr)
-
-
-def carry_back(sizes: list[int], parent: list[np.ndarray], factor: list[np.ndarray], gain: list[np.ndarray | None],
-               albedo: np.ndarray, irr: np.ndarray) -> None:
-    """Add each level's light to its parents' irradiance, in place, deepest level first (a
-    point's light is complete once its own near points' is in): the points of level i ≥ 1 (rows
-    ``sizes[0] + … + sizes[i-1]`` on of ``albedo``/``irr``, level 0 the end points) send
-    factor × gain × albedo × irradiance to row ``parent[i-1]`` of level i - 1, per unit of
-    that parent's albedo (summed in point order, as np.add.at sums: right whether or not a parent
-    takes several; compiled, kernels.final_gather_levels.carry_level)."""
-    stops = np.cumsum([0, *sizes])
-    for i in range(len(sizes) - 1, 0, -1):
-        g = gain[i - 1]
-        flv.carry_level(int(stops[i]), int(stops[i - 1]), np.ascontiguousarray(parent[i - 1], np.int64),
-                        np.ascontiguousarray(factor[i - 1], np.float64), _NO_GAIN if g is None else g, albedo, irr)
 
 
 _NO_GAIN = np.zeros((0, 3))

@@ -1,5 +1,5 @@
 """The numpy forms of the final gather's per-tile steps around the level finder
-(worker.final_gather.near_arrivals and carry_back before they were compiled into
+(worker.final_gather.near_arrivals and carry_back (now carry_batches) before they were compiled into
 worker.kernels.final_gather_levels): oracles for tests/worker/test_final_gather.py."""
 from __future__ import annotations
 

@@ -62,7 +62,7 @@ def test_each_levels_light_reaches_its_parent_per_unit_of_the_parents_albedo():
     f2 = np.array([[0.5] * 3])
     gain1 = np.array([[1.0] * 3, [2.0] * 3, [1.0] * 3])
     out = irr.copy()
-    fg.carry_back([2, 3, 1], [np.array([0, 0, 1]), np.array([0])], [f1, f2], [gain1, None], albedo, out)
+    _carry_back([2, 3, 1], [np.array([0, 0, 1]), np.array([0])], [f1, f2], [gain1, None], albedo, out)
     e_y0 = 3.0 + 0.5 * 0.6 * 6.0 / 0.8  # level 1's first point with its near point's light
     want0 = 1.0 + (0.1 * 0.8 * e_y0 + 0.2 * 2.0 * 0.4 * 4.0) / 0.5
     want1 = 2.0 + 0.3 * 0.2 * 5.0 / 0.25
@@ -70,9 +70,31 @@ def test_each_levels_light_reaches_its_parent_per_unit_of_the_parents_albedo():
     np.testing.assert_allclose(out[2, 0], e_y0)
 
 
+def test_a_later_batch_reaches_the_end_points_through_the_point_it_hangs_off():
+    """carry_batches: a chain end's own chain end (the second batch, its parent row 2: the
+    first batch's point) adds its light to that point before that point sends its own on."""
+    from types import SimpleNamespace
+
+    albedo = np.full((4, 3), 0.5)
+    irr = np.array([[1.0] * 3, [2.0] * 3, [3.0] * 3, [4.0] * 3])
+    first = SimpleNamespace(sizes=[1], parents=[np.array([1])], factors=[np.full((1, 3), 0.4)], gains=[None])
+    second = SimpleNamespace(sizes=[1], parents=[np.array([2])], factors=[np.full((1, 3), 0.25)], gains=[None])
+    fg.carry_batches([(first, 2), (second, 3)], albedo, irr)
+    y = 3.0 + 0.25 * 0.5 * 4.0 / 0.5
+    np.testing.assert_allclose(irr[:, 0], [1.0, 2.0 + 0.4 * 0.5 * y / 0.5, y, 4.0])
+
+
+def _carry_back(sizes, parents, factors, gains, albedo, irr) -> None:
+    """fg.carry_batches over one batch of levels behind sizes[0] end points."""
+    from types import SimpleNamespace
+
+    levels = SimpleNamespace(sizes=list(sizes[1:]), parents=list(parents), factors=list(factors), gains=list(gains))
+    fg.carry_batches([(levels, sizes[0])], albedo, irr)
+
+
 def test_the_final_gather_is_what_its_levels_shaded_apart_give(monkeypatch):
     """final_gather with the shading replaced by a per-point function of position (albedo and
-    irradiance) equals carry_back over the levels find_levels found: those levels' points are
+    irradiance) equals carry_batches over the levels find_levels found: those levels' points are
     the ones shaded, after the end points and in order, and only their light is added back."""
     scene = furnace_box(0.5, 1.0, 12, 12)
     r = Renderer(scene)
@@ -104,7 +126,7 @@ def test_the_final_gather_is_what_its_levels_shaded_apart_give(monkeypatch):
     np.testing.assert_array_equal(points.position, np.concatenate([end.position, found.y.position]))
     a, e = shade(points)
     want = e.copy()
-    fg.carry_back([len(end), *found.sizes], found.parents, found.factors, found.gains, a, want)
+    _carry_back([len(end), *found.sizes], found.parents, found.factors, found.gains, a, want)
     np.testing.assert_array_equal(got_a, a[:len(end)])
     np.testing.assert_allclose(got, want[:len(end)], rtol=1e-12)
     assert np.all(got[first.parent] > e[first.parent])  # the near points did add light
@@ -224,7 +246,7 @@ def test_compiled_near_points_equal_the_numpy_near_points(level, max_depth):
 
 
 def test_compiled_carry_back_equals_numpy_add_at():
-    """kernels.final_gather_levels.carry_level through carry_back: np.add.at's sums bit for bit,
+    """kernels.final_gather_levels.carry_level through carry_batches: np.add.at's sums bit for bit,
     with parents taking several points, a gain, albedo 0 (the 1e-6 floor) and NaN / Inf light
     (dropped)."""
     from tests.support.oracle_final_gather import carry_back_numpy
@@ -240,7 +262,7 @@ def test_compiled_carry_back_equals_numpy_add_at():
     factors = [g.random((sizes[i + 1], 3)) for i in range(3)]
     gains = [g.random((sizes[1], 3)) + 0.5, None, g.random((sizes[3], 3)) + 0.5]
     got, want = irr.copy(), irr.copy()
-    fg.carry_back(sizes, parents, factors, gains, albedo, got)
+    _carry_back(sizes, parents, factors, gains, albedo, got)
     carry_back_numpy(sizes, parents, factors, gains, albedo, want)
     np.testing.assert_array_equal(got, want)
 
