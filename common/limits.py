@@ -24,7 +24,7 @@ import re
 
 import numpy as np
 
-from igi.common.params import PARAM_BY_NAME, PHOTON_BOOST_MAX
+from igi.common.params import boosted_photon_bound
 
 GiB = 1 << 30
 DEFAULT_BUDGET = 8 * GiB
@@ -124,14 +124,16 @@ def check_params(params, emitters: int = 1) -> None:
         n2 = int(get("interleave")) ** 2
         vpls = int(get("direct_vpls")) + int(get("indirect_vpls")) * int(get("light_path_length"))
         photons = int(get("photons"))
-        if float(get("photon_share")) > 0:  # a scene rich in caustics takes up to this many more
-            photons = min(photons * PHOTON_BOOST_MAX, int(PARAM_BY_NAME["photons"].max))
+        boost = float(get("photon_share")) > 0
+        if boost:  # a scene rich in caustics may take up to this many
+            photons = boosted_photon_bound(photons)
         photons *= max(1, int(emitters))
     except (KeyError, AttributeError, TypeError, ValueError):
         return  # not a full parameter set: make_params validates the values themselves
     need = n2 * (vpls * VPL_BYTES + photons * PHOTON_BYTES)
     if need > memory_budget() // 4:
-        raise LimitError(f"{n2} interleaved sets of {vpls} VPLs and {photons:,} photons need ~{fmt_bytes(need)}, "
+        hint = " (--photon-share 0 keeps --photons)" if boost else ""
+        raise LimitError(f"{n2} interleaved sets of {vpls} VPLs and {photons:,} photons{hint} need ~{fmt_bytes(need)}, "
                          f"over a quarter of the {_budget_hint()}")
 
 

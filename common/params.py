@@ -85,10 +85,10 @@ PARAMS: tuple[Param, ...] = (
           "share this many times their effective number in proportion to power", "caustics", 0, 100000),
     Param("photon_share", float, 0.1,
           "photons grow with the caustics' share of the light: where more than this share of the lights' flux "
-          "ends in caustic photons (a pilot set), a set takes (share/this)^2 times --photons, at most "
-          f"{PHOTON_BOOST_MAX:g}x "
-          "(cornell-box-water, 0.34: ~12x, 5x less error at equal time; scenes at most this share keep "
-          "--photons; a moving view's frames keep it too); 0: always --photons", "caustics", 0.0, 1.0),
+          "ends in caustic photons (a pilot set), a set takes (share/this)^2 times --photons in steps of "
+          f"sqrt(2), at most {PHOTON_BOOST_MAX:g}x (cornell-box-water, 0.37: 16x, 4-5x less error at equal "
+          "time; scenes at most this share keep --photons; a moving view's frames keep it too); 0: always "
+          "--photons", "caustics", 0.0, 1.0),
     Param("photon_radius", float, -1.0,
           "caustic gather radius as a fraction of the scene diagonal (-1: scene default 0.005)",
           "caustics", -1.0, 1.0),
@@ -148,6 +148,13 @@ PARAMS = tuple(replace(p, special=_PRESENTATION[p.name][0], scale=_PRESENTATION[
                if p.name in _PRESENTATION else p for p in PARAMS)
 
 PARAM_BY_NAME = {p.name: p for p in PARAMS}
+
+
+def boosted_photon_bound(photons: int) -> int:
+    """The most photons per light per set --photon-share may give for ``photons``: PHOTON_BOOST_MAX
+    times as many, within the parameter's own bound (worker.caustics.boosted_photons, the memory
+    check of common.limits)."""
+    return int(min(photons * PHOTON_BOOST_MAX, PARAM_BY_NAME["photons"].max))
 
 Params = make_dataclass(
     "Params",

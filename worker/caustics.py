@@ -18,7 +18,7 @@ import numpy as np
 from igi.common import bsdf
 from igi.common.geometry import Geometry
 from igi.common.lights import LightSampler, luminance, spot_falloff, uniform_sphere
-from igi.common.params import PARAM_BY_NAME, PHOTON_BOOST_MAX
+from igi.common.params import PHOTON_BOOST_MAX, boosted_photon_bound
 from igi.common.scene import AREA, NULL, POINT, SPECULAR_KINDS, SPOT, Scene, kind_in
 from igi.common.sobol_stream import SobolStream, stream_seed
 from igi.common.specular import specular_targets
@@ -64,33 +64,36 @@ def _empty(radius: float) -> PhotonSet:
 
 
 MIN_PHOTON_SHARE = 0.01  # a light's photons at least this share of photons_per_light (>= 1)
+PILOT_PHOTONS = 2000  # caustic_share: photons a light at least (a share within ~2% on one set)
 
 
 def caustic_share(scene: Scene, geom: Geometry, lights: LightSampler, photons_per_light: int, max_bounces: int,
                   targets: tuple | None = None) -> float:
     """The share of the shooting lights' flux (luminance) that a pilot photon set (seed 0,
-    block 0 of ``photons_per_light``) stores as caustics: deterministic, the same on every
-    worker. 0 without specular surfaces or shooting lights."""
+    block 0, at least PILOT_PHOTONS photons a light) stores as caustics: deterministic, so
+    every worker finds the same share (as every worker builds the same VPL sets: given the
+    same ray answers). 0 without specular surfaces or shooting lights."""
     shooting = [ei for ei, e in enumerate(scene.emitters) if e.kind in (AREA, POINT, SPOT) and lights.powers[ei] > 0]
     total = float(lights.powers[shooting].sum()) if shooting else 0.0
     if photons_per_light <= 0 or total <= 0:
         return 0.0
-    pilot = build_photon_set(scene, geom, lights, 0, 0, photons_per_light, default_radius(geom.diagonal, -1.0),
-                             max_bounces, targets=targets)
+    pilot = build_photon_set(scene, geom, lights, 0, 0, max(photons_per_light, PILOT_PHOTONS),
+                             default_radius(geom.diagonal, -1.0), max_bounces, targets=targets)
     return float(luminance(pilot.power.sum(axis=0))) / total if len(pilot) else 0.0
 
 
 def boosted_photons(photons_per_light: int, share: float, reference: float) -> int:
     """Photons per light per set for a scene whose caustics take ``share`` of the lights' flux:
-    photons_per_light × (share / reference)², between 1× and PHOTON_BOOST_MAX× (and at most
-    the parameter's bound). A caustic's relative noise goes as its share² over the photon
-    count, so a scene with twice the reference share needs four times the photons to be as
-    smooth as one at the reference; a scene at or below it keeps the count (``reference`` 0:
-    always)."""
+    photons_per_light × (share / reference)², rounded to a step of √2, between 1× and
+    PHOTON_BOOST_MAX× (and at most the parameter's bound). A caustic's relative noise goes as
+    its share² over the photon count, so a scene with twice the reference share needs four
+    times the photons to be as smooth as one at the reference; a scene at or below it keeps
+    the count (``reference`` 0: always). The steps keep a pilot's last digits from changing the
+    count (and with it every photon of a set: its Sobol rows)."""
     if reference <= 0 or share <= reference:
         return photons_per_light
-    boost = min((share / reference) ** 2, PHOTON_BOOST_MAX)
-    return int(min(round(photons_per_light * boost), PARAM_BY_NAME["photons"].max))
+    boost = min(2.0 ** (round(2.0 * np.log2((share / reference) ** 2)) / 2.0), PHOTON_BOOST_MAX)
+    return min(int(round(photons_per_light * boost)), boosted_photon_bound(photons_per_light))
 
 
 def photon_counts(powers: np.ndarray, photons_per_light: int) -> np.ndarray:

@@ -9,7 +9,8 @@ back toward them, for two estimators that both ask for it:
   weight is exactly that share. y is lit by a clamped gather too, so its own near points are
   compensated in turn (levels below);
 - the lensed chains (worker.indirect_caustics): the point where an end point's mirror/glass
-  chain meets a non-specular surface.
+  chain meets a non-specular surface — which follows a chain of its own in turn
+  (:func:`lensed_levels`: light that crosses glass twice between diffuse bounces).
 
 Every level's points are found first (a level's BSDF rays find the next level's near points),
 then all of them are shaded in one batch with the end points themselves — one VPL gather, one
@@ -294,7 +295,8 @@ def final_gather(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoi
 
 def lensed_levels(scene: Scene, geom: Geometry, lights: LightSampler, lensed: Arrivals, base: int, vpls: VPLSet,
                   clamp_d2: float, max_depth: int, rng: np.random.Generator, lobe_alpha: float, specular_depth: int,
-                  targets: tuple[np.ndarray, np.ndarray] | None) -> tuple[list, list]:
+                  targets: tuple[np.ndarray, np.ndarray] | None
+                  ) -> tuple[list[tuple[Levels, int]], list[tuple[int, np.ndarray]]]:
     """Chains of chains. The end of an end point's mirror/glass chain, y, whose own BSDF ray
     meets a mirror or glass surface follows that chain too (worker.indirect_caustics.
     lensed_arrivals) to a point y', whose light (gathered like y's, its own chain in turn)
@@ -334,7 +336,7 @@ def lensed_levels(scene: Scene, geom: Geometry, lights: LightSampler, lensed: Ar
     return batches, skies
 
 
-def carry_batches(batches: list, albedo: np.ndarray, irr: np.ndarray) -> None:
+def carry_batches(batches: list[tuple[Levels, int]], albedo: np.ndarray, irr: np.ndarray) -> None:
     """Add each level's light to its parents' irradiance, in place. ``batches``: [(levels, first
     row)] (:func:`find_levels`' Levels; rows from ``first row`` on of ``albedo``/``irr``, the
     end points before them): a batch's first level sends its light to rows of the end points or

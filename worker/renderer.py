@@ -173,6 +173,7 @@ class Renderer:
         # Per view: importance sampling on? (pilot), the camera pool, the portals, the emitter
         # choice; the most recent views only (a drag visits a new view every frame).
         self._views: OrderedDict[tuple, object] = OrderedDict()
+        self._caustic_shares: dict[tuple, float] = {}  # per (photons, chain length): photon_count
         self.importance_notes = ""
         self.portal_notes = ""
         self.emitter_notes = ""
@@ -302,9 +303,13 @@ class Renderer:
         share from a pilot set, once per scene and chain length) — not on a moving view's frames."""
         if params.photon_share <= 0 or params.photons <= 0 or params.moving_camera:
             return params.photons  # (a moving view's frame is shown once: its frame rate counts)
-        key = ("caustic share", self.scene_version, params.photons, params.specular_depth)
-        share, _fresh = self._per_view(key, lambda: caustic_share(self.scene, self.geom, self.lights, params.photons,
-                                                                  params.specular_depth, self._specular_targets))
+        key = (params.photons, params.specular_depth)
+        share = self._caustic_shares.get(key)
+        if share is None:  # (two threads may both measure it: both get the same share)
+            with self._set_time():
+                share = caustic_share(self.scene, self.geom, self.lights, params.photons, params.specular_depth,
+                                      self._specular_targets)
+            self._caustic_shares[key] = share
         return boosted_photons(params.photons, share, params.photon_share)
 
     def photon_set(self, seed: int, k: int, params: Params, index: int = 0) -> PhotonSet:

@@ -199,6 +199,9 @@ def test_boosted_photons_grow_with_the_square_of_the_caustic_share_up_to_the_bou
     assert boosted_photons(500, 0.05, 0.1) == 500  # at most the reference share: the count as given
     assert boosted_photons(500, 0.1, 0.1) == 500
     assert boosted_photons(500, 0.2, 0.1) == 2000  # twice the share: four times the photons
+    # in steps of √2: a pilot's last digits do not move the count (and every photon of a set)
+    assert boosted_photons(500, 0.14, 0.1) == boosted_photons(500, 0.1414, 0.1) == 1000
+    assert boosted_photons(500, 0.17, 0.1) == round(500 * 2 ** 1.5)
     assert boosted_photons(500, 0.9, 0.1) == 500 * PHOTON_BOOST_MAX
     assert boosted_photons(500, 0.9, 0.0) == 500  # photon_share 0: off
     assert boosted_photons(90000, 0.9, 0.1) == PARAM_BY_NAME["photons"].max

@@ -120,7 +120,8 @@ def test_a_caustic_photon_in_a_smooth_plastics_mirror_direction_is_no_spike_wher
     from igi.worker.hash_grid import HashGrid
     from igi.worker.renderer import Renderer
     from igi.common import bsdf
-    from igi.worker.final_gather import Arrivals, final_gather
+    from igi.worker.arrivals import Arrivals
+    from igi.worker.final_gather import final_gather
     from igi.worker.shading import BSDFRays, EndPoints
     from igi.worker.vpl import _empty_set
 

@@ -30,7 +30,7 @@ def find_levels(P, reflects, atlas, closest, rng, center, eps, ulps, reach_all, 
                 clamp_d2, short, max_depth, roulette_level, max_level, first, points, prow, level_stop, rays, hits,
                 ray_stop) -> int:
     """Every level's points from the ``first`` arrivals (position, ns, ng, material, uv, t,
-    direction, segments, parent, factor, level: worker.final_gather.Arrivals' fields) into
+    direction, segments, parent, factor, level: worker.arrivals.Arrivals' fields) into
     ``points`` (the same fields, then wo), level by level: a point is kept where its material
     row reflects (``reflects``: not mirror/glass, not NULL); ``level_stop[i]`` ends level i.
     Each level's points with a segment left sample a ray (u1 then u2 drawn from ``rng``) into
@@ -38,8 +38,9 @@ def find_levels(P, reflects, atlas, closest, rng, center, eps, ulps, reach_all, 
     into ``hits`` (common.kernels.ray_packets.hit_buffers), unbounded where it may reach an
     emitter (``reach_all``, or it meets an emitter sphere) or a mirror/glass object whose
     chain the point follows (it meets a sphere of ``lens_c``, ``lens_r2``; none: no chain),
-    else ``short`` far for a point of compensation level > 0 and 0 far otherwise. Its near hits (closer than √clamp_d2, not a
-    delta sample, a segment left; from ``roulette_level`` on each goes on with probability 1/2)
+    else ``short`` far for a point of compensation level > 0 and 0 far otherwise. Its near hits
+    (closer than √clamp_d2, not a delta sample, a segment left; from ``roulette_level`` on each
+    goes on with probability 1/2)
     are the next level's arrivals. A point reads its material's row of P (``prow[n]``), or, on
     a material with bitmap textures (``atlas``: common.bsdf.texture_atlas), a row of its own
     past the materials' (P holds room for every point) with the textures looked up at its uv.
