@@ -72,6 +72,28 @@ def test_two_workers_equal_one_worker_and_local(scene, procs):
     assert np.array_equal(one, ref) and np.array_equal(two, one), "expected bit-identical"
 
 
+def test_workers_boost_the_photons_of_a_caustic_lit_scene_as_this_process_does(procs):
+    """cornell-box-water (a third of the lamp's flux ends in caustics): each worker process
+    measures the caustic share from its own pilot set and boosts its photon sets 16x; two
+    workers' image is this process's, bit for bit, so every process took the same count (a
+    different count would move every photon of a set)."""
+    from igi.common.loader import load_scene
+    from igi.worker.renderer import Renderer
+    from tests.support.paths import SHARED
+
+    water = load_scene(SHARED / "scenes" / "cornell-box-water" / "scene.xml")
+    params = {"indirect_vpls": 8}
+    assert Renderer(water).photon_count(make_params(**params)) > make_params().photons  # boosted here
+    ref = render_local(water, params, frames=2, width=W, height=H)
+    with Broker(water, bind="tcp://127.0.0.1:*") as broker:
+        procs.append(start_worker(broker.endpoint, "one"))
+        procs.append(start_worker(broker.endpoint, "two"))
+        assert broker.wait_for_workers(2, 60)
+        two = broker.render_sequence(params, frames=2, width=W, height=H)
+        assert all(n > 0 for n in per_worker(broker).values()), "both workers rendered"
+    assert np.array_equal(two, ref), "expected bit-identical"
+
+
 def local_frame_images(scene, pdict, count):
     """Reference: each frame's filtered image, rendered in this process."""
     from igi.worker.renderer import Renderer
