@@ -67,13 +67,19 @@ MIN_PHOTON_SHARE = 0.01  # a light's photons at least this share of photons_per_
 PILOT_PHOTONS = 2000  # caustic_share: photons a light at least (a share within ~2% on one set)
 
 
+def shooting_lights(scene: Scene, lights: LightSampler) -> list[int]:
+    """The emitters caustic photons leave: area, point and spot lights with power (none from
+    distant lights: docs/design-notes.md)."""
+    return [ei for ei, e in enumerate(scene.emitters) if e.kind in (AREA, POINT, SPOT) and lights.powers[ei] > 0]
+
+
 def caustic_share(scene: Scene, geom: Geometry, lights: LightSampler, photons_per_light: int, max_bounces: int,
                   targets: tuple | None = None) -> float:
     """The share of the shooting lights' flux (luminance) that a pilot photon set (seed 0,
     block 0, at least PILOT_PHOTONS photons a light) stores as caustics: deterministic, so
     every worker finds the same share (as every worker builds the same VPL sets: given the
     same ray answers). 0 without specular surfaces or shooting lights."""
-    shooting = [ei for ei, e in enumerate(scene.emitters) if e.kind in (AREA, POINT, SPOT) and lights.powers[ei] > 0]
+    shooting = shooting_lights(scene, lights)
     total = float(lights.powers[shooting].sum()) if shooting else 0.0
     if photons_per_light <= 0 or total <= 0:
         return 0.0
@@ -140,8 +146,7 @@ def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: 
     # Each light's photons from its own rows of the stream; everything after is per photon,
     # so all lights are emitted in one pass (same values as light by light). Set k's rows are
     # chunk k of the frame's stream: a frame's sets together are one Sobol prefix.
-    shooting = [ei for ei, e in enumerate(scene.emitters)
-                if e.kind in (AREA, POINT, SPOT) and lights.powers[ei] > 0]  # distant: see docs
+    shooting = shooting_lights(scene, lights)
     if not shooting:
         return [_empty(float(r)) for r in radii_of]
     counts = photon_counts(lights.powers[shooting], photons_per_light)

@@ -284,9 +284,8 @@ def final_gather(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoi
     if photons is not None and len(photons):
         with stage("photon gather"):
             irr += gather_photons(points, photons, albedo, max_depth)
-    for start, sky in skies:  # the environment seen through a point's chain
-        rows = slice(start, start + len(sky))
-        irr[rows] += bsdf.finite_or_zero(sky / np.maximum(albedo[rows], 1e-6))
+    for start, sky in skies:
+        add_sky(irr, albedo, sky, start)
     if batches:
         carry_batches(batches, albedo, irr)
     e = len(end)
@@ -345,15 +344,23 @@ def carry_batches(batches: list[tuple[Levels, int]], albedo: np.ndarray, irr: np
     albedo (summed in point order, as np.add.at sums; compiled: kernels.final_gather_levels.
     carry_level). Levels go newest first: a parent is always older than its children, so a
     point's light is complete (its own near points' and chains' in) when it is sent on."""
-    levels = []
+    levels = []  # (first row, parents' base row, parents, factors, gains)
     for found, base in batches:
         stops = base + np.cumsum([0, *found.sizes])
         for i in range(len(found.sizes)):
-            parent = found.parents[i] if i == 0 else found.parents[i] + stops[i - 1]
-            levels.append((int(stops[i]), parent, found.factors[i], found.gains[i]))
-    for start, parent, factor, g in reversed(levels):
-        flv.carry_level(start, 0, np.ascontiguousarray(parent, np.int64), np.ascontiguousarray(factor, np.float64),
-                        _NO_GAIN if g is None else g, albedo, irr)
+            levels.append((int(stops[i]), 0 if i == 0 else int(stops[i - 1]), found.parents[i], found.factors[i],
+                           found.gains[i]))
+    for start, parent_base, parent, factor, g in reversed(levels):
+        flv.carry_level(start, parent_base, np.ascontiguousarray(parent, np.int64),
+                        np.ascontiguousarray(factor, np.float64), _NO_GAIN if g is None else g, albedo, irr)
+
+
+def add_sky(irr: np.ndarray, albedo: np.ndarray, sky: np.ndarray, start: int = 0) -> None:
+    """The environment's radiance seen through points' mirror/glass chains (``sky``, (n, 3),
+    already weighted toward them) added to rows ``start`` … of ``irr``, per unit of albedo
+    (as the gather splits light); not finite: nothing."""
+    rows = slice(start, start + len(sky))
+    irr[rows] += bsdf.finite_or_zero(sky / np.maximum(albedo[rows], 1e-6))
 
 
 _NO_GAIN = np.zeros((0, 3))

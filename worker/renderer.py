@@ -28,7 +28,7 @@ from igi.common.sobol_stream import rng as make_rng
 from igi.common.specular import specular_targets
 
 from .caustics import PhotonSet, boosted_photons, build_photon_sets, caustic_share, default_radius
-from .final_gather import compensation_enabled, final_gather, near_arrivals
+from .final_gather import add_sky, compensation_enabled, final_gather, near_arrivals
 from .indirect_caustics import lensed_arrivals
 from .shading import LightMIS, lobe_light_count, trace_bsdf_rays, trace_eye
 from .kernels import tile_buffers
@@ -433,7 +433,7 @@ class Renderer:
                                    lensed=ends, specular_depth=params.specular_depth,
                                    targets=self._specular_targets if lensed else None)
         if sky is not None:
-            irr += bsdf.finite_or_zero(sky / np.maximum(albedo, 1e-6))
+            add_sky(irr, albedo, sky)
         refl = np.zeros((p, 3))
         irr_buf = np.zeros((p, 3))
         unf = eye.unfiltered

@@ -555,14 +555,11 @@ def _gather_packets(geom: Geometry, end: EndPoints, cols: "_VPLColumns", max_dep
     return True
 
 
-_NO_LOBES = np.zeros((0, vg.LOBE_FIELDS), np.float32)
-
-
 def _lobes(row: np.ndarray, receivers: "_Receivers", sl: slice, roulette: tuple | None) -> np.ndarray:
     """The chunk's glossy rows' lobes, which shape the shadow roulette's guesses of their pairs'
     light (kernels.vpl_gather.lobe_rows): none without a roulette or a glossy row."""
     if roulette is None or not np.any(row == vg.ROW_GLOSSY):
-        return _NO_LOBES
+        return vg.NO_LOBES
     P, end_row = receivers.packed
     out = np.empty((len(row), vg.LOBE_FIELDS), np.float32)
     vg.lobe_rows(P, end_row[sl], row, receivers.wi[sl], receivers.ns[sl], out)

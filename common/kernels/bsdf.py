@@ -29,6 +29,7 @@ import math
 
 from numba import njit
 
+from igi.common.lights import LUMINANCE_WEIGHTS
 from igi.common.scene import (
     CONDUCTOR,
     DIELECTRIC,
@@ -42,6 +43,8 @@ from igi.common.scene import (
 )
 
 from .texture import texel
+
+_WR, _WG, _WB = LUMINANCE_WEIGHTS  # (frozen into the kernels as constants)
 
 INV_PI = 1.0 / math.pi
 INV_SQRT_PI = 1.0 / math.sqrt(math.pi)
@@ -485,8 +488,8 @@ def eval_pdf(P, i: int, wix: float, wiy: float, wiz: float, wox: float, woy: flo
 
 @njit(**_KERNEL, inline="always")
 def _luminance(r: float, g: float, b: float) -> float:
-    """Y of an RGB value (common.lights.LUMINANCE_WEIGHTS)."""
-    return 0.212671 * r + 0.715160 * g + 0.072169 * b
+    """Y of an RGB value."""
+    return _WR * r + _WG * g + _WB * b
 
 
 @njit(**_KERNEL, inline="always")

@@ -265,7 +265,7 @@ def test_glossy_rows_drawn_by_their_lobes_trace_fewer_rays_with_less_roulette_va
     runs, rays = {}, {}
     for guess in ("lobe", "flat"):
         if guess == "flat":
-            monkeypatch.setattr(shading, "_lobes", lambda *_a: shading._NO_LOBES)
+            monkeypatch.setattr(shading, "_lobes", lambda *_a: shading.vg.NO_LOBES)
         out = [light((1.0, seed)) for seed in range(200)]
         runs[guess] = np.array([o[0] for o in out])[:, glossy]
         rays[guess] = np.mean([o[1] for o in out])

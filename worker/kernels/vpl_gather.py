@@ -230,6 +230,7 @@ def _coat_weight(v, cos_x, tables, g, inv_t):
 # A glossy row's lobe as its roulette guess takes it (:func:`lobe_rows`): the eye direction
 # (world, unit), its |cos θ| to the shading normal, then common.kernels.bsdf.lobe_shape's six.
 LOBE_FIELDS = 10
+NO_LOBES = np.zeros((0, LOBE_FIELDS), np.float32)  # no glossy row's lobe: the roulette's flat guesses
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)

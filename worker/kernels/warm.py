@@ -213,10 +213,10 @@ def _stage_call(vpl_gather) -> None:
 
     a = _empty_args(vpl_scoring.scored_draws)
     staging = np.zeros((1, 0), np.float32)
-    vpl_gather._stage(0, 0, *a[0:7], *a[20:25], *a[7:20], a[25], 0.0, 0, 0, _no_lobes(), np.zeros((0, 4), np.float32),
-                      np.zeros(1, np.int64), staging, staging.copy(), np.zeros((1, 3), np.float32),
-                      np.zeros(1, np.bool_), *(np.zeros(0, np.float32) for _ in range(6)), np.zeros(0, np.int32),
-                      np.zeros(0, np.uint64), _stage_block(1, 0))
+    vpl_gather._stage(0, 0, *a[0:7], *a[20:25], *a[7:20], a[25], 0.0, 0, 0, vpl_gather.NO_LOBES,
+                      np.zeros((0, 4), np.float32), np.zeros(1, np.int64), staging, staging.copy(),
+                      np.zeros((1, 3), np.float32), np.zeros(1, np.bool_), *(np.zeros(0, np.float32) for _ in range(6)),
+                      np.zeros(0, np.int32), np.zeros(0, np.uint64), _stage_block(1, 0))
 
 
 def _lambert_columns_call(vpl_gather) -> None:
@@ -226,7 +226,8 @@ def _lambert_columns_call(vpl_gather) -> None:
     vpl_gather._lambert_columns(0, 0, np.zeros((0, 3), f32), np.zeros((0, 3), f32), v, np.zeros(0, np.int8),
                                 np.zeros(0, np.int64), np.ones((1, 2)), np.zeros(0, np.int64), np.zeros(0), 0, 0, b,
                                 v, b.copy(), v, b.copy(), v, b.copy(), f32(0.0),
-                                np.zeros(0), 0.0, 0, 0, _no_lobes(), np.zeros((0, 1), f32), np.zeros((0, 1), f32),
+                                np.zeros(0), 0.0, 0, 0, vpl_gather.NO_LOBES, np.zeros((0, 1), f32),
+                                np.zeros((0, 1), f32),
                                 *(np.zeros(0, f32) for _ in range(6)),
                                 np.zeros(0, np.int32), np.zeros(0, np.uint32), _stage_block(1, 0))
 
@@ -240,13 +241,6 @@ def _stage_block(rows: int, width: int) -> tuple:
             np.zeros(rows, np.int64), np.zeros((width, rows), f32))
 
 
-def _no_lobes() -> np.ndarray:
-    """No glossy row's lobe (vpl_gather.lobe_rows): the roulette's flat guesses."""
-    from igi.worker.kernels import vpl_gather
-
-    return np.zeros((0, vpl_gather.LOBE_FIELDS), np.float32)
-
-
 def _pair_weights_call(vpl_gather) -> None:
     """vpl_gather.pair_weights (the gather's array path) on empty inputs of the types
     shading._pair_rays passes it."""
@@ -255,9 +249,9 @@ def _pair_weights_call(vpl_gather) -> None:
     a = _empty_args(vpl_scoring.scored_draws)
     i64, f32 = np.zeros(0, np.int64), np.zeros(0, np.float32)
     f32x3 = np.zeros((0, 3), np.float32)
-    vpl_gather.pair_weights(*a[0:20], np.float32(0.0), *a[20:26], 0.0, 0, 0, _no_lobes(), np.zeros((0, 4), np.float32),
-                            np.zeros(1, np.int64), i64, i64.copy(), f32, f32.copy(), f32x3, f32x3.copy(), f32.copy(),
-                            np.zeros(0, np.bool_))
+    vpl_gather.pair_weights(*a[0:20], np.float32(0.0), *a[20:26], 0.0, 0, 0, vpl_gather.NO_LOBES,
+                            np.zeros((0, 4), np.float32), np.zeros(1, np.int64), i64, i64.copy(), f32, f32.copy(),
+                            f32x3, f32x3.copy(), f32.copy(), np.zeros(0, np.bool_))
 
 
 def _bsdf_calls() -> dict:
