@@ -4,16 +4,19 @@ docs/scaling.md; the paper's §4.3 "quantized and compressed").
 Layout after a 12-byte header (magic b"IGTB", version, flags, pixel count P):
 an lz4 frame (xxh32 checksum on each compressed block) holding, planar and byte-shuffled,
   reflectance, irradiance, unfiltered  3 x float16 each  (clamped to +-65504, NaN -> 0)
+  lobe (only with flag FLAG_LOBE)      3 x float16       (negative: no lobe at the pixel)
   depth                                float32            (NaN -> inf = miss)
   normal                               2 x int16           octahedral, snorm16
-= 26 bytes per pixel before compression. Within a section the items run channel by channel
-(all P red values, then all green, ...; for normals all x codes, then all y), pixels in tile
-order, and the section is byte-shuffled (all first bytes of its items, then all second
-bytes, ...): the slowly varying exponent bytes lie together, which is what lz4 can exploit,
-and the decode reads every channel's bytes at unit stride.
+= 26 bytes per pixel before compression, 32 with the lobe. Within a section the items run
+channel by channel (all P red values, then all green, ...; for normals all x codes, then all
+y), pixels in tile order, and the section is byte-shuffled (all first bytes of its items,
+then all second bytes, ...): the slowly varying exponent bytes lie together, which is what
+lz4 can exploit, and the decode reads every channel's bytes at unit stride.
 
-Version 2 (channels apart) replaced version 1 (channels interleaved per pixel): the decode's
-stride-3 gathers took ~60% of the master's decode.
+Version 3 added the optional lobe section (a split glossy coat's radiance, filtered apart from
+the irradiance); a task without lobes sends exactly version 2's payload. Version 2 (channels
+apart) replaced version 1 (channels interleaved per pixel): the decode's stride-3 gathers took
+~60% of the master's decode.
 """
 from __future__ import annotations
 
@@ -22,13 +25,15 @@ import struct
 import lz4.frame
 import numpy as np
 
-from igi.common.frame import TileBuffers
+from igi.common.frame import NO_LOBE, TileBuffers
 
 MAGIC = b"IGTB"
-VERSION = 2
-_HEADER = struct.Struct("<4sBBHI")  # magic, version, flags (0), reserved (0), pixel count
+VERSION = 3
+_HEADER = struct.Struct("<4sBBHI")  # magic, version, flags, reserved (0), pixel count
 HEADER_SIZE = _HEADER.size
+FLAG_LOBE = 0x01  # the payload holds the lobe section
 BYTES_PER_PIXEL = 3 * 3 * 2 + 4 + 2 * 2
+LOBE_BYTES_PER_PIXEL = 3 * 2
 MAX_PIXELS = 1 << 26  # refuse headers that would make decode allocate absurd amounts
 
 _F16_MAX = float(np.finfo(np.float16).max)  # 65504
@@ -80,10 +85,20 @@ def to_f16(a: np.ndarray) -> np.ndarray:
     return h
 
 
-def _sections(p: int) -> list[tuple[str, np.dtype, int]]:
-    return [("reflectance", np.dtype("<f2"), 3 * p), ("irradiance", np.dtype("<f2"), 3 * p),
-            ("unfiltered", np.dtype("<f2"), 3 * p), ("depth", np.dtype("<f4"), p),
-            ("normal", np.dtype("<i2"), 2 * p)]
+def _sections(p: int, lobe: bool = False) -> list[tuple[str, np.dtype, int]]:
+    colour = ("reflectance", "irradiance", "unfiltered") + (("lobe",) if lobe else ())
+    return [(name, np.dtype("<f2"), 3 * p) for name in colour] + [("depth", np.dtype("<f4"), p),
+                                                                 ("normal", np.dtype("<i2"), 2 * p)]
+
+
+def payload_bytes(p: int, lobe: bool) -> int:
+    """Bytes of the decompressed payload of ``p`` pixels, with or without the lobe section."""
+    return p * (BYTES_PER_PIXEL + (LOBE_BYTES_PER_PIXEL if lobe else 0))
+
+
+def payload_has_lobe(p: int, raw: np.ndarray) -> bool:
+    """Whether a payload from :func:`decompress` holds the lobe section (its length says)."""
+    return p > 0 and len(raw) == payload_bytes(p, True)
 
 
 def encode(buffers: TileBuffers, compression_level: int = 0) -> bytes:
@@ -92,16 +107,18 @@ def encode(buffers: TileBuffers, compression_level: int = 0) -> bytes:
     if p > MAX_PIXELS:
         raise ValueError(f"{p} pixels exceed the codec limit of {MAX_PIXELS}")
     for name, shape in (("reflectance", (p, 3)), ("irradiance", (p, 3)), ("unfiltered", (p, 3)),
-                        ("depth", (p,)), ("normal", (p, 3))):
+                        ("lobe", (p, 3)), ("depth", (p,)), ("normal", (p, 3))):
         if np.shape(getattr(buffers, name)) != shape:
             raise ValueError(f"buffer {name} has shape {np.shape(getattr(buffers, name))}, expected {shape}")
     from igi.common.kernels.wire_encode import payload_into
 
-    colours = np.empty((3, p, 3), np.float32)
-    for i, name in enumerate(("reflectance", "irradiance", "unfiltered")):
+    lobe = buffers.has_lobe
+    names = ("reflectance", "irradiance", "unfiltered") + (("lobe",) if lobe else ())
+    colours = np.empty((len(names), p, 3), np.float32)
+    for i, name in enumerate(names):
         colours[i] = getattr(buffers, name)
     depth = np.ascontiguousarray(buffers.depth, dtype=np.float32).reshape(p)
-    raw = np.empty(BYTES_PER_PIXEL * p, np.uint8)
+    raw = np.empty(payload_bytes(p, lobe), np.uint8)
     # one compiled pass: float16 colours, depth, normals, each section byte-shuffled
     payload_into(colours, colours.view(np.uint32), depth, depth.view(np.uint32), oct_encode(buffers.normal), raw)
     # Checksums on the compressed blocks, not the content: a flipped byte is caught all the same
@@ -109,13 +126,14 @@ def encode(buffers: TileBuffers, compression_level: int = 0) -> bytes:
     # content checksum took 4 of a 640x480 frame's 7 ms of decompression on the master.
     body = lz4.frame.compress(raw, compression_level=compression_level, content_checksum=False,
                               block_checksum=True, store_size=True)
-    return _HEADER.pack(MAGIC, VERSION, 0, 0, p) + body
+    return _HEADER.pack(MAGIC, VERSION, FLAG_LOBE if lobe else 0, 0, p) + body
 
 
 def decompress(data: bytes, count: int | None = None) -> tuple[int, np.ndarray]:
     """Validate ``data`` and lz4-decompress it: (pixel count P, the raw payload as a uint8
-    array of P * BYTES_PER_PIXEL bytes, still planar and byte-shuffled — see
-    :func:`section_planes`). Raises ValueError exactly where :func:`decode` does."""
+    array of :func:`payload_bytes` bytes, still planar and byte-shuffled — see
+    :func:`section_planes`; :func:`payload_has_lobe` tells whether it holds the lobe section).
+    Raises ValueError exactly where :func:`decode` does."""
     mv = memoryview(data)
     if len(mv) < HEADER_SIZE:
         raise ValueError(f"tile data too short for a header ({len(mv)} < {HEADER_SIZE} bytes)")
@@ -124,13 +142,13 @@ def decompress(data: bytes, count: int | None = None) -> tuple[int, np.ndarray]:
         raise ValueError(f"not tile data: magic {bytes(magic)!r}, expected {MAGIC!r}")
     if version != VERSION:
         raise ValueError(f"tile data version {version}, this build reads version {VERSION}")
-    if flags or reserved:
+    if flags & ~FLAG_LOBE or reserved:
         raise ValueError(f"tile data header has unknown flags {flags:#x}/{reserved:#x}")
     if count is not None and p != count:
         raise ValueError(f"tile data holds {p} pixels, expected {count}")
     if p > MAX_PIXELS:
         raise ValueError(f"tile data announces {p} pixels, above the limit of {MAX_PIXELS}")
-    expected = p * BYTES_PER_PIXEL
+    expected = payload_bytes(p, bool(flags & FLAG_LOBE))
     dec = lz4.frame.LZ4FrameDecompressor()
     try:
         # max_length bounds the output: a payload inflating beyond the header's size is
@@ -149,12 +167,12 @@ def decompress(data: bytes, count: int | None = None) -> tuple[int, np.ndarray]:
     return p, np.frombuffer(raw, np.uint8)
 
 
-def section_offsets(p: int) -> dict[str, int]:
+def section_offsets(p: int, lobe: bool = False) -> dict[str, int]:
     """Byte offset of every section in a decompressed payload of ``p`` pixels (the layout in
     this module's docstring; each section is ``itemsize`` byte planes of its values)."""
     out = {}
     pos = 0
-    for name, dtype, n in _sections(p):
+    for name, dtype, n in _sections(p, lobe):
         out[name] = pos
         pos += n * dtype.itemsize
     return out
@@ -166,7 +184,7 @@ def section_planes(raw: np.ndarray, p: int) -> dict[str, np.ndarray]:
     order)."""
     out = {}
     pos = 0
-    for name, dtype, n in _sections(p):
+    for name, dtype, n in _sections(p, payload_has_lobe(p, raw)):
         size = n * dtype.itemsize
         out[name] = raw[pos:pos + size].reshape(dtype.itemsize, n // p if p else 1, p)
         pos += size
@@ -174,28 +192,34 @@ def section_planes(raw: np.ndarray, p: int) -> dict[str, np.ndarray]:
 
 
 def decode_into(raw: np.ndarray, p: int, h: int, w: int, n: int, y0: int, x0: int,
-                vals: np.ndarray, nrm: np.ndarray, depth: np.ndarray) -> None:
+                vals: np.ndarray, nrm: np.ndarray, depth: np.ndarray) -> bool:
     """Decode a payload of an h x w tile (``p`` = h·w pixels, from :func:`decompress`) into
-    planar float32 arrays: ``vals`` (9, H, W) reflectance, irradiance, unfiltered (x RGB),
-    ``nrm`` (3, H, W), ``depth`` (H, W); tile pixel (r, c) lands on (y0 + r·n, x0 + c·n).
+    planar float32 arrays: ``vals`` (12, H, W) reflectance, irradiance, unfiltered, lobe (x RGB;
+    the lobe NO_LOBE where the payload has none), ``nrm`` (3, H, W), ``depth`` (H, W); tile
+    pixel (r, c) lands on (y0 + r·n, x0 + c·n). Returns whether the payload held a lobe.
     Compiled (``common.kernels.wire_decode``); the layout is this module's."""
     global _decode_tile
     if _decode_tile is None:  # numba loads only when something decodes
         from igi.common.kernels.wire_decode import decode_tile as _decode_tile
-    if h * w != p or len(raw) != p * BYTES_PER_PIXEL:
+    lobe = payload_has_lobe(p, raw)
+    if h * w != p or len(raw) != payload_bytes(p, lobe):
         raise ValueError(f"tile {h}x{w} does not match {p} pixels / {len(raw)} bytes")
     H, W = depth.shape
     if p and not (0 <= y0 and y0 + (h - 1) * n < H and 0 <= x0 and x0 + (w - 1) * n < W
-                  and vals.shape == (9, H, W) and nrm.shape == (3, H, W)):
+                  and vals.shape == (12, H, W) and nrm.shape == (3, H, W)):
         raise ValueError(f"tile {h}x{w} at ({y0}, {x0}) step {n} is outside the {W}x{H} planes")
-    o_r, o_i, o_u, o_d, o_n = (p * o for o in _PIXEL_OFFSETS)
-    _decode_tile(raw, h, w, o_r, o_i, o_u, o_d, o_n, n, y0, x0, vals, nrm, depth.view(np.uint32))
+    o_r, o_i, o_u, o_l, o_d, o_n = (p * o for o in _PIXEL_OFFSETS[lobe])
+    _decode_tile(raw, h, w, o_r, o_i, o_u, o_l if lobe else -1, o_d, o_n, n, y0, x0, vals, nrm,
+                 depth.view(np.uint32), np.float32(NO_LOBE))
+    return lobe
 
 
 _decode_tile = None
-# Section offsets are linear in the pixel count: those of one pixel, in _sections' order.
-_PIXEL_OFFSETS = tuple(section_offsets(1)[name] for name in ("reflectance", "irradiance", "unfiltered",
-                                                             "depth", "normal"))
+# Section offsets are linear in the pixel count: those of one pixel, in _sections' order
+# (without, with the lobe; the lobe's offset without it is unused).
+_PIXEL_OFFSETS = tuple(tuple(section_offsets(1, lobe).get(name, 0) for name in
+                             ("reflectance", "irradiance", "unfiltered", "lobe", "depth", "normal"))
+                       for lobe in (False, True))
 
 
 def decode(data: bytes, count: int | None = None) -> TileBuffers:
@@ -210,10 +234,10 @@ def decode(data: bytes, count: int | None = None) -> TileBuffers:
 
 def decode_raw(p: int, raw: np.ndarray) -> TileBuffers:
     """TileBuffers of a payload from :func:`decompress`."""
-    vals = np.empty((9, 1, p), np.float32)
+    vals = np.empty((12, 1, p), np.float32)
     nrm = np.empty((3, 1, p), np.float32)
     depth = np.empty((1, p), np.float32)
     decode_into(raw, p, 1, p, 1, 0, 0, vals, nrm, depth)
     t = lambda a: np.ascontiguousarray(a[:, 0].T)
     return TileBuffers(reflectance=t(vals[0:3]), irradiance=t(vals[3:6]), unfiltered=t(vals[6:9]),
-                       depth=depth[0], normal=t(nrm))
+                       depth=depth[0], normal=t(nrm), lobe=t(vals[9:12]))

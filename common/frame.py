@@ -10,7 +10,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-BUFFER_NAMES = ("reflectance", "irradiance", "unfiltered", "depth", "normal")
+BUFFER_NAMES = ("reflectance", "irradiance", "unfiltered", "lobe", "depth", "normal")
+# A lobe value below zero: the pixel has no filtered lobe (radiance is never negative).
+NO_LOBE = -1.0
 SEED_MODULUS = 2**31  # frame seeds stay inside common.params' declared range
 
 
@@ -70,9 +72,21 @@ class TileBuffers:
     unfiltered: np.ndarray  # (P, 3) float32: emission seen, specular-chain emission, ...
     depth: np.ndarray  # (P,) float32: eye-path length to the end point (inf = miss)
     normal: np.ndarray  # (P, 3) float32: shading normal at the end point
+    # (P, 3) float32: a split glossy coat's lobe radiance, filtered on its own and added after
+    # the filter (not over the reflectance: a textured layer's would skew it); NO_LOBE where none
+    lobe: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.lobe is None:
+            self.lobe = np.full(np.shape(self.depth) + (3,), NO_LOBE, np.float32)
 
     def __len__(self) -> int:
         return len(self.depth)
+
+    @property
+    def has_lobe(self) -> bool:
+        """Whether any pixel carries a lobe (the wire then holds the lobe section)."""
+        return bool(len(self.lobe)) and bool(np.any(np.asarray(self.lobe)[:, 0] >= 0))
 
 
 @functools.lru_cache(maxsize=1024)

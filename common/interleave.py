@@ -58,8 +58,11 @@ def tile_slices(tile: Tile, n: int, width: int, height: int) -> tuple[slice, sli
     return slice(y0, y0 + (h - 1) * n + 1 if h else y0, n), slice(x0, x0 + (w - 1) * n + 1 if w else x0, n), h, w
 
 
-def _get(out_arrays, name: str) -> np.ndarray:
-    return out_arrays[name] if isinstance(out_arrays, Mapping) else getattr(out_arrays, name)
+def _get(out_arrays, name: str) -> np.ndarray | None:
+    """``out_arrays``'s buffer ``name``; None for the lobe where arrays keep none (it is optional)."""
+    if isinstance(out_arrays, Mapping):
+        return out_arrays.get(name) if name == "lobe" else out_arrays[name]
+    return getattr(out_arrays, name, None) if name == "lobe" else getattr(out_arrays, name)
 
 
 def scatter(tile: Tile, n: int, buffers: TileBuffers,
@@ -75,8 +78,10 @@ def scatter(tile: Tile, n: int, buffers: TileBuffers,
     if len(buffers) != h * w:
         raise ValueError(f"tile {tile} has {h * w} pixels in a {W}x{H} image, buffers have {len(buffers)}")
     for name in BUFFER_NAMES:
-        src = np.asarray(getattr(buffers, name))
         dst = _get(out_arrays, name)
+        if dst is None:
+            continue
+        src = np.asarray(getattr(buffers, name))
         dst[rows, cols] = src.reshape((h, w) + src.shape[1:])
 
 
@@ -86,7 +91,10 @@ def extract(tile: Tile, n: int, arrays: Mapping[str, np.ndarray] | TileBuffers) 
     rows, cols, h, w = tile_slices(tile, n, W, H)
     parts = {}
     for name in BUFFER_NAMES:
-        a = _get(arrays, name)[rows, cols]
+        a = _get(arrays, name)
+        if a is None:
+            continue
+        a = a[rows, cols]
         parts[name] = np.ascontiguousarray(a.reshape((h * w,) + a.shape[2:]))
     return TileBuffers(**parts)
 

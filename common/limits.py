@@ -29,7 +29,7 @@ from igi.common.params import boosted_photon_bound
 GiB = 1 << 30
 DEFAULT_BUDGET = 8 * GiB
 ENV = "IGI_MEMORY_BUDGET"
-BYTES_PER_PIXEL = 160  # master: float64 mean + even/odd halves, float32 layers, 8-bit encode; worker tile
+BYTES_PER_PIXEL = 172  # master: float64 mean + even/odd halves, float32 layers (lobe incl.), 8-bit encode; worker tile
 MAX_SIDE = 16384  # == common.protocol.MAX_IMAGE_SIDE
 MAX_FRAMES = 10_000_000
 MAX_COORD = 1e9  # camera coordinates beyond this lose every digit of a scene in float32

@@ -106,10 +106,9 @@ PARAMS: tuple[Param, ...] = (
           "the first hit: diffuse layer filtered, glossy lobe traced by one sampled ray",
           "filter", 0.0, 10.0),
     Param("filter_lobe_alpha", float, 0.1,
-          "a split plastic's glossy lobe at least this rough is filtered with its diffuse layer: the "
-          "lobe's radiance over the layer's reflectance joins the layer's irradiance, so the discontinuity "
-          "buffer averages the lobe's one sampled ray with its neighbours' (grey-white-room: 35% less "
-          "error at 8 s); smoother lobes (sharper reflections) stay unfiltered",
+          "a split plastic's glossy lobe at least this rough is filtered: the discontinuity buffer "
+          "averages the lobe's one sampled ray with those of its neighbours that have one, beside the "
+          "irradiance, and adds the result; smoother lobes (sharper reflections) stay unfiltered",
           "filter", 0.0, 10.0),
     # Eye paths
     Param("max_depth", int, -1, "path segments as in Mitsuba (-1 unlimited, 2 = direct only)", "path", -1, 64),

@@ -6,6 +6,10 @@ the pixel's own reflectance afterwards, so texture stays sharp while the noise o
 interleaved VPL/photon sets (§4.2) is averaged out. With a window equal to the interleave
 size n every set appears once in a smooth region, and the structured noise disappears.
 
+A split glossy coat's lobe (``TileBuffers.lobe``: one sampled ray per pixel, design note 3) is
+filtered beside the irradiance with the same neighbours, among those that have a lobe, and added
+after the compose: not over the reflectance, which a dark or textured layer makes a poor divisor.
+
 Windows: an odd window w uses offsets -(w//2) .. w//2 (centred). An even window w (an even
 interleave n) uses offsets -(w//2) .. w//2 - 1: an n x n block that holds every interleave
 set exactly once, at the price of a half-pixel shift of the filter footprint.

@@ -4,7 +4,8 @@
 full-frame buffers (sub-image pixel (sx, sy) of set k lands on image pixel
 (sx·n + k mod n, sy·n + k div n)), knows when every pixel has arrived, and produces the image:
 discontinuity buffer over the irradiance (window ``filter_window``, -1 → n), multiplied by the
-pixel's own reflectance, plus the unfiltered part (docs/design-notes.md, discontinuity buffer; paper §4.3).
+pixel's own reflectance, plus the split lobes (filtered beside the irradiance, over the neighbours
+that have one) and the unfiltered part (docs/design-notes.md, discontinuity buffer; paper §4.3).
 
 Two ways in, one image out: :meth:`FrameAssembler.add` takes decoded float buffers;
 :meth:`FrameAssembler.add_wire` (the broker) takes a task's wire bytes, lz4-decompresses them
@@ -26,7 +27,7 @@ import weakref
 import numpy as np
 
 from igi.common.codec import decode_into, decode_raw, decompress
-from igi.common.frame import Tile, TileBuffers
+from igi.common.frame import NO_LOBE, Tile, TileBuffers
 from igi.common.interleave import make_tiles, scatter, task_tile_size, tile_slices
 from igi.master.discontinuity_buffer import resolve_window, run_stripes, window_offsets
 from igi.master.kernels.discontinuity import finish_sub, plane_pad
@@ -44,6 +45,7 @@ SMALLEST_TASK_PIXELS = 4096  # ~20-50 ms of worker time at 22 VPLs on this machi
 LARGEST_TASK_PIXELS = 16384  # a whole 5x5 sub-image at 640x480
 TASKS_PER_THREAD = 4  # tasks per render thread among the frames in flight (balance, set affinity)
 DEFAULT_TASK_PIXELS = LARGEST_TASK_PIXELS  # the broker's and render_local's fixed size
+VALUE_NAMES = ("reflectance", "irradiance", "unfiltered", "lobe")  # the planes' 12 value channels, in order
 
 
 def task_pixels_for(pixels: int, threads: int, frames_in_flight: int) -> int:
@@ -129,7 +131,8 @@ class FrameAssembler:
             _, _, h, w = tile_slices(tile, self.n, self.width, self.height)
             k = tile.k
             q = wf.pad
-            decode_into(raw, p, h, w, 1, tile.sy0 + q, tile.sx0 + q, wf.vals[k], wf.nrm[k], wf.depth[k])
+            if decode_into(raw, p, h, w, 1, tile.sy0 + q, tile.sx0 + q, wf.vals[k], wf.nrm[k], wf.depth[k]):
+                wf.lobes = True
             wf.covered += p
         self._tiles.add(tile)
         self.received += count
@@ -157,8 +160,9 @@ class FrameAssembler:
         b = self.buffers
         pl = _Planes.acquire(self.width, self.height, 1)  # the frame in image order: one sub-image
         try:
-            for s, name in enumerate(("reflectance", "irradiance", "unfiltered")):
+            for s, name in enumerate(VALUE_NAMES):
                 pl.interior(pl.vals[0, 3 * s:3 * s + 3])[...] = b[name].transpose(2, 0, 1)
+            pl.lobes = bool(np.any(b["lobe"][..., 0] >= 0))
             pl.interior(pl.nrm[0])[...] = b["normal"].transpose(2, 0, 1)
             pl.interior(pl.depth[0])[...] = b["depth"]
             return pl.finish(window, w, p)
@@ -174,8 +178,8 @@ def _window_reach(window: int) -> tuple[int, int]:
 
 class _Planes:
     """A frame's decoded buffers as they arrive, per sub-image k of the interleave (a tile is
-    a rectangle of one, so its decode writes contiguous rows): ``vals`` (n², 9, SH, SW)
-    float32 reflectance, irradiance, unfiltered (x RGB), ``nrm`` (n², 3, SH, SW), ``depth``
+    a rectangle of one, so its decode writes contiguous rows): ``vals`` (n², 12, SH, SW)
+    float32 reflectance, irradiance, unfiltered, lobe (x RGB), ``nrm`` (n², 3, SH, SW), ``depth``
     (n², SH, SW), where SH x SW is the largest sub-image with a border of ``pad`` pixels all
     round. The image is made in row stripes that are filtered and composed in sub-image space
     (``master.kernels.discontinuity.finish_sub``).
@@ -203,10 +207,12 @@ class _Planes:
         K, q = n * n, self.pad
         self.sw, self.sh = -(-width // n), -(-height // n)
         SH, SW = self.sh + 2 * q, self.sw + 2 * q
-        self.vals = np.zeros((K, 9, SH, SW), np.float32)
+        self.vals = np.zeros((K, 12, SH, SW), np.float32)
+        self.vals[:, 9:12] = NO_LOBE
         self.nrm = np.zeros((K, 3, SH, SW), np.float32)
         self.depth = np.full((K, SH, SW), np.inf, np.float32)
         self.covered = 0  # pixels written since acquire
+        self.lobes = False  # a tile since acquire held split lobes
 
     def interior(self, a: np.ndarray) -> np.ndarray:
         """The view of a plane (or planes: the last two axes) without its border."""
@@ -221,6 +227,7 @@ class _Planes:
         if pl is None:
             pl = cls(width, height, n)
         pl.covered = 0
+        pl.lobes = False
         return pl
 
     @classmethod
@@ -243,7 +250,8 @@ class _Planes:
             missing[t.k, t.sy0:t.sy0 + h, t.sx0:t.sx0 + w] = False
         for k in range(len(missing)):
             vals, nrm = self.interior(self.vals[k]), self.interior(self.nrm[k])
-            vals[:, missing[k]] = 0.0
+            vals[:9, missing[k]] = 0.0
+            vals[9:, missing[k]] = NO_LOBE
             nrm[:, missing[k]] = 0.0
         self.interior(self.depth)[missing] = np.inf
         self.covered = self.width * self.height
@@ -262,6 +270,7 @@ class _Planes:
             wide = _Planes(self.width, self.height, self.n, plane_pad(lo, hi, self.n))
             for a, b in ((wide.vals, self.vals), (wide.nrm, self.nrm), (wide.depth, self.depth)):
                 wide.interior(a)[...] = self.interior(b)
+            wide.lobes = self.lobes
             return wide.finish(window, w, p)
         dt, nt = float(p["depth_threshold"]), float(p["normal_threshold"])
         flat = lambda a: a.reshape(a.shape[:-2] + (-1,))  # noqa: E731 - a view: the planes are contiguous
@@ -269,7 +278,7 @@ class _Planes:
         H, W, n, q, SW = self.height, self.width, self.n, self.pad, self.sw + 2 * self.pad
         img = np.empty((H, W, 3), np.float32)
         run_stripes(self.sh, W * n, lambda y0, y1: finish_sub(vals, nrm, depth, SW, n, q, H, W, y0, y1, use_filter,
-                                                              lo, hi, dt, nt, float(w), img))
+                                                              lo, hi, dt, nt, float(w), self.lobes, img))
         return img
 
     def to_buffers(self, b: dict[str, np.ndarray], tiles) -> None:
@@ -277,10 +286,10 @@ class _Planes:
 
         self.fill_missing(tiles)
         H, W = self.height, self.width
-        vals = np.empty((9, H, W), np.float32)
+        vals = np.empty((12, H, W), np.float32)
         nrm = np.empty((3, H, W), np.float32)
         gather_rows(self.vals, self.nrm, self.depth, self.n, self.pad, W, 0, H, vals, nrm, b["depth"])
-        for s, name in enumerate(("reflectance", "irradiance", "unfiltered")):
+        for s, name in enumerate(VALUE_NAMES):
             np.copyto(b[name], vals[3 * s:3 * s + 3].transpose(1, 2, 0))
         np.copyto(b["normal"], nrm.transpose(1, 2, 0))
 
@@ -298,6 +307,7 @@ def _empty_buffers(width: int, height: int) -> dict[str, np.ndarray]:
         "reflectance": np.zeros((height, width, 3), np.float32),
         "irradiance": np.zeros((height, width, 3), np.float32),
         "unfiltered": np.zeros((height, width, 3), np.float32),
+        "lobe": np.full((height, width, 3), NO_LOBE, np.float32),
         "depth": np.full((height, width), np.inf, np.float32),
         "normal": np.zeros((height, width, 3), np.float32),
     }

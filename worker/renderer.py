@@ -18,7 +18,7 @@ from scipy.special import gammaln
 
 from igi.common import bsdf
 from igi.common.camera import camera_rays, pixel_jitter
-from igi.common.frame import FrameSpec, Tile, TileBuffers, accumulation_index, frame_seed
+from igi.common.frame import NO_LOBE, FrameSpec, Tile, TileBuffers, accumulation_index, frame_seed
 from igi.common.geometry import Geometry
 from igi.common.lights import LightSampler
 from igi.common.params import Params, make_params
@@ -39,9 +39,6 @@ from .vpl_importance import (AUTO_ESS, CameraPool, View, build_importance_vpl_se
                              view_portals)
 
 DEFAULT_CLAMP = 1e-3  # minimum squared VPL distance, as a fraction of the squared scene diagonal
-# A split plastic's lobe joins its layer's filtered irradiance (params.filter_lobe_alpha) only where
-# the layer's reflectance is at least this in every channel: the lobe's radiance is divided by it.
-LOBE_REFLECTANCE_FLOOR = 0.02
 
 
 def radius_scale(index: int, params: Params) -> float:
@@ -446,16 +443,19 @@ class Renderer:
         tile_buffers.compose(np.ascontiguousarray(end.pixel, np.int64), end.main & filterable,
                              np.ascontiguousarray(albedo, np.float64), np.ascontiguousarray(end.throughput, np.float64),
                              np.ascontiguousarray(irr, np.float64), refl, irr_buf, unf)
-        # A split plastic's lobe (all of its pixel's unfiltered radiance) joins the layer's
-        # filtered irradiance where it is rough enough that the filter's blur stays inside it.
+        # A split plastic's lobe (all of its pixel's unfiltered radiance) is filtered on its own
+        # where it is rough enough that the filter's blur stays inside it: not over the layer's
+        # reflectance (a dark or textured layer's would amplify and skew it).
         carry = end.main & filterable & (kind == ROUGHPLASTIC_DIFFUSE) & (end.sp.alpha >= params.filter_lobe_alpha)
+        lobe = None
         if carry.any():
-            tile_buffers.filter_lobes(np.ascontiguousarray(end.pixel, np.int64), carry, refl, LOBE_REFLECTANCE_FLOOR,
-                                      irr_buf, unf)
+            lobe = np.full((p, 3), NO_LOBE)
+            tile_buffers.filter_lobes(np.ascontiguousarray(end.pixel, np.int64), carry, unf, lobe)
         return TileBuffers(
             reflectance=refl.astype(np.float32),
             irradiance=irr_buf.astype(np.float32),
             unfiltered=unf.astype(np.float32),
             depth=eye.depth.astype(np.float32),
             normal=eye.normal.astype(np.float32),
+            lobe=None if lobe is None else lobe.astype(np.float32),
         )

@@ -1,4 +1,4 @@
-"""Decode of a task's wire payload (common.codec, version 2), compiled: a tile's decompressed,
+"""Decode of a task's wire payload (common.codec, version 3), compiled: a tile's decompressed,
 byte-shuffled sections are converted channel by channel (float16 -> float32 exactly, depth
 from its 4 byte planes, octahedral snorm16 normals) and written to planar destination arrays —
 the master's per-sub-image planes (n = 1, tile pixel (r, c) at (y0 + r, x0 + c): each tile row
@@ -105,16 +105,24 @@ def _normal(xlo, ylo, xhi, yhi) -> tuple:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def decode_tile(raw, h, w, o_refl, o_irr, o_unf, o_depth, o_nor, n, y0, x0,
-                vals, nrm, depth_bits) -> None:
+def decode_tile(raw, h, w, o_refl, o_irr, o_unf, o_lobe, o_depth, o_nor, n, y0, x0,
+                vals, nrm, depth_bits, no_lobe) -> None:
     """Decode an h x w tile's payload ``raw`` (uint8, codec byte layout, section byte offsets
-    ``o_*``) into ``vals`` (9, H, W) float32 (reflectance, irradiance, unfiltered x RGB),
-    ``nrm`` (3, H, W) float32 and ``depth_bits`` (H, W) uint32 (the float32 depth's bits),
-    tile pixel (r, c) at (y0 + r n, x0 + c n). Row by row, channel by channel: with n = 1 (the
-    master's planes) every pass reads and writes at unit stride (vectorized)."""
+    ``o_*``; ``o_lobe`` -1: no lobe section) into ``vals`` (12, H, W) float32 (reflectance,
+    irradiance, unfiltered, lobe x RGB; the lobe ``no_lobe`` without its section), ``nrm``
+    (3, H, W) float32 and ``depth_bits`` (H, W) uint32 (the float32 depth's bits), tile pixel
+    (r, c) at (y0 + r n, x0 + c n). Row by row, channel by channel: with n = 1 (the master's
+    planes) every pass reads and writes at unit stride (vectorized)."""
     p = h * w
-    for s in range(3):
-        base = o_refl if s == 0 else (o_irr if s == 1 else o_unf)
+    if o_lobe < 0:
+        for c in range(9, 12):
+            dst = vals[c]
+            for r in range(h):
+                y = y0 + r * n
+                for x in range(w):
+                    dst[y, x0 + x * n] = no_lobe
+    for s in range(4 if o_lobe >= 0 else 3):
+        base = o_refl if s == 0 else (o_irr if s == 1 else (o_unf if s == 2 else o_lobe))
         for c in range(3):
             lo = raw[base + c * p:base + (c + 1) * p]
             hi = raw[base + (3 + c) * p:base + (4 + c) * p]

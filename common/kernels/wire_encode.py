@@ -1,4 +1,4 @@
-"""Encode side of the wire codec (common.codec, version 2), compiled: the octahedral snorm16
+"""Encode side of the wire codec (common.codec, version 3), compiled: the octahedral snorm16
 normals of a task's buffers, and the whole byte-shuffled payload (float16 colours, float32
 depth, the normals) written in one pass (:func:`payload_into`).
 
@@ -68,16 +68,16 @@ def f16_bits(x, b) -> int:
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def payload_into(colours, colour_bits, depth, depth_bits, normal_codes, out) -> None:
-    """The uncompressed wire payload of one task into ``out`` (uint8, 26 bytes a pixel):
-    ``colours`` (3, P, 3) float32 — reflectance, irradiance, unfiltered — as float16 (3P items
-    each), ``depth`` (P,) float32 with NaN as +inf, ``normal_codes`` (P, 2) int16; items channel
+    """The uncompressed wire payload of one task into ``out`` (uint8, 26 bytes a pixel, 32 with
+    the lobe): ``colours`` (3 or 4, P, 3) float32 — reflectance, irradiance, unfiltered[, lobe] —
+    as float16 (3P items each), ``depth`` (P,) float32 with NaN as +inf, ``normal_codes`` (P, 2) int16; items channel
     by channel (all P of channel 0, then channel 1, ...), each section byte-shuffled (all first
     bytes of its items, then all second bytes, ...). ``*_bits``: the float32 arrays' uint32
     views."""
     p = depth.shape[0]
     off = 0
     n = 3 * p
-    for part in range(3):
+    for part in range(colours.shape[0]):
         for c in range(3):
             lo = off + c * p
             hi = off + n + c * p

@@ -144,7 +144,7 @@ def _header(p, magic=MAGIC, version=VERSION, flags=0):
     (lambda d: d[:7], "too short"),
     (lambda d: b"XXXX" + d[4:], "magic"),
     (lambda d: d[:4] + b"\x09" + d[5:], "version"),
-    (lambda d: d[:5] + b"\x01" + d[6:], "flags"),
+    (lambda d: d[:5] + b"\x02" + d[6:], "flags"),
     (lambda d: d[:HEADER_SIZE], "truncated"),
     (lambda d: d[:-40], "truncated"),
     (lambda d: d[:-1], "truncated"),

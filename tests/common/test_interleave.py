@@ -84,7 +84,7 @@ def test_scatter_into_tilebuffers_of_frames_and_extract_round_trip():
         xs, ys = t.pixels(n, W, H)
         back = extract(t, n, full)
         ref = _buffers_for(xs, ys)
-        for name in ("reflectance", "irradiance", "unfiltered", "depth", "normal"):
+        for name in ("reflectance", "irradiance", "unfiltered", "lobe", "depth", "normal"):
             np.testing.assert_array_equal(getattr(back, name), getattr(ref, name))
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from igi.common.codec import (BYTES_PER_PIXEL, _F16_TO_F32, decode, decode_into, decode_raw, decompress,
-                          encode, oct_decode, section_offsets)
+                          encode, oct_decode, payload_bytes, section_offsets)
 from igi.common.frame import TileBuffers
 from igi.common.kernels.wire_decode import f16_to_f32
 from tests.support import oracle_codec as oc
@@ -29,12 +29,13 @@ def test_every_float16_code_converts_like_numpy():
     _same(out, _F16_TO_F32)
 
 
+@pytest.mark.parametrize("lobe", [False, True])
 @pytest.mark.parametrize("p", [0, 1, 7, 4096])
-def test_arbitrary_payload_bytes_decode_like_numpy(p):
+def test_arbitrary_payload_bytes_decode_like_numpy(p, lobe):
     rng = np.random.default_rng(p)
-    raw = rng.integers(0, 256, p * BYTES_PER_PIXEL).astype(np.uint8)
+    raw = rng.integers(0, 256, payload_bytes(p, lobe)).astype(np.uint8)
     a, b = decode_raw(p, raw), oc.decode_raw(p, raw)
-    for name in ("reflectance", "irradiance", "unfiltered", "depth", "normal"):
+    for name in ("reflectance", "irradiance", "unfiltered", "lobe", "depth", "normal"):
         _same(getattr(a, name), getattr(b, name))
 
 
@@ -50,11 +51,12 @@ def test_hostile_tile_buffers_round_trip_like_numpy():
 
     nrm = rnd((p, 3))
     nrm[::40] = 0.0
-    b = TileBuffers(rnd((p, 3)), rnd((p, 3)), rnd((p, 3)), rnd(p), nrm)
-    d = encode(b)
-    x, y = decode(d, p), oc.decode_raw(*decompress(d))
-    for name in ("reflectance", "irradiance", "unfiltered", "depth", "normal"):
-        _same(getattr(x, name), getattr(y, name))
+    for lobe in (None, rnd((p, 3))):
+        b = TileBuffers(rnd((p, 3)), rnd((p, 3)), rnd((p, 3)), rnd(p), nrm, lobe)
+        d = encode(b)
+        x, y = decode(d, p), oc.decode_raw(*decompress(d))
+        for name in ("reflectance", "irradiance", "unfiltered", "lobe", "depth", "normal"):
+            _same(getattr(x, name), getattr(y, name))
 
 
 def test_octahedral_decode_on_random_and_edge_codes():
@@ -69,20 +71,21 @@ def test_octahedral_decode_on_random_and_edge_codes():
     _same(oct_decode(q[:0]), oc.oct_decode(q[:0]))
 
 
+@pytest.mark.parametrize("lobe", [False, True])
 @pytest.mark.parametrize("n", [1, 3, 4])
-def test_decode_into_a_frame_with_a_step_places_every_pixel(n):
+def test_decode_into_a_frame_with_a_step_places_every_pixel(n, lobe):
     rng = np.random.default_rng(n)
     h, w = 5, 7
     p = h * w
-    raw = rng.integers(0, 256, p * BYTES_PER_PIXEL).astype(np.uint8)
+    raw = rng.integers(0, 256, payload_bytes(p, lobe)).astype(np.uint8)
     H, W = 2 + h * n, 3 + w * n
-    vals = np.full((9, H, W), 7.0, np.float32)
+    vals = np.full((12, H, W), 7.0, np.float32)
     nrm = np.full((3, H, W), 7.0, np.float32)
     depth = np.full((H, W), 7.0, np.float32)
-    decode_into(raw, p, h, w, n, 1, 2, vals, nrm, depth)
+    assert decode_into(raw, p, h, w, n, 1, 2, vals, nrm, depth) == lobe
     ref = oc.decode_raw(p, raw)
     at = (slice(1, 1 + (h - 1) * n + 1, n), slice(2, 2 + (w - 1) * n + 1, n))
-    for s, name in enumerate(("reflectance", "irradiance", "unfiltered")):
+    for s, name in enumerate(("reflectance", "irradiance", "unfiltered", "lobe")):  # no lobe: all NO_LOBE
         _same(np.ascontiguousarray(vals[3 * s:3 * s + 3][(slice(None),) + at].transpose(1, 2, 0)),
               getattr(ref, name).reshape(h, w, 3))
     _same(np.ascontiguousarray(nrm[(slice(None),) + at].transpose(1, 2, 0)), ref.normal.reshape(h, w, 3))
@@ -97,4 +100,7 @@ def test_decode_into_a_frame_with_a_step_places_every_pixel(n):
 def test_section_offsets_are_the_codec_layout():
     o = section_offsets(10)
     assert o == {"reflectance": 0, "irradiance": 60, "unfiltered": 120, "depth": 180, "normal": 220}
-    assert 220 + 40 == 10 * BYTES_PER_PIXEL
+    assert 220 + 40 == 10 * BYTES_PER_PIXEL == payload_bytes(10, False)
+    o = section_offsets(10, lobe=True)
+    assert o == {"reflectance": 0, "irradiance": 60, "unfiltered": 120, "lobe": 180, "depth": 240, "normal": 280}
+    assert 280 + 40 == payload_bytes(10, True)

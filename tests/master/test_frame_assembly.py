@@ -8,7 +8,7 @@ from igi.common.frame import TileBuffers
 from igi.common.params import make_params, params_to_dict
 from igi.master.accumulation import Accumulator, accumulation_key, jitter_for, sequence_spec
 from igi.master.frame_assembly import (LARGEST_TASK_PIXELS, SMALLEST_TASK_PIXELS, TASKS_PER_THREAD, FrameAssembler,
-                                       task_pixels_for, task_tiles, tile_pixel_count)
+                                       filter_weight, task_pixels_for, task_tiles, tile_pixel_count)
 
 
 @pytest.mark.parametrize("w,h,n,px", [(64, 48, 3, 4096), (65, 47, 3, 50), (7, 5, 4, 3), (2, 2, 3, 10), (640, 480, 3, 4096)])
@@ -69,6 +69,68 @@ def test_filter_window_one_is_reflectance_times_irradiance_plus_unfiltered():
     # the default window (interleave size) averages flat irradiance over 3x3 neighbours
     img3 = asm.image(make_params())
     assert not np.allclose(img3, img)
+
+
+def _lobe_reference(b: dict, window: int, dt: float, nt: float, w: float) -> np.ndarray:
+    """The split lobe's rule, written out per pixel: a pixel with a lobe averages its own and its
+    continuous neighbours' lobes (only those that have one), blends by w, and adds it (a miss adds
+    its own)."""
+    H, W = b["depth"].shape
+    offs = range(-(window // 2), window - window // 2)
+    out = np.zeros((H, W, 3), np.float64)
+    for y in range(H):
+        for x in range(W):
+            lc = b["lobe"][y, x]
+            if lc[0] < 0:
+                continue
+            dc, nc = b["depth"][y, x], b["normal"][y, x]
+            if not np.isfinite(dc):  # a miss keeps its own
+                out[y, x] = lc
+                continue
+            acc, cnt = lc.astype(np.float64), 1
+            for oy in offs:
+                for ox in offs:
+                    j, i = y + oy, x + ox
+                    if (oy or ox) and 0 <= j < H and 0 <= i < W and b["lobe"][j, i, 0] >= 0:
+                        d = b["depth"][j, i]
+                        if abs(d - dc) <= dt * dc and np.isfinite(d) and b["normal"][j, i] @ nc >= nt:
+                            acc, cnt = acc + b["lobe"][j, i], cnt + 1
+            out[y, x] = w * acc / cnt + (1 - w) * lc
+    return out
+
+
+@pytest.mark.parametrize("weight_index", [0, 100])
+def test_split_lobes_are_filtered_over_the_neighbours_that_have_one_and_added(weight_index):
+    """A lobe is averaged only with continuous neighbours that carry one (a diffuse material beside
+    it on the same plane must not dim it, nor get its reflection), then added over the compose;
+    the wire path (lobe section on some tiles only) and the float path give the same image."""
+    from igi.common.codec import encode
+
+    rng = np.random.default_rng(3)
+    w, h, n = 23, 17, 3
+    params = params_to_dict(make_params(interleave=n, consistent=True))
+    tiles = task_tiles(w, h, n, 12)
+    wire, copy, plain = FrameAssembler(w, h, n), FrameAssembler(w, h, n), FrameAssembler(w, h, n)
+    for t in tiles:
+        p = tile_pixel_count(t, n, w, h)
+        f = lambda: rng.random((p, 3), dtype=np.float32)  # noqa: E731
+        depth = np.where(rng.random(p) < 0.1, np.inf, 1.0 + 0.02 * rng.random(p)).astype(np.float32)
+        normal = np.tile(np.float32([0, 0, 1]), (p, 1))
+        normal[rng.random(p) < 0.1] = [1, 0, 0]
+        lobe = np.where(rng.random((p, 1)) < 0.6, 5.0 * f(), np.float32(-1.0)).astype(np.float32)
+        if t.k == 1:
+            lobe[:] = -1.0  # a tile without lobes: its payload has no lobe section
+        b = TileBuffers(f(), f(), f(), depth, normal, lobe)
+        wire.add_wire(t, encode(b))
+        copy.add_wire(t, encode(b))
+        plain.add_wire(t, encode(TileBuffers(b.reflectance, b.irradiance, b.unfiltered, depth, normal)))
+    bufs = copy.buffers  # as decoded (reading them turns ``copy`` into the float path)
+    img, img_plain, img_float = (a.image(params, weight_index) for a in (wire, plain, copy))
+    lobe = _lobe_reference(bufs, n, params["depth_threshold"], params["normal_threshold"],
+                           filter_weight(params, weight_index))
+    assert 0.4 < (bufs["lobe"][..., 0] >= 0).mean() < 0.7 and (lobe > 0).mean() > 0.4
+    np.testing.assert_allclose(img - img_plain, lobe, rtol=1e-5, atol=1e-5)
+    np.testing.assert_array_equal(img, img_float)
 
 
 def test_accumulator_mean_halves_and_reset():

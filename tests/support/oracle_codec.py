@@ -1,12 +1,12 @@
 """The numpy wire decode that common.kernels.wire_decode replaced (as written before issue 16,
-on codec version 2's layout: channels apart) and the numpy octahedral encode that
+on codec version 2's layout: channels apart; version 3's optional lobe section added) and the numpy octahedral encode that
 common.kernels.wire_encode replaced: test oracles, bit for bit the references of the compiled
 codec."""
 from __future__ import annotations
 
 import numpy as np
 
-from igi.common.codec import _SNORM, _ZERO_NORMAL, _sections
+from igi.common.codec import _SNORM, _ZERO_NORMAL, _sections, payload_has_lobe
 from igi.common.frame import TileBuffers
 
 # float16 -> float32 by table: numpy's cast is slow for subnormal inputs, a gather is not.
@@ -115,7 +115,7 @@ def decode_raw(p: int, raw: np.ndarray) -> TileBuffers:
     out = {}
     pos = 0
     raw_mv = memoryview(raw)
-    for name, dtype, n in _sections(p):
+    for name, dtype, n in _sections(p, payload_has_lobe(p, raw)):
         size = n * dtype.itemsize
         out[name] = _unshuffle(raw_mv[pos:pos + size], dtype, n)
         pos += size
@@ -127,6 +127,7 @@ def decode_raw(p: int, raw: np.ndarray) -> TileBuffers:
         unfiltered=f32(out["unfiltered"]),
         depth=out["depth"].astype(np.float32),
         normal=oct_decode(np.ascontiguousarray(out["normal"].reshape(2, p).T)),
+        lobe=f32(out["lobe"]) if "lobe" in out else None,
     )
 
 
@@ -135,7 +136,7 @@ def encode_numpy(buffers: TileBuffers, compression_level: int = 0) -> bytes:
     section through to_f16 / astype, byte-shuffled with a transpose, joined, lz4."""
     import lz4.frame
 
-    from igi.common.codec import _HEADER, MAGIC, VERSION, oct_encode, to_f16
+    from igi.common.codec import _HEADER, FLAG_LOBE, MAGIC, VERSION, oct_encode, to_f16
 
     def shuffle(a):
         b = np.ascontiguousarray(a).view(np.uint8).reshape(-1, a.dtype.itemsize)
@@ -144,9 +145,10 @@ def encode_numpy(buffers: TileBuffers, compression_level: int = 0) -> bytes:
     p = len(buffers)
     depth = np.asarray(buffers.depth, dtype=np.float32)
     depth = np.where(np.isnan(depth), np.float32(np.inf), depth)
-    parts = [to_f16(buffers.reflectance), to_f16(buffers.irradiance), to_f16(buffers.unfiltered),
-             depth.astype("<f4"), oct_encode(buffers.normal).astype("<i2")]
+    lobe = buffers.has_lobe
+    parts = ([to_f16(buffers.reflectance), to_f16(buffers.irradiance), to_f16(buffers.unfiltered)]
+             + ([to_f16(buffers.lobe)] if lobe else []) + [depth.astype("<f4"), oct_encode(buffers.normal).astype("<i2")])
     raw = b"".join(shuffle(a.T.reshape(-1)) for a in parts)  # channel by channel (version 2)
     body = lz4.frame.compress(raw, compression_level=compression_level, content_checksum=False, block_checksum=True,
                               store_size=True)
-    return _HEADER.pack(MAGIC, VERSION, 0, 0, p) + body
+    return _HEADER.pack(MAGIC, VERSION, FLAG_LOBE if lobe else 0, 0, p) + body

@@ -161,11 +161,12 @@ def test_a_tile_reports_the_seconds_it_spent_building_sets_and_none_when_they_we
     r.render_tile(spec, tiles[0])  # no timings asked for: nothing to report to
 
 
-def test_a_rough_split_lobe_joins_its_layers_filtered_irradiance_and_the_radiance_stays_the_same():
+def test_a_rough_split_lobe_is_filtered_on_its_own_and_the_radiance_stays_the_same():
     """params.filter_lobe_alpha: on cornell-box-glossy (smooth plastics of α 0.16 and 0.24, split at
-    the first hit), a lobe at least that rough leaves its pixel no unfiltered radiance — it is in
-    the irradiance the discontinuity buffer filters, over the layer's reflectance — and each
-    pixel's radiance (reflectance × irradiance + unfiltered) is the one the unfiltered lobe gives."""
+    the first hit), a lobe at least that rough leaves its pixel no unfiltered radiance — it is the
+    pixel's lobe, which the discontinuity buffer filters apart from the irradiance — and each
+    pixel's radiance (reflectance × irradiance + lobe + unfiltered) is the one the unfiltered lobe
+    gives; lobes below the threshold stay unfiltered (no lobe)."""
     from igi.bench.stress_scenes import load_shared
 
     scene = load_shared("cornell-box-glossy")
@@ -177,12 +178,13 @@ def test_a_rough_split_lobe_joins_its_layers_filtered_irradiance_and_the_radianc
         spec = sequence_spec(0, 0, cam, fov_x, w, h, params_to_dict(make_params(interleave=1, filter_lobe_alpha=alpha)))
         out[alpha] = Renderer(scene).render_tile(spec, tile)
     filtered, plain = out[0.1], out[10.0]
-    carried = np.any(plain.unfiltered > 0, axis=1) & ~np.any(filtered.unfiltered > 0, axis=1)
+    carried = filtered.lobe[:, 0] >= 0
     assert carried.sum() > 20  # the floor's and the blocks' lobes: not vacuous
-    assert np.all(filtered.irradiance[carried] >= plain.irradiance[carried])
+    assert not plain.has_lobe and not np.any(filtered.unfiltered[carried] > 0)
     np.testing.assert_array_equal(filtered.reflectance, plain.reflectance)
+    np.testing.assert_array_equal(filtered.irradiance, plain.irradiance)
 
     def radiance(b):
-        return b.reflectance.astype(np.float64) * b.irradiance + b.unfiltered
+        return b.reflectance.astype(np.float64) * b.irradiance + b.unfiltered + np.maximum(b.lobe, 0)
 
     np.testing.assert_allclose(radiance(filtered), radiance(plain), rtol=2e-3, atol=1e-6)

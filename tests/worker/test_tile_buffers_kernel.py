@@ -51,25 +51,24 @@ def test_no_end_points_leave_the_buffers_as_they_were():
     assert not refl.any() and not irr_buf.any() and np.all(unf == 1)
 
 
-def test_filter_lobes_moves_a_layer_pixels_unfiltered_radiance_into_its_irradiance_keeping_its_radiance():
-    """filter_lobes: at a pixel whose main end point is flagged (a split plastic's layer) and whose
-    reflectance is at least the floor in every channel, the unfiltered radiance moves into the
-    irradiance over the reflectance (reflectance × irradiance + unfiltered unchanged, unfiltered 0);
-    elsewhere — unflagged, or a channel below the floor — nothing moves."""
+def test_filter_lobes_moves_a_layer_pixels_unfiltered_radiance_to_its_lobe_keeping_its_radiance():
+    """filter_lobes: at a pixel whose main end point is flagged (a split plastic's layer) the
+    unfiltered radiance moves to the pixel's lobe whatever its reflectance (lobe + unfiltered
+    unchanged, unfiltered 0); unflagged pixels keep theirs and no lobe (NO_LOBE)."""
+    from igi.common.frame import NO_LOBE
+
     rng = np.random.default_rng(5)
     p = 400
     pixel = rng.permutation(p)  # one main end point a pixel
     carry = rng.random(p) < 0.5
-    refl, irr, unf = rng.random((p, 3)), rng.random((p, 3)) * 4, rng.random((p, 3)) * 2
-    refl[::7, 1] = 0.01  # below the floor in one channel
-    before = refl * irr + unf
-    irr2, unf2 = irr.copy(), unf.copy()
-    tile_buffers.filter_lobes(pixel, carry, refl, 0.02, irr2, unf2)
+    unf = rng.random((p, 3)) * 2
+    lobe = np.full((p, 3), NO_LOBE)
+    unf2 = unf.copy()
+    tile_buffers.filter_lobes(pixel, carry, unf2, lobe)
     moved = np.zeros(p, bool)
     moved[pixel[carry]] = True
-    moved &= np.all(refl >= 0.02, axis=1)
     assert moved.sum() > 100 and (~moved).sum() > 100  # both kinds of pixel exercised
-    np.testing.assert_allclose(refl * irr2 + unf2, before, rtol=1e-12)
+    np.testing.assert_array_equal(lobe[moved], unf[moved])
     assert not unf2[moved].any()
     np.testing.assert_array_equal(unf2[~moved], unf[~moved])
-    np.testing.assert_array_equal(irr2[~moved], irr[~moved])
+    assert np.all(lobe[~moved] == NO_LOBE)

@@ -26,16 +26,15 @@ def compose(pixel, main, albedo, throughput, irr, refl_out, irr_out, unf_out) ->
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def filter_lobes(pixel, carry, refl, floor, irr_out, unf_out) -> None:
+def filter_lobes(pixel, carry, unf_out, lobe_out) -> None:
     """Move the unfiltered radiance of each pixel whose main end point is flagged in ``carry``
-    (a split smooth plastic's diffuse layer: the pixel's unfiltered radiance is its lobe's) into
-    its filtered irradiance, over the pixel's reflectance ``refl`` — where every channel of that
-    is at least ``floor`` — so the discontinuity buffer averages the lobe with the layer."""
+    (a split smooth plastic's diffuse layer: the pixel's unfiltered radiance is its lobe's) to
+    its lobe (``lobe_out`` (P, 3), NO_LOBE elsewhere), which the discontinuity buffer averages
+    over the neighbours that have one."""
     for e in range(pixel.shape[0]):
         if not carry[e]:
             continue
         px = pixel[e]
-        if refl[px, 0] >= floor and refl[px, 1] >= floor and refl[px, 2] >= floor:
-            for c in range(3):
-                irr_out[px, c] += unf_out[px, c] / refl[px, c]
-                unf_out[px, c] = 0.0
+        for c in range(3):
+            lobe_out[px, c] = unf_out[px, c]
+            unf_out[px, c] = 0.0

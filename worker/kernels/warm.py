@@ -144,9 +144,9 @@ def _direct_calls() -> dict:
         "igi.worker.kernels.vpl_gather.accumulate": lambda: vpl_gather.accumulate(
             0, np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, bool),
             np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, bool), np.zeros((0, 3))),
-        # a split plastic's lobe filtered with its layer (the tiny scene has no plastic)
+        # a split plastic's lobe filtered on its own (the tiny scene has no plastic)
         "igi.worker.kernels.tile_buffers.filter_lobes": lambda: tile_buffers.filter_lobes(
-            np.zeros(0, np.int64), np.zeros(0, np.bool_), np.zeros((1, 3)), 0.02, np.zeros((1, 3)), np.zeros((1, 3))),
+            np.zeros(0, np.int64), np.zeros(0, np.bool_), np.zeros((1, 3)), np.zeros((1, 3))),
         # the environment guide's bins (the tiny scene has no sky)
         "igi.worker.kernels.environment_bins.direction_bins": lambda: environment_bins.direction_bins(
             np.zeros((0, 3)), np.zeros(0, np.int64)),
