@@ -14,7 +14,7 @@ then all second bytes, ...): the slowly varying exponent bytes lie together, whi
 lz4 can exploit, and the decode reads every channel's bytes at unit stride.
 
 Version 3 added the optional lobe section (a split glossy coat's radiance, filtered apart from
-the irradiance); a task without lobes sends exactly version 2's payload. Version 2 (channels
+the irradiance); a task without lobes sends version 2's section layout. Version 2 (channels
 apart) replaced version 1 (channels interleaved per pixel): the decode's stride-3 gathers took
 ~60% of the master's decode.
 """
@@ -117,6 +117,8 @@ def encode(buffers: TileBuffers, compression_level: int = 0) -> bytes:
     colours = np.empty((len(names), p, 3), np.float32)
     for i, name in enumerate(names):
         colours[i] = getattr(buffers, name)
+    if lobe:  # a red that is not >= 0 (NaN too) is no lobe: the wire would turn NaN into a lobe of 0
+        colours[3][~(colours[3][:, 0] >= 0)] = NO_LOBE
     depth = np.ascontiguousarray(buffers.depth, dtype=np.float32).reshape(p)
     raw = np.empty(payload_bytes(p, lobe), np.uint8)
     # one compiled pass: float16 colours, depth, normals, each section byte-shuffled

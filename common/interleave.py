@@ -80,6 +80,8 @@ def scatter(tile: Tile, n: int, buffers: TileBuffers,
     for name in BUFFER_NAMES:
         dst = _get(out_arrays, name)
         if dst is None:
+            if buffers.has_lobe:
+                raise ValueError("the tile has split lobes and the frame's arrays keep none")
             continue
         src = np.asarray(getattr(buffers, name))
         dst[rows, cols] = src.reshape((h, w) + src.shape[1:])

@@ -62,9 +62,10 @@ from typing import Any, Callable
 
 import msgpack
 
-# 2: RESULT's data in common.codec version 2 (channels apart); a version-1 peer is refused at
-# HELLO rather than having every tile refused as it arrives
-PROTOCOL_VERSION = 2
+# 3: RESULT's data in common.codec version 3 (an optional lobe section); 2: codec version 2
+# (channels apart). An older peer is refused at HELLO rather than having every tile refused as it
+# arrives
+PROTOCOL_VERSION = 3
 
 HELLO = "HELLO"
 WELCOME = "WELCOME"

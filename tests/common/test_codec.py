@@ -110,6 +110,39 @@ def test_round_trip_of_a_render_like_tile():
     assert _angle(out.normal.astype(np.float64), b.normal.astype(np.float64)).max() < 1e-4
 
 
+def test_split_lobes_round_trip_and_a_tile_without_sends_no_lobe_section():
+    """The lobe section travels only when a pixel has a lobe (flag FLAG_LOBE, 6 more bytes a
+    pixel before compression); lobes come back like the other colours, pixels without one (a red
+    below 0, NaN included: the wire would make NaN a lobe of 0) as NO_LOBE."""
+    import lz4.frame
+
+    from igi.common.codec import FLAG_LOBE, payload_bytes
+    from igi.common.frame import NO_LOBE
+
+    b = _render_like_tile()
+    p = len(b)
+    plain = encode(b)
+    assert plain[5] == 0 and len(lz4.frame.decompress(plain[HEADER_SIZE:])) == payload_bytes(p, False)
+    assert np.all(decode(plain, p).lobe == NO_LOBE)
+    rng = np.random.default_rng(2)
+    lobe = np.where(rng.random((p, 1)) < 0.5, rng.random((p, 3)) * 3, NO_LOBE).astype(np.float32)
+    lobe[0] = [np.nan, 1.0, 1.0]
+    b.lobe = lobe
+    data = encode(b)
+    assert data[5] == FLAG_LOBE and len(lz4.frame.decompress(data[HEADER_SIZE:])) == payload_bytes(p, True)
+    out = decode(data, p)
+    has = lobe[:, 0] >= 0
+    np.testing.assert_allclose(out.lobe[has], lobe[has], rtol=2.0 ** -11)
+    assert np.all(out.lobe[~has] == NO_LOBE)
+    for name in ("reflectance", "irradiance", "unfiltered", "depth"):
+        np.testing.assert_array_equal(getattr(out, name), getattr(decode(plain, p), name))
+    # the flag must match the payload: set on a plain one, cleared on a lobe one
+    with pytest.raises(ValueError, match="truncated"):
+        decode(plain[:5] + bytes([FLAG_LOBE]) + plain[6:], p)
+    with pytest.raises(ValueError, match="more than"):
+        decode(data[:5] + b"\x00" + data[6:], p)
+
+
 def test_compression_ratio_is_reported_and_beats_raw(capsys):
     b = _render_like_tile(p=96 * 48)
     data = encode(b)

@@ -12,7 +12,7 @@ SIZES = [(64, 48, 3, 5, 4), (67, 50, 3, 7, 3), (10, 7, 4, 2, 2), (5, 3, 8, 3, 3)
 def _full(H, W):
     return {"reflectance": np.zeros((H, W, 3), np.float32), "irradiance": np.zeros((H, W, 3), np.float32),
             "unfiltered": np.zeros((H, W, 3), np.float32), "depth": np.zeros((H, W), np.float32),
-            "normal": np.zeros((H, W, 3), np.float32)}
+            "normal": np.zeros((H, W, 3), np.float32), "lobe": np.zeros((H, W, 3), np.float32)}
 
 
 def _buffers_for(xs, ys):
@@ -21,7 +21,8 @@ def _buffers_for(xs, ys):
     return TileBuffers(reflectance=np.stack([pid, pid + 0.25, pid + 0.5], 1),
                        irradiance=np.stack([xs, ys, pid], 1).astype(np.float32),
                        unfiltered=np.full((P, 3), 1, np.float32), depth=pid,
-                       normal=np.stack([ys, xs, pid], 1).astype(np.float32))
+                       normal=np.stack([ys, xs, pid], 1).astype(np.float32),
+                       lobe=np.where((xs % 2)[:, None] == 1, np.stack([pid + 0.75, pid, xs], 1), -1.0).astype(np.float32))
 
 
 def test_set_index_matches_tile_convention():
@@ -86,6 +87,19 @@ def test_scatter_into_tilebuffers_of_frames_and_extract_round_trip():
         ref = _buffers_for(xs, ys)
         for name in ("reflectance", "irradiance", "unfiltered", "lobe", "depth", "normal"):
             np.testing.assert_array_equal(getattr(back, name), getattr(ref, name))
+
+
+def test_scatter_refuses_to_drop_split_lobes():
+    """Frame arrays without a lobe take tiles without one; a tile with lobes is refused, not cut."""
+    out = _full(10, 10)
+    del out["lobe"]
+    t = Tile(0, 0, 0, 2, 2)
+    xs, ys = t.pixels(3, 10, 10)
+    b = _buffers_for(xs, ys)
+    with pytest.raises(ValueError, match="lobes"):
+        scatter(t, 3, b, out)
+    b.lobe[:] = -1.0
+    scatter(t, 3, b, out)
 
 
 def test_scatter_rejects_wrong_pixel_count():

@@ -42,8 +42,9 @@ def test_the_encode_of_no_normals_is_empty():
     assert oct_encode(np.zeros((0, 3))).shape == (0, 2)
 
 
+@pytest.mark.parametrize("lobe", [False, True])
 @pytest.mark.parametrize("p", [0, 1, 7, 12288])
-def test_compiled_payload_encodes_the_same_bytes_as_numpy(p):
+def test_compiled_payload_encodes_the_same_bytes_as_numpy(p, lobe):
     """codec.encode's one-pass payload (wire_encode.payload_into) gives the numpy encoder's
     bytes exactly (tests/support/oracle_codec.encode_numpy): float16 normals and subnormals,
     overflow, ±inf, NaN colours, NaN and infinite depths, zero and NaN normals. (Every one of
@@ -67,5 +68,5 @@ def test_compiled_payload_encodes_the_same_bytes_as_numpy(p):
     if p > 3:
         depth[:3] = [np.nan, np.inf, 0.0]
         normal[:2] = [[0, 0, 0], [np.nan, 0, 1]]
-    b = TileBuffers(colours(), colours(), colours(), depth, normal)
+    b = TileBuffers(colours(), colours(), colours(), depth, normal, colours() if lobe else None)
     assert encode(b) == encode_numpy(b)

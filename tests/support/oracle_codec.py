@@ -146,8 +146,9 @@ def encode_numpy(buffers: TileBuffers, compression_level: int = 0) -> bytes:
     depth = np.asarray(buffers.depth, dtype=np.float32)
     depth = np.where(np.isnan(depth), np.float32(np.inf), depth)
     lobe = buffers.has_lobe
+    lobes = np.where(np.asarray(buffers.lobe)[:, :1] >= 0, buffers.lobe, np.float32(-1.0))  # NaN red: no lobe
     parts = ([to_f16(buffers.reflectance), to_f16(buffers.irradiance), to_f16(buffers.unfiltered)]
-             + ([to_f16(buffers.lobe)] if lobe else []) + [depth.astype("<f4"), oct_encode(buffers.normal).astype("<i2")])
+             + ([to_f16(lobes)] if lobe else []) + [depth.astype("<f4"), oct_encode(buffers.normal).astype("<i2")])
     raw = b"".join(shuffle(a.T.reshape(-1)) for a in parts)  # channel by channel (version 2)
     body = lz4.frame.compress(raw, compression_level=compression_level, content_checksum=False, block_checksum=True,
                               store_size=True)

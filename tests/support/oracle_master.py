@@ -412,6 +412,8 @@ class _WireFrame:
         self.nor[...] = _NO_NORMAL_BYTES[:, None, None, None, None]
 
     def put(self, tile: Tile, p: int, raw: np.ndarray) -> None:
+        if len(raw) != 26 * p:
+            raise ValueError("the numpy master reads codec payloads without a lobe section only")
         sw, sh = self.sizes[tile.k]
         w, h = min(tile.sx1, sw) - tile.sx0, min(tile.sy1, sh) - tile.sy0
         if w * h != p:
