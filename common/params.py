@@ -131,6 +131,11 @@ PARAMS: tuple[Param, ...] = (
     Param("filter_frames", int, 32,
           "accumulated frames after which the discontinuity buffer is faded out (-1: always filter)",
           "accumulate", -1, 100000),
+    Param("filter_guide", float, 2.0,
+          "edge stopping from the frames accumulated so far: a neighbour's irradiance is averaged only "
+          "while the earlier frames' means of it and of the pixel differ by at most this many standard "
+          "errors, so the discontinuity buffer stops blurring shadow edges as the frames learn them "
+          "(0: off)", "accumulate", 0.0, 100.0),
     Param("seed", int, 0, "seed of the first frame's Sobol scrambling", "accumulate", 0, 2**31 - 1, viewer=False),
 )
 

@@ -58,6 +58,7 @@ from igi.common.scene import Scene
 
 from . import scene_state
 from .accumulation import Accumulator, accumulation_key, sequence_spec
+from .edge_stopping import EdgeStoppingGuide
 from .frame_assembly import DEFAULT_TASK_PIXELS
 from .frame_loop import MAX_TASK_FAILURES, FrameLoop
 from .frames import FrameCancelled, FrameFailed, FrameResult, params_dict
@@ -319,6 +320,7 @@ class Broker:
         pdict = params_dict(params)
         frames = max(1, int(frames))
         acc = Accumulator()
+        guide = EdgeStoppingGuide()
         futures: collections.deque = collections.deque()
         nxt = 0
         image = None
@@ -327,7 +329,8 @@ class Broker:
                 futures.append(self.submit_frame(self.frame_spec(nxt, pdict, camera, width, height)))
                 nxt += 1
             res = futures.popleft().result(timeout)
-            acc.add(res.image(), accumulation_key(res.spec))
+            key = accumulation_key(res.spec)
+            acc.add(res.image(guide.track(key)), key)
             image = acc.mean()
             if on_frame is not None:
                 on_frame(i, image)

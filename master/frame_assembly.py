@@ -30,6 +30,7 @@ from igi.common.codec import decode_into, decode_raw, decompress
 from igi.common.frame import NO_LOBE, Tile, TileBuffers
 from igi.common.interleave import make_tiles, scatter, task_tile_size, tile_slices
 from igi.master.discontinuity_buffer import resolve_window, run_stripes, window_offsets
+from igi.master.edge_stopping import EdgeStoppingGuide
 from igi.master.kernels.discontinuity import finish_sub, plane_pad
 
 # Task size: every task pays a fixed cost per bounce of its eye paths and chains (~0.5 ms of small
@@ -46,6 +47,8 @@ LARGEST_TASK_PIXELS = 16384  # a whole 5x5 sub-image at 640x480
 TASKS_PER_THREAD = 4  # tasks per render thread among the frames in flight (balance, set affinity)
 DEFAULT_TASK_PIXELS = LARGEST_TASK_PIXELS  # the broker's and render_local's fixed size
 VALUE_NAMES = ("reflectance", "irradiance", "unfiltered", "lobe")  # the planes' 12 value channels, in order
+_NO_GUIDE = np.zeros((0, 0), np.float32)  # finish_sub's guide planes when a frame is not guided
+_NO_SUMS = np.zeros((0, 0), np.float64)  # finish_sub's guide sums when no guide learns
 
 
 def task_pixels_for(pixels: int, threads: int, frames_in_flight: int) -> int:
@@ -144,19 +147,25 @@ class FrameAssembler:
             weakref.finalize(self, _Planes.release, self._wire)
         return self._wire
 
-    def image(self, params, index: int = 0) -> np.ndarray:
+    def image(self, params, index: int = 0, guide: EdgeStoppingGuide | None = None) -> np.ndarray:
         """The filtered image (H, W, 3) float32, linear radiance, of accumulation frame ``index``.
 
         With ``consistent`` accumulation the discontinuity buffer's share fades after
         ``filter_frames`` frames: frame i uses w·filtered + (1-w)·raw irradiance with
         w = min(1, T/(i+1)), so the filter's blur (a bias no averaging removes) vanishes from
         the running mean like T·ln(N/T)/N, while the first frames stay smooth.
+
+        ``guide``: the accumulation's edge-stopping guide (``master.edge_stopping``; the caller
+        tracks its key): its earlier frames guide this frame's filter (``filter_guide``), and
+        this frame's raw irradiance is added to it. Ignored without accumulation.
         """
         p = params if isinstance(params, dict) else _asdict(params)
         window = resolve_window(int(p["filter_window"]), self.n)
         w = filter_weight(p, index)
+        if not p.get("accumulate", True):
+            guide = None  # every frame the same: nothing to learn
         if self._buffers is None:
-            return self._planes().image(self._tiles, window, w, p)
+            return self._planes().image(self._tiles, window, w, p, guide)
         b = self.buffers
         pl = _Planes.acquire(self.width, self.height, 1)  # the frame in image order: one sub-image
         try:
@@ -165,7 +174,7 @@ class FrameAssembler:
             pl.lobes = bool(np.any(b["lobe"][..., 0] >= 0))
             pl.interior(pl.nrm[0])[...] = b["normal"].transpose(2, 0, 1)
             pl.interior(pl.depth[0])[...] = b["depth"]
-            return pl.finish(window, w, p)
+            return pl.finish(window, w, p, guide)
         finally:
             _Planes.release(pl)
 
@@ -185,9 +194,11 @@ class _Planes:
     (``master.kernels.discontinuity.finish_sub``).
 
     The border and every cell outside a sub-image's own extent hold a miss (depth +inf, zero
-    values), written once when the planes are made; decodes write only inside. ``pad`` covers
+    values, NO_LOBE), written once when the planes are made; decodes write only inside. ``pad`` covers
     the widest window the parameters allow, so a frame's filter reads its neighbours across
     the image's edges without a bounds test.
+
+    ``lobes``: a tile since acquire held split lobes (the filter reads the lobe planes only then).
 
     Pooled per resolution (fresh multi-megabyte arrays cost page faults every frame): an
     assembler takes a set when its first tile arrives and gives it back when it is collected.
@@ -256,14 +267,15 @@ class _Planes:
         self.interior(self.depth)[missing] = np.inf
         self.covered = self.width * self.height
 
-    def image(self, tiles, window: int, w: float, p: dict) -> np.ndarray:
+    def image(self, tiles, window: int, w: float, p: dict, guide: EdgeStoppingGuide | None = None) -> np.ndarray:
         self.fill_missing(tiles)
-        return self.finish(window, w, p)
+        return self.finish(window, w, p, guide)
 
-    def finish(self, window: int, w: float, p: dict) -> np.ndarray:
-        """The image (H, W, 3): discontinuity filter (when ``w`` > 0 and the window > 1), the
-        fading blend (w < 1) and the compose, one compiled pass per block of sub-image rows on
-        ``master.parallel``'s threads (blocks write disjoint image rows)."""
+    def finish(self, window: int, w: float, p: dict, guide: EdgeStoppingGuide | None = None) -> np.ndarray:
+        """The image (H, W, 3): discontinuity filter (when ``w`` > 0 and the window > 1; with the
+        ``guide``'s edge stopping once it has learnt enough), the fading blend (w < 1) and the
+        compose, one compiled pass per block of sub-image rows on ``master.parallel``'s threads
+        (blocks write disjoint image rows); then the frame's raw irradiance goes to the guide."""
         use_filter = w > 0.0 and window > 1
         lo, hi = _window_reach(window)
         if use_filter and plane_pad(lo, hi, self.n) > self.pad:  # wider than the parameters allow
@@ -271,15 +283,33 @@ class _Planes:
             for a, b in ((wide.vals, self.vals), (wide.nrm, self.nrm), (wide.depth, self.depth)):
                 wide.interior(a)[...] = self.interior(b)
             wide.lobes = self.lobes
-            return wide.finish(window, w, p)
+            return wide.finish(window, w, p, guide)
         dt, nt = float(p["depth_threshold"]), float(p["normal_threshold"])
         flat = lambda a: a.reshape(a.shape[:-2] + (-1,))  # noqa: E731 - a view: the planes are contiguous
         vals, nrm, depth = flat(self.vals), flat(self.nrm), flat(self.depth)
         H, W, n, q, SW = self.height, self.width, self.n, self.pad, self.sw + 2 * self.pad
         img = np.empty((H, W, 3), np.float32)
+        gm, gt = self._guide_planes(guide, float(p.get("filter_guide", 0.0)) if use_filter else 0.0)
+        s1, s2 = (_NO_SUMS, _NO_SUMS) if guide is None else guide.learner((H, W))
         run_stripes(self.sh, W * n, lambda y0, y1: finish_sub(vals, nrm, depth, SW, n, q, H, W, y0, y1, use_filter,
-                                                              lo, hi, dt, nt, float(w), self.lobes, img))
+                                                              lo, hi, dt, nt, float(w), self.lobes, gm.size > 0,
+                                                              gm, gt, s1, s2, img))
+        if guide is not None:
+            guide.learnt()
         return img
+
+    def _guide_planes(self, guide: EdgeStoppingGuide | None, k: float) -> tuple[np.ndarray, np.ndarray]:
+        """The guide's mean and tolerance in the planes' layout ((n², cells) float32 each;
+        empty when the frame is not guided)."""
+        sums = None if guide is None else guide.sums(k, (self.height, self.width))
+        if sums is None:
+            return _NO_GUIDE, _NO_GUIDE
+        from igi.master.kernels.discontinuity import guide_planes
+
+        shape = (self.n * self.n, self.vals.shape[2] * self.vals.shape[3])
+        gm, gt = np.zeros(shape, np.float32), np.full(shape, np.inf, np.float32)  # outside: misses
+        guide_planes(sums[0], sums[1], float(sums[2]), k, self.n, self.pad, self.sw + 2 * self.pad, gm, gt)
+        return gm, gt
 
     def to_buffers(self, b: dict[str, np.ndarray], tiles) -> None:
         from igi.master.kernels.discontinuity import gather_rows

@@ -44,9 +44,10 @@ class FrameResult:
     def buffers(self) -> dict[str, np.ndarray]:
         return self.assembler.buffers
 
-    def image(self) -> np.ndarray:
-        """Filtered + composed image (discontinuity buffer), computed in the caller's thread."""
-        return self.assembler.image(self.spec.params, accumulation_index(self.spec))
+    def image(self, guide=None) -> np.ndarray:
+        """Filtered + composed image (discontinuity buffer), computed in the caller's thread;
+        ``guide``: the accumulation's ``master.edge_stopping.EdgeStoppingGuide``, if any."""
+        return self.assembler.image(self.spec.params, accumulation_index(self.spec), guide)
 
 
 @dataclass

@@ -20,6 +20,7 @@ from igi.common.params import make_params, params_to_dict
 from igi.common.scene import Scene
 
 from .accumulation import Accumulator, accumulation_key, sequence_spec
+from .edge_stopping import EdgeStoppingGuide
 from .frame_assembly import DEFAULT_TASK_PIXELS, FrameAssembler, task_tiles
 
 
@@ -58,14 +59,16 @@ def render_local(scene: Scene, params=None, frames: int = 1, camera=None,
     n = params.interleave
     tiles = task_tiles(w, h, n, task_pixels)
     acc = Accumulator()
+    guide = EdgeStoppingGuide()
     image = None
     for i in range(max(1, int(frames))):
         spec = sequence_spec(i, i, cam, fov_x, w, h, pdict, scene_version)
         asm = FrameAssembler(w, h, n)
         for tile in tiles:
             asm.add(tile, roundtrip(renderer.render_tile(spec, tile), quantize))
-        frame_img = asm.image(pdict, i if params.accumulate else 0)
-        acc.add(frame_img, accumulation_key(spec))
+        key = accumulation_key(spec)
+        frame_img = asm.image(pdict, i if params.accumulate else 0, guide.track(key))
+        acc.add(frame_img, key)
         image = acc.mean()
         if on_frame is not None:
             on_frame(i, image)

@@ -28,6 +28,7 @@ from igi.common.frame import FrameSpec
 from igi.common.params import make_params, params_to_dict
 
 from .accumulation import Accumulator, accumulation_key, sequence_spec
+from .edge_stopping import EdgeStoppingGuide
 from .frame_loop import FrameLoop
 from .frames import FrameCancelled, FrameResult, params_dict
 from .scene_state import SceneState
@@ -70,6 +71,7 @@ class Stream:
         self._finisher_q: queue.SimpleQueue = queue.SimpleQueue()
         self._finisher: threading.Thread | None = None
         self._acc = Accumulator()
+        self._guide = EdgeStoppingGuide()  # the finisher thread's alone
         self._latest: StreamFrame | None = None
         self._latest_cond = threading.Condition()
         self._seq = 0
@@ -209,10 +211,11 @@ class Stream:
                 log.exception("publishing frame %d failed", res.spec.frame)
 
     def _publish(self, res: FrameResult, gen: int) -> None:
-        img = res.image()
+        key = (gen, accumulation_key(res.spec))
+        img = res.image(self._guide.track(key))
         if gen != self.gen:
             return
-        count = self._acc.add(img, (gen, accumulation_key(res.spec)))
+        count = self._acc.add(img, key)
         with self._latest_cond:
             self._seq += 1
             sf = StreamFrame(seq=self._seq, image=self._acc.mean(), frame_image=img, accumulated=count,

@@ -30,6 +30,10 @@ import math
 import numpy as np
 from numba import njit
 
+from igi.common.lights import LUMINANCE_WEIGHTS
+
+_LR, _LG, _LB = (np.float32(c) for c in LUMINANCE_WEIGHTS)
+
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _filter_row(irr, i0, nrm, depth, y, lo, hi, t, nt, acc, cnt, dlo, dhi) -> None:
@@ -103,6 +107,54 @@ def _add_offset(dj, m0, m1, m2, v0, v1, v2, c0, c1, c2, dlo, dhi, a0, a1, a2, cn
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _add_offset_guided(dj, m0, m1, m2, v0, v1, v2, gj, tj, c0, c1, c2, gc, tc, dlo, dhi, a0, a1, a2, cnt,
+                       nt) -> None:
+    """:func:`_add_offset` with the edge-stopping guide (``master.edge_stopping``): a continuous
+    neighbour counts only where its earlier frames' mean ``gj`` is within ``tj + tc`` of the
+    centre's ``gc``."""
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    inf = np.float32(np.inf)
+    for x in range(dj.shape[0]):
+        d = dj[x]
+        dot = (m0[x] * c0[x] + m1[x] * c1[x]) + m2[x] * c2[x]
+        ok = ((d >= dlo[x]) & (d <= dhi[x]) & (abs(d) < inf) & (dot >= nt)
+              & (abs(gj[x] - gc[x]) <= tj[x] + tc[x]))
+        f = one if ok else zero
+        u0 = v0[x]
+        u1 = v1[x]
+        u2 = v2[x]
+        a0[x] += (u0 if abs(u0) < inf else zero) * f
+        a1[x] += (u1 if abs(u1) < inf else zero) * f
+        a2[x] += (u2 if abs(u2) < inf else zero) * f
+        cnt[x] += np.int32(ok)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def guide_planes(s1, s2, m, k_err, n, pad, SW, gm, gt) -> None:
+    """The edge-stopping guide (``master.edge_stopping``) of ``m`` >= 2 frames with luminance sums
+    ``s1`` and sums of squares ``s2`` (H, W) float64: per pixel the mean and ``k_err`` standard
+    errors of the mean (sqrt of the unbiased sample variance over m), written in the layout of
+    the frame's planes (:func:`finish_sub`): ``gm``, ``gt`` (n², (sh + 2 pad)·SW), sub-image pixel
+    (sy, sx) of k at (sy + pad)·SW + sx + pad for image pixel (sy·n + k div n, sx·n + k mod n);
+    n = 1, pad = 0, SW = W is image order. Cells outside the image keep what they hold (the
+    caller fills them: they are misses, nobody's neighbour)."""
+    H, W = s1.shape
+    inv = 1.0 / m
+    unbiased = m / (m - 1.0)
+    for y in range(H):
+        ky = y % n
+        j0 = (y // n + pad) * SW + pad
+        for x in range(W):
+            mean = s1[y, x] * inv
+            var = max(s2[y, x] * inv - mean * mean, 0.0) * unbiased
+            j = j0 + x // n
+            kk = ky * n + x % n
+            gm[kk, j] = np.float32(mean)
+            gt[kk, j] = np.float32(k_err * math.sqrt(var * inv))
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _add_offset_lobe(dj, m0, m1, m2, l0, l1, l2, c0, c1, c2, dlo, dhi, b0, b1, b2, lcnt, nt) -> None:
     """The split lobes' sums of one window offset (after :func:`_add_offset`'s, in a pass of its
     own: one loop over both vectorized ~7x worse): a continuous neighbour adds its lobe ``l*``
@@ -152,7 +204,7 @@ def filter_rows(irr, nrm, depth, y0, y1, lo, hi, depth_threshold, normal_thresho
 # Sub-image rows filtered together: each window offset is then one pass over ~4000 pixels, not
 # 128 (a pass costs ~0.1 us of slicing and reference counts before its first pixel: at one row
 # a pass that was 40% of the filter's time at 640x480, interleave 5), while the accumulators
-# (6 x 4 bytes a pixel) stay within L2.
+# (6 x 4 bytes a pixel, 10 with lobes) stay within L2.
 BLOCK_ROWS = 32
 
 
@@ -195,7 +247,7 @@ def gather_rows(vals_s, nrm_s, dep_s, n, pad, W, ya, yb, vals, nrm, depth) -> No
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo, hi, depth_threshold,
-               normal_threshold, w, lobes, img) -> None:
+               normal_threshold, w, lobes, guided, gm, gt, s1, s2, img) -> None:
     """Image pixels of sub-image rows sy0 .. sy1 of every sub-image k of a frame kept per
     sub-image (interleave n): the discontinuity filter (as :func:`filter_rows`), the fading
     blend and the compose, written to ``img`` (H, W, 3) at (sy·n + k div n, sx·n + k mod n).
@@ -206,11 +258,16 @@ def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo,
     result to its radiance: reflectance · irradiance + lobe + unfiltered. Without, the lobe
     planes are not read.
 
+    ``guided``: the irradiance's neighbours pass the edge-stopping test of ``master.edge_stopping``
+    too, with the earlier frames' mean ``gm`` and tolerance ``gt`` in the planes' layout
+    (:func:`guide_planes`). ``s1``, ``s2`` (H, W) float64, unless empty: the guide's sums, to
+    which each pixel adds its raw irradiance luminance (non-finite: 0) and its square.
+
     The planes are flattened rows of SW = sw + 2 pad pixels with a border of ``pad``
     (:func:`plane_pad` of the window): ``vals_s`` (n², 12, (sh + 2 pad)·SW) reflectance,
     irradiance, unfiltered, lobe (x RGB), ``nrm_s`` (n², 3, ...), ``dep_s`` (n², ...); sub-image
     pixel (sy, sx) at (sy + pad)·SW + sx + pad. The border, and every cell outside a
-    sub-image's own extent, holds a miss (depth +inf, zero values), so it is nobody's
+    sub-image's own extent, holds a miss (depth +inf, zero values, NO_LOBE), so it is nobody's
     neighbour and adds +0 exactly as an outside neighbour did.
 
     In sub-image space the neighbour (oy, ox) of every pixel of sub-image k lies in one
@@ -233,6 +290,7 @@ def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo,
     lac = np.empty((3, cap if lobes else 0), np.float32)
     lcnt = np.empty(cap if lobes else 0, np.int32)
     zero = np.float32(0.0)
+    learn = s1.shape[0] > 0
     for ya in range(sy0, sy1, BLOCK_ROWS):  # all k of a row block together: their image rows stay in cache
         yb = min(sy1, ya + BLOCK_ROWS)
         for k in range(n * n):
@@ -275,9 +333,16 @@ def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo,
                         kp = kyp * n + tx % n
                         s = i_s + dy * SW + tx // n
                         e = s + L
-                        _add_offset(dep_s[kp, s:e], nrm_s[kp, 0, s:e], nrm_s[kp, 1, s:e], nrm_s[kp, 2, s:e],
-                                    vals_s[kp, 3, s:e], vals_s[kp, 4, s:e], vals_s[kp, 5, s:e],
-                                    c0, c1, c2, dlo[:L], dhi[:L], a0, a1, a2, cnt[:L], nt)
+                        if guided:
+                            _add_offset_guided(dep_s[kp, s:e], nrm_s[kp, 0, s:e], nrm_s[kp, 1, s:e],
+                                               nrm_s[kp, 2, s:e], vals_s[kp, 3, s:e], vals_s[kp, 4, s:e],
+                                               vals_s[kp, 5, s:e], gm[kp, s:e], gt[kp, s:e], c0, c1, c2,
+                                               gm[k, i_s:i_e], gt[k, i_s:i_e], dlo[:L], dhi[:L], a0, a1, a2,
+                                               cnt[:L], nt)
+                        else:
+                            _add_offset(dep_s[kp, s:e], nrm_s[kp, 0, s:e], nrm_s[kp, 1, s:e], nrm_s[kp, 2, s:e],
+                                        vals_s[kp, 3, s:e], vals_s[kp, 4, s:e], vals_s[kp, 5, s:e],
+                                        c0, c1, c2, dlo[:L], dhi[:L], a0, a1, a2, cnt[:L], nt)
                         if lobes:
                             _add_offset_lobe(dep_s[kp, s:e], nrm_s[kp, 0, s:e], nrm_s[kp, 1, s:e], nrm_s[kp, 2, s:e],
                                              vals_s[kp, 9, s:e], vals_s[kp, 10, s:e], vals_s[kp, 11, s:e],
@@ -302,6 +367,11 @@ def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo,
                         f1 = wf * f1 + wr * i1[j]
                         f2 = wf * f2 + wr * i2[j]
                     x = sx * n + kx
+                    if learn:
+                        v = (_LR * i0[j] + _LG * i1[j]) + _LB * i2[j]
+                        e = np.float64(v) if math.isfinite(v) else 0.0
+                        s1[y, x] += e
+                        s2[y, x] += e * e
                     img[y, x, 0] = r0[j] * f0 + u0[j]
                     img[y, x, 1] = r1[j] * f1 + u1[j]
                     img[y, x, 2] = r2[j] * f2 + u2[j]

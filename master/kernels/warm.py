@@ -39,6 +39,7 @@ def warm_up_master() -> float:
     from igi.common.codec import encode
     from igi.common.params import make_params, params_to_dict
     from igi.master.accumulation import Accumulator
+    from igi.master.edge_stopping import MIN_FRAMES, EdgeStoppingGuide
     from igi.master.frame_assembly import FrameAssembler, task_tiles, tile_pixel_count
 
     params = params_to_dict(make_params(interleave=_N))
@@ -47,8 +48,10 @@ def warm_up_master() -> float:
     for tile in task_tiles(_SIZE, _SIZE, _N):
         frame.add_wire(tile, encode(_tile_buffers(tile_pixel_count(tile, _N, _SIZE, _SIZE), rng)))
     acc = Accumulator()
-    for index in (0, 10 * int(params["filter_frames"])):  # filtered, then past the fade
-        acc.add(frame.image(params, index))
+    guide = EdgeStoppingGuide().track("warm-up")
+    for index in range(MIN_FRAMES + 1):  # learning, then guided
+        acc.add(frame.image(params, index, guide))
+    acc.add(frame.image(params, 10 * int(params["filter_frames"])))  # past the fade
     acc.mean()
     return time.perf_counter() - t0
 

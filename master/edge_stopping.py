@@ -1,0 +1,96 @@
+"""An edge-stopping guide for the discontinuity buffer, from the frames accumulated so far.
+
+The discontinuity buffer (paper §4.3) averages a pixel's irradiance with that of its
+geometrically continuous neighbours: right where irradiance is smooth, a blur where it is not —
+shadow edges, the thin dark gaps of a window frame, a room's corners — and that blur is a bias
+accumulation does not remove (it only fades after ``filter_frames``). While the view stands
+still, the frames already accumulated know where irradiance is not smooth: per pixel, the mean
+and the sample variance of its raw (unfiltered) irradiance luminance over the m earlier frames.
+A neighbour j of centre c then counts only where
+
+    |mean_j - mean_c| <= k (s_j + s_c),    s = sqrt(variance / m), the mean's standard error,
+
+``k`` = ``filter_guide``. Where the earlier frames cannot tell j from c (a difference within
+their noise) the filter averages as before; where they show an edge their noise does not
+explain, it stops. As frames pile up, s shrinks like 1/sqrt(m), and the filter keeps to
+irradiance that is statistically the same: its bias shrinks with the noise. This is the
+variance-guided edge-stopping of Dammertz et al. 2010 (edge-avoiding à-trous) and Schied et al.
+2017 (SVGF), over a still camera's frames instead of reprojected ones.
+
+Only *earlier* frames guide a frame: its own noise must not choose which of its neighbours
+count (that would correlate the choice with the values averaged: a bias). A frame is guided
+from the MIN_FRAMES-th on (fewer give variances too noisy to trust), and only while frames
+accumulate (without accumulation every frame is the same: no variance to learn).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+MIN_FRAMES = 3  # earlier frames before a frame is guided
+
+
+class EdgeStoppingGuide:
+    """Per-pixel running sums of the raw irradiance luminance of one accumulation's frames.
+
+    ``track(key)`` before each frame (a new key — camera, parameters, scene — starts over, as the
+    :class:`~igi.master.accumulation.Accumulator` does); the frame assembler reads
+    :meth:`tolerances` before filtering a frame and :meth:`add`\\ s the frame's luminance after."""
+
+    def __init__(self):
+        self.key = None
+        self.count = 0
+        self._s1: np.ndarray | None = None
+        self._s2: np.ndarray | None = None
+
+    def track(self, key) -> "EdgeStoppingGuide":
+        """Start over when ``key`` differs from the last frame's; returns self."""
+        if key != self.key:
+            self.key = key
+            self.reset()
+        return self
+
+    def reset(self) -> None:
+        self.count = 0
+        self._s1 = self._s2 = None
+
+    def sums(self, k: float, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, int] | None:
+        """(luminance sums, sums of squares, frames) of the earlier frames, (H, W) float64; None
+        when ``k`` <= 0 (off), the frames had another shape or fewer than MIN_FRAMES were added."""
+        if k <= 0 or self._s1 is None or self._s1.shape != tuple(shape) or self.count < MIN_FRAMES:
+            return None
+        return self._s1, self._s2, self.count
+
+    def tolerances(self, k: float, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | None:
+        """(mean, k·standard error) of the earlier frames' luminance, (H, W) float32 each, as the
+        filter reads them (``master.kernels.discontinuity.guide_planes`` in image order); None
+        where :meth:`sums` is."""
+        from igi.master.kernels.discontinuity import guide_planes
+
+        s = self.sums(k, shape)
+        if s is None:
+            return None
+        H, W = shape
+        mean, tol = np.empty((1, H * W), np.float32), np.empty((1, H * W), np.float32)
+        guide_planes(s[0], s[1], float(s[2]), float(k), 1, 0, W, mean, tol)
+        return mean.reshape(H, W), tol.reshape(H, W)
+
+    def learner(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+        """The (H, W) float64 sums a frame's luminance is added to (the frame assembler adds it in
+        its compiled pass, then calls :meth:`learnt`); frames of another shape start over."""
+        if self._s1 is None or self._s1.shape != tuple(shape):
+            self._s1 = np.zeros(shape)
+            self._s2 = np.zeros(shape)
+            self.count = 0
+        return self._s1, self._s2
+
+    def learnt(self) -> None:
+        """One more frame was added to the :meth:`learner` sums."""
+        self.count += 1
+
+    def add(self, luminance: np.ndarray) -> None:
+        """Add one frame's raw irradiance luminance (H, W) (non-finite values count as 0)."""
+        lum = np.nan_to_num(np.asarray(luminance, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+        s1, s2 = self.learner(lum.shape)
+        s1 += lum
+        s2 += lum * lum
+        self.learnt()
