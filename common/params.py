@@ -129,7 +129,9 @@ PARAMS: tuple[Param, ...] = (
     Param("ppm_alpha", float, 2 / 3, "photon radius shrink per accumulated frame: r²ᵢ₊₁ = r²ᵢ(i+α)/(i+1)",
           "accumulate", 0.05, 1.0),
     Param("filter_frames", int, 32,
-          "accumulated frames after which the discontinuity buffer is faded out (-1: always filter)",
+          "accumulated frames after which the discontinuity buffer is faded out (-1: always filter); "
+          "with --filter-guide only the split lobes fade (the guided irradiance filter is consistent "
+          "on its own)",
           "accumulate", -1, 100000),
     Param("filter_guide", float, 2.0,
           "edge stopping from the frames accumulated so far: a neighbour's irradiance is averaged only "

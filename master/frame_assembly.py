@@ -157,13 +157,16 @@ class FrameAssembler:
 
         ``guide``: the accumulation's edge-stopping guide (``master.edge_stopping``; the caller
         tracks its key): its earlier frames guide this frame's filter (``filter_guide``), and
-        this frame's raw irradiance is added to it. Ignored without accumulation.
+        this frame's raw irradiance is added to it. Ignored without accumulation. A guided
+        irradiance filter does not fade (its blur shrinks with the noise: consistent on its
+        own, and it keeps averaging); the split lobes, never guided, still do.
         """
         p = params if isinstance(params, dict) else _asdict(params)
         window = resolve_window(int(p["filter_window"]), self.n)
-        w = filter_weight(p, index)
         if not p.get("accumulate", True):
             guide = None  # every frame the same: nothing to learn
+        fade = filter_weight(p, index)
+        w = (1.0 if guide is not None and float(p.get("filter_guide", 0.0)) > 0 else fade, fade)
         if self._buffers is None:
             return self._planes().image(self._tiles, window, w, p, guide)
         b = self.buffers
@@ -267,16 +270,19 @@ class _Planes:
         self.interior(self.depth)[missing] = np.inf
         self.covered = self.width * self.height
 
-    def image(self, tiles, window: int, w: float, p: dict, guide: EdgeStoppingGuide | None = None) -> np.ndarray:
+    def image(self, tiles, window: int, w: tuple[float, float], p: dict,
+              guide: EdgeStoppingGuide | None = None) -> np.ndarray:
         self.fill_missing(tiles)
         return self.finish(window, w, p, guide)
 
-    def finish(self, window: int, w: float, p: dict, guide: EdgeStoppingGuide | None = None) -> np.ndarray:
-        """The image (H, W, 3): discontinuity filter (when ``w`` > 0 and the window > 1; with the
-        ``guide``'s edge stopping once it has learnt enough), the fading blend (w < 1) and the
-        compose, one compiled pass per block of sub-image rows on ``master.parallel``'s threads
-        (blocks write disjoint image rows); then the frame's raw irradiance goes to the guide."""
-        use_filter = w > 0.0 and window > 1
+    def finish(self, window: int, w: tuple[float, float], p: dict,
+               guide: EdgeStoppingGuide | None = None) -> np.ndarray:
+        """The image (H, W, 3): discontinuity filter (when a weight of ``w`` — the irradiance's,
+        the lobes' — is > 0 and the window > 1; with the ``guide``'s edge stopping once it has
+        learnt enough), the fading blends (weights < 1) and the compose, one compiled pass per
+        block of sub-image rows on ``master.parallel``'s threads (blocks write disjoint image
+        rows); then the frame's raw irradiance goes to the guide."""
+        use_filter = max(w) > 0.0 and window > 1
         lo, hi = _window_reach(window)
         if use_filter and plane_pad(lo, hi, self.n) > self.pad:  # wider than the parameters allow
             wide = _Planes(self.width, self.height, self.n, plane_pad(lo, hi, self.n))
@@ -292,7 +298,8 @@ class _Planes:
         gm, gt = self._guide_planes(guide, float(p.get("filter_guide", 0.0)) if use_filter else 0.0)
         s1, s2 = (_NO_SUMS, _NO_SUMS) if guide is None else guide.learner((H, W))
         run_stripes(self.sh, W * n, lambda y0, y1: finish_sub(vals, nrm, depth, SW, n, q, H, W, y0, y1, use_filter,
-                                                              lo, hi, dt, nt, float(w), self.lobes, gm.size > 0,
+                                                              lo, hi, dt, nt, float(w[0]), float(w[1]), self.lobes,
+                                                              gm.size > 0,
                                                               gm, gt, s1, s2, img))
         if guide is not None:
             guide.learnt()

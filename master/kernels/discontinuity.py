@@ -247,16 +247,16 @@ def gather_rows(vals_s, nrm_s, dep_s, n, pad, W, ya, yb, vals, nrm, depth) -> No
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo, hi, depth_threshold,
-               normal_threshold, w, lobes, guided, gm, gt, s1, s2, img) -> None:
+               normal_threshold, w, wl, lobes, guided, gm, gt, s1, s2, img) -> None:
     """Image pixels of sub-image rows sy0 .. sy1 of every sub-image k of a frame kept per
     sub-image (interleave n): the discontinuity filter (as :func:`filter_rows`), the fading
     blend and the compose, written to ``img`` (H, W, 3) at (sy·n + k div n, sx·n + k mod n).
     n = 1 with one sub-image is a frame in image order.
 
     ``lobes`` (the frame has split lobes): each pixel with a lobe (lobe red >= 0) also averages
-    the lobes of its continuous neighbours that have one, blends the same way, and adds the
-    result to its radiance: reflectance · irradiance + lobe + unfiltered. Without, the lobe
-    planes are not read.
+    the lobes of its continuous neighbours that have one, blends with its own weight ``wl``, and
+    adds the result to its radiance: reflectance · irradiance + lobe + unfiltered. Without, the
+    lobe planes are not read.
 
     ``guided``: the irradiance's neighbours pass the edge-stopping test of ``master.edge_stopping``
     too, with the earlier frames' mean ``gm`` and tolerance ``gt`` in the planes' layout
@@ -281,6 +281,9 @@ def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo,
     blend = use_filter and w < 1.0
     wf = np.float32(w)
     wr = np.float32(1.0 - w)
+    lblend = use_filter and wl < 1.0
+    lf = np.float32(wl)
+    lr = np.float32(1.0 - wl)
     one = np.float32(1.0)
     cap = BLOCK_ROWS * SW
     acc = np.empty((3, cap), np.float32)
@@ -382,10 +385,10 @@ def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo,
                             g0 = lac[0, b + sx] / cf
                             g1 = lac[1, b + sx] / cf
                             g2 = lac[2, b + sx] / cf
-                        if blend:
-                            g0 = wf * g0 + wr * q0[j]
-                            g1 = wf * g1 + wr * q1[j]
-                            g2 = wf * g2 + wr * q2[j]
+                        if lblend:
+                            g0 = lf * g0 + lr * q0[j]
+                            g1 = lf * g1 + lr * q1[j]
+                            g2 = lf * g2 + lr * q2[j]
                         img[y, x, 0] += g0
                         img[y, x, 1] += g1
                         img[y, x, 2] += g2

@@ -144,3 +144,43 @@ def test_on_the_cornell_box_the_guided_accumulation_is_closer_to_the_reference()
                                   height=ref.shape[0], renderer=r), ref) for k in (0.0, 2.0)}
     print(f"relMSE unguided {err[0.0]:.3g}, guided {err[2.0]:.3g}")
     assert err[2.0] < 0.8 * err[0.0]
+
+
+def test_a_guided_irradiance_filter_does_not_fade_and_the_lobes_still_do():
+    """Past ``filter_frames`` an unguided filter has faded to the raw irradiance (its blur would
+    be a bias forever); a guided one keeps averaging (its blur shrinks with the noise). The split
+    lobes, which no guide watches, fade either way."""
+    import copy
+
+    from tests.master.test_frame_assembly import _lobe_reference
+
+    w, h, n = 24, 12, 3
+    params = params_to_dict(make_params(interleave=n, consistent=True, filter_frames=4))
+    guide = EdgeStoppingGuide().track("view")
+    frames = list(_step_frames(MIN_FRAMES + 3, seed=5))
+
+    def assembled(frame, lobes=None):
+        asm = FrameAssembler(w, h, n)
+        for i, (t, b) in enumerate(frame):
+            lobe = None if lobes is None else lobes[i]
+            asm.add(t, TileBuffers(b.reflectance, b.irradiance, b.unfiltered, b.depth, b.normal, lobe))
+        return asm
+
+    for i, frame in enumerate(frames[:-1]):
+        assembled(frame).image(params, i, guide)
+    rng = np.random.default_rng(6)
+    lobes = [np.where(rng.random((len(b), 1)) < 0.5, rng.random((len(b), 3)), -1.0).astype(np.float32)
+             for _, b in frames[-1]]
+    late, fade = 40, 4 / 41  # far past the fade
+    lobed = assembled(frames[-1], lobes)
+    bufs = lobed.buffers
+    before = copy.deepcopy(guide)
+    img = lobed.image(params, late, guide)
+    guided = assembled(frames[-1]).image(params, late, before)
+    faded = assembled(frames[-1]).image(params, late)
+    flat = (slice(None), slice(2, w // 2 - 3))
+    raw = bufs["irradiance"][flat][..., 0].std()
+    assert faded[flat][..., 0].std() > 0.8 * raw  # unguided: faded to the raw noise
+    assert guided[flat][..., 0].std() < 0.5 * raw  # guided: still averaged
+    np.testing.assert_allclose(img - guided, _lobe_reference(bufs, n, params["depth_threshold"],
+                                                             params["normal_threshold"], fade), atol=1e-5)

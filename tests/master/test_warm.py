@@ -36,6 +36,7 @@ def test_warm_up_master_loads_the_kernels_of_a_frame_in_a_fresh_process():
     assert res["before"] == []  # a fresh process: nothing loaded yet (the check is not vacuous)
     # the frame path's kernels: decode, the discontinuity buffer + compose, the accumulation sums
     for name in ("igi.common.kernels.wire_decode.decode_tile", "igi.master.kernels.discontinuity.finish_sub",
+                 "igi.master.kernels.discontinuity.guide_planes",
                  "igi.master.kernels.accumulate.add_frame", "igi.master.kernels.accumulate.mean"):
         assert name in res["after"], name
 
