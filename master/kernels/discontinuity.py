@@ -85,25 +85,34 @@ def _filter_row(irr, i0, nrm, depth, y, lo, hi, t, nt, acc, cnt, dlo, dhi) -> No
                             a0[xa:xb], a1[xa:xb], a2[xa:xb], cnt[xa:xb], nt)
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _continuous(d, dlo, dhi, dot, nt) -> bool:
+    """The discontinuity buffer's test of one neighbour: finite depth d within [dlo, dhi] (the
+    centre's depth ± the threshold), normals' dot product >= nt."""
+    return (d >= dlo) & (d <= dhi) & (abs(d) < np.float32(np.inf)) & (dot >= nt)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _add_if(ok, u0, u1, u2, a0, a1, a2, cnt, x) -> None:
+    """Add (u0, u1, u2) — a non-finite component as 0 — to the sums at x where ``ok``, +0 where
+    not (as the numpy version's masked products did), and count it. Selects, not branches."""
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    inf = np.float32(np.inf)
+    f = one if ok else zero
+    a0[x] += (u0 if abs(u0) < inf else zero) * f
+    a1[x] += (u1 if abs(u1) < inf else zero) * f
+    a2[x] += (u2 if abs(u2) < inf else zero) * f
+    cnt[x] += np.int32(ok)
+
+
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")  # inlined: its row views then cost nothing
 def _add_offset(dj, m0, m1, m2, v0, v1, v2, c0, c1, c2, dlo, dhi, a0, a1, a2, cnt, nt) -> None:
     """One window offset over a row: neighbour arrays (depth, normal, irradiance) already
     shifted to line up with the centres'. Branch-free, so LLVM vectorizes it."""
-    one = np.float32(1.0)
-    zero = np.float32(0.0)
-    inf = np.float32(np.inf)
     for x in range(dj.shape[0]):
-        d = dj[x]
         dot = (m0[x] * c0[x] + m1[x] * c1[x]) + m2[x] * c2[x]
-        ok = (d >= dlo[x]) & (d <= dhi[x]) & (abs(d) < inf) & (dot >= nt)
-        f = one if ok else zero
-        u0 = v0[x]
-        u1 = v1[x]
-        u2 = v2[x]
-        a0[x] += (u0 if abs(u0) < inf else zero) * f
-        a1[x] += (u1 if abs(u1) < inf else zero) * f
-        a2[x] += (u2 if abs(u2) < inf else zero) * f
-        cnt[x] += np.int32(ok)
+        _add_if(_continuous(dj[x], dlo[x], dhi[x], dot, nt), v0[x], v1[x], v2[x], a0, a1, a2, cnt, x)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -112,22 +121,10 @@ def _add_offset_guided(dj, m0, m1, m2, v0, v1, v2, gj, tj, c0, c1, c2, gc, tc, d
     """:func:`_add_offset` with the edge-stopping guide (``master.edge_stopping``): a continuous
     neighbour counts only where its earlier frames' mean ``gj`` is within ``tj + tc`` of the
     centre's ``gc``."""
-    one = np.float32(1.0)
-    zero = np.float32(0.0)
-    inf = np.float32(np.inf)
     for x in range(dj.shape[0]):
-        d = dj[x]
         dot = (m0[x] * c0[x] + m1[x] * c1[x]) + m2[x] * c2[x]
-        ok = ((d >= dlo[x]) & (d <= dhi[x]) & (abs(d) < inf) & (dot >= nt)
-              & (abs(gj[x] - gc[x]) <= tj[x] + tc[x]))
-        f = one if ok else zero
-        u0 = v0[x]
-        u1 = v1[x]
-        u2 = v2[x]
-        a0[x] += (u0 if abs(u0) < inf else zero) * f
-        a1[x] += (u1 if abs(u1) < inf else zero) * f
-        a2[x] += (u2 if abs(u2) < inf else zero) * f
-        cnt[x] += np.int32(ok)
+        ok = _continuous(dj[x], dlo[x], dhi[x], dot, nt) & (abs(gj[x] - gc[x]) <= tj[x] + tc[x])
+        _add_if(ok, v0[x], v1[x], v2[x], a0, a1, a2, cnt, x)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -160,21 +157,10 @@ def _add_offset_lobe(dj, m0, m1, m2, l0, l1, l2, c0, c1, c2, dlo, dhi, b0, b1, b
     own: one loop over both vectorized ~7x worse): a continuous neighbour adds its lobe ``l*``
     where it has one (l0 >= 0; one without — another material on the same plane — must not
     dim it)."""
-    one = np.float32(1.0)
-    zero = np.float32(0.0)
-    inf = np.float32(np.inf)
     for x in range(dj.shape[0]):
-        d = dj[x]
         dot = (m0[x] * c0[x] + m1[x] * c1[x]) + m2[x] * c2[x]
-        w0 = l0[x]
-        ok = (d >= dlo[x]) & (d <= dhi[x]) & (abs(d) < inf) & (dot >= nt) & (w0 >= zero)
-        g = one if ok else zero
-        w1 = l1[x]
-        w2 = l2[x]
-        b0[x] += (w0 if abs(w0) < inf else zero) * g
-        b1[x] += (w1 if abs(w1) < inf else zero) * g
-        b2[x] += (w2 if abs(w2) < inf else zero) * g
-        lcnt[x] += np.int32(ok)
+        ok = _continuous(dj[x], dlo[x], dhi[x], dot, nt) & (l0[x] >= np.float32(0.0))
+        _add_if(ok, l0[x], l1[x], l2[x], b0, b1, b2, lcnt, x)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
