@@ -29,7 +29,8 @@ from igi.common.params import boosted_photon_bound
 GiB = 1 << 30
 DEFAULT_BUDGET = 8 * GiB
 ENV = "IGI_MEMORY_BUDGET"
-BYTES_PER_PIXEL = 172  # master: float64 mean + even/odd halves, float32 layers (lobe incl.), 8-bit encode; worker tile
+BYTES_PER_PIXEL = 196  # master: float64 mean + even/odd halves, the edge-stopping guide's float64 sums and
+# its planes, float32 layers (lobe incl.), 8-bit encode; worker tile
 MAX_SIDE = 16384  # == common.protocol.MAX_IMAGE_SIDE
 MAX_FRAMES = 10_000_000
 MAX_COORD = 1e9  # camera coordinates beyond this lose every digit of a scene in float32

@@ -19,8 +19,12 @@ variance-guided edge-stopping of Dammertz et al. 2010 (edge-avoiding à-trous) a
 
 Only *earlier* frames guide a frame: its own noise must not choose which of its neighbours
 count (that would correlate the choice with the values averaged: a bias). A frame is guided
-from the MIN_FRAMES-th on (fewer give variances too noisy to trust), and only while frames
-accumulate (without accumulation every frame is the same: no variance to learn).
+once MIN_FRAMES frames came before it (fewer give variances too noisy to trust), and only while
+frames accumulate (without accumulation every frame is the same: no variance to learn).
+
+A guided filter no longer fades after ``filter_frames`` (its blur shrinks with the noise, and
+the averaging goes on); the test watches luminance only, so neighbours of equal luminance and
+different colour stay averaged — a hue blur at coloured shadow edges that does not shrink.
 """
 from __future__ import annotations
 
@@ -33,8 +37,10 @@ class EdgeStoppingGuide:
     """Per-pixel running sums of the raw irradiance luminance of one accumulation's frames.
 
     ``track(key)`` before each frame (a new key — camera, parameters, scene — starts over, as the
-    :class:`~igi.master.accumulation.Accumulator` does); the frame assembler reads
-    :meth:`tolerances` before filtering a frame and :meth:`add`\\ s the frame's luminance after."""
+    :class:`~igi.master.accumulation.Accumulator` does); the frame assembler reads :meth:`sums`
+    before filtering a frame and adds the frame's luminance to the :meth:`learner` sums in its
+    compiled pass (then :meth:`learnt`). :meth:`tolerances` and :meth:`add` are the same in numpy
+    terms, for tests and tools."""
 
     def __init__(self):
         self.key = None
@@ -50,8 +56,11 @@ class EdgeStoppingGuide:
         return self
 
     def reset(self) -> None:
+        """Forget the frames (the sums are zeroed in place: a moving view resets every frame)."""
         self.count = 0
-        self._s1 = self._s2 = None
+        if self._s1 is not None:
+            self._s1.fill(0.0)
+            self._s2.fill(0.0)
 
     def sums(self, k: float, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, int] | None:
         """(luminance sums, sums of squares, frames) of the earlier frames, (H, W) float64; None

@@ -157,16 +157,18 @@ class FrameAssembler:
 
         ``guide``: the accumulation's edge-stopping guide (``master.edge_stopping``; the caller
         tracks its key): its earlier frames guide this frame's filter (``filter_guide``), and
-        this frame's raw irradiance is added to it. Ignored without accumulation. A guided
-        irradiance filter does not fade (its blur shrinks with the noise: consistent on its
-        own, and it keeps averaging); the split lobes, never guided, still do.
+        this frame's raw irradiance is added to it. Ignored without accumulation, with
+        ``filter_guide`` 0 or without a filter (window 1). A guided irradiance filter does not
+        fade (its blur shrinks with the noise of the luminance it watches, and it keeps
+        averaging) unless ``filter_frames`` is 0 (no filter); the split lobes, never guided,
+        still do.
         """
         p = params if isinstance(params, dict) else _asdict(params)
         window = resolve_window(int(p["filter_window"]), self.n)
-        if not p.get("accumulate", True):
-            guide = None  # every frame the same: nothing to learn
+        if not p.get("accumulate", True) or float(p.get("filter_guide", 0.0)) <= 0 or window <= 1:
+            guide = None  # every frame the same (nothing to learn), or nothing it would guide
         fade = filter_weight(p, index)
-        w = (1.0 if guide is not None and float(p.get("filter_guide", 0.0)) > 0 else fade, fade)
+        w = (1.0 if guide is not None and fade > 0 else fade, fade)
         if self._buffers is None:
             return self._planes().image(self._tiles, window, w, p, guide)
         b = self.buffers
