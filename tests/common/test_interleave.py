@@ -22,7 +22,8 @@ def _buffers_for(xs, ys):
                        irradiance=np.stack([xs, ys, pid], 1).astype(np.float32),
                        unfiltered=np.full((P, 3), 1, np.float32), depth=pid,
                        normal=np.stack([ys, xs, pid], 1).astype(np.float32),
-                       lobe=np.where((xs % 2)[:, None] == 1, np.stack([pid + 0.75, pid, xs], 1), -1.0).astype(np.float32))
+                       lobe=np.where((xs % 2)[:, None] == 1, np.stack([pid + 0.75, pid, xs], 1),
+                                     -1.0).astype(np.float32))
 
 
 def test_set_index_matches_tile_convention():

@@ -1,7 +1,7 @@
 """The numpy wire decode that common.kernels.wire_decode replaced (as written before issue 16,
-on codec version 2's layout: channels apart; version 3's optional lobe section added) and the numpy octahedral encode that
-common.kernels.wire_encode replaced: test oracles, bit for bit the references of the compiled
-codec."""
+on codec version 2's layout: channels apart; version 3's optional lobe section added) and the
+numpy octahedral encode that common.kernels.wire_encode replaced: test oracles, bit for bit the
+references of the compiled codec."""
 from __future__ import annotations
 
 import numpy as np
