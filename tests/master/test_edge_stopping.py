@@ -98,22 +98,17 @@ def _guided_reference(b: dict, mean: np.ndarray, tol: np.ndarray, window: int, d
     """The guided discontinuity buffer written out per pixel (no lobes): a pixel averages its own
     irradiance and that of each neighbour with continuous depth and normal whose guide mean is
     within tol_j + tol_c of its own; radiance = reflectance × that + unfiltered."""
+    from tests.support.oracle_master import continuous_neighbours
+
     H, W = b["depth"].shape
-    offs = range(-(window // 2), window - window // 2)
     out = np.empty((H, W, 3))
     for y in range(H):
         for x in range(W):
-            dc, nc = b["depth"][y, x], b["normal"][y, x]
             acc, cnt = b["irradiance"][y, x].astype(np.float64), 1
-            if np.isfinite(dc):
-                for oy in offs:
-                    for ox in offs:
-                        j, i = y + oy, x + ox
-                        if (oy or ox) and 0 <= j < H and 0 <= i < W:
-                            d = b["depth"][j, i]
-                            if (np.isfinite(d) and abs(d - dc) <= dt * dc and b["normal"][j, i] @ nc >= nt
-                                    and abs(mean[j, i] - mean[y, x]) <= tol[j, i] + tol[y, x]):
-                                acc, cnt = acc + b["irradiance"][j, i], cnt + 1
+            if np.isfinite(b["depth"][y, x]):
+                for j, i in continuous_neighbours(b, y, x, window, dt, nt):
+                    if abs(mean[j, i] - mean[y, x]) <= tol[j, i] + tol[y, x]:
+                        acc, cnt = acc + b["irradiance"][j, i], cnt + 1
             out[y, x] = b["reflectance"][y, x] * acc / cnt + b["unfiltered"][y, x]
     return out
 

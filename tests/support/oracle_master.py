@@ -58,6 +58,23 @@ def filter_irradiance(irradiance: np.ndarray, depth: np.ndarray, normal: np.ndar
     return res
 
 
+def continuous_neighbours(b: dict, y: int, x: int, window: int, dt: float, nt: float):
+    """The discontinuity buffer's neighbours of pixel (y, x), written out one by one for test
+    references: each (j, i) in the window but the centre, inside the image, with a finite depth
+    within ``dt`` of the centre's (relative) and a normal whose dot product with the centre's
+    is at least ``nt``. ``b``: image-order buffers (``depth`` (H, W), ``normal`` (H, W, 3))."""
+    H, W = b["depth"].shape
+    dc, nc = b["depth"][y, x], b["normal"][y, x]
+    offs = range(-(window // 2), window - window // 2)
+    for oy in offs:
+        for ox in offs:
+            j, i = y + oy, x + ox
+            if (oy or ox) and 0 <= j < H and 0 <= i < W:
+                d = b["depth"][j, i]
+                if np.isfinite(d) and abs(d - dc) <= dt * dc and b["normal"][j, i] @ nc >= nt:
+                    yield j, i
+
+
 def window_pad(window: int) -> int:
     """Padding (pixels on every side) the filter's flat-shift trick needs for ``window``."""
     offs = window_offsets(window)
