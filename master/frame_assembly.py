@@ -297,28 +297,21 @@ class _Planes:
         vals, nrm, depth = flat(self.vals), flat(self.nrm), flat(self.depth)
         H, W, n, q, SW = self.height, self.width, self.n, self.pad, self.sw + 2 * self.pad
         img = np.empty((H, W, 3), np.float32)
-        gm, gt = self._guide_planes(guide, float(p.get("filter_guide", 0.0)) if use_filter else 0.0)
-        s1, s2 = (_NO_SUMS, _NO_SUMS) if guide is None else guide.learner((H, W))
+        k = float(p.get("filter_guide", 0.0))
+        layout = (n, q, SW, n * n, self.vals.shape[2] * self.vals.shape[3])
+        gm, gt = _NO_GUIDE, _NO_GUIDE
+        s1, s2, wm, wt = _NO_SUMS, _NO_SUMS, _NO_GUIDE, _NO_GUIDE
+        if guide is not None:
+            gm, gt = (use_filter and guide.planes(k, (H, W), layout)) or (_NO_GUIDE, _NO_GUIDE)
+            s1, s2 = guide.learner((H, W))
+            wm, wt = guide.next_planes(layout)
+        m = 0.0 if guide is None else guide.count + 1.0
         run_stripes(self.sh, W * n, lambda y0, y1: finish_sub(vals, nrm, depth, SW, n, q, H, W, y0, y1, use_filter,
                                                               lo, hi, dt, nt, float(w[0]), float(w[1]), self.lobes,
-                                                              gm.size > 0,
-                                                              gm, gt, s1, s2, img))
+                                                              gm.size > 0, gm, gt, s1, s2, m, k, wm, wt, img))
         if guide is not None:
-            guide.learnt()
+            guide.learnt(k, layout, (wm, wt))
         return img
-
-    def _guide_planes(self, guide: EdgeStoppingGuide | None, k: float) -> tuple[np.ndarray, np.ndarray]:
-        """The guide's mean and tolerance in the planes' layout ((n², cells) float32 each;
-        empty when the frame is not guided)."""
-        sums = None if guide is None else guide.sums(k, (self.height, self.width))
-        if sums is None:
-            return _NO_GUIDE, _NO_GUIDE
-        from igi.master.kernels.discontinuity import guide_planes
-
-        shape = (self.n * self.n, self.vals.shape[2] * self.vals.shape[3])
-        gm, gt = np.zeros(shape, np.float32), np.full(shape, np.inf, np.float32)  # outside: misses
-        guide_planes(sums[0], sums[1], float(sums[2]), k, self.n, self.pad, self.sw + 2 * self.pad, gm, gt)
-        return gm, gt
 
     def to_buffers(self, b: dict[str, np.ndarray], tiles) -> None:
         from igi.master.kernels.discontinuity import gather_rows

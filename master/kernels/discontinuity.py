@@ -127,6 +127,16 @@ def _add_offset_guided(dj, m0, m1, m2, v0, v1, v2, gj, tj, c0, c1, c2, gc, tc, d
         _add_if(ok, v0[x], v1[x], v2[x], a0, a1, a2, cnt, x)
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _guide_cell(s1, s2, inv, unbiased, k_err, gm, gt, j) -> None:
+    """One pixel's guide from its sums (inv = 1/m, unbiased = m/(m-1)): the mean and k_err
+    standard errors of the mean, written at ``j``."""
+    mean = s1 * inv
+    var = max(s2 * inv - mean * mean, 0.0) * unbiased
+    gm[j] = np.float32(mean)
+    gt[j] = np.float32(k_err * math.sqrt(var * inv))
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def guide_planes(s1, s2, m, k_err, n, pad, SW, gm, gt) -> None:
     """The edge-stopping guide (``master.edge_stopping``) of ``m`` >= 2 frames with luminance sums
@@ -139,16 +149,14 @@ def guide_planes(s1, s2, m, k_err, n, pad, SW, gm, gt) -> None:
     H, W = s1.shape
     inv = 1.0 / m
     unbiased = m / (m - 1.0)
-    for y in range(H):
-        ky = y % n
-        j0 = (y // n + pad) * SW + pad
-        for x in range(W):
-            mean = s1[y, x] * inv
-            var = max(s2[y, x] * inv - mean * mean, 0.0) * unbiased
-            j = j0 + x // n
-            kk = ky * n + x % n
-            gm[kk, j] = np.float32(mean)
-            gt[kk, j] = np.float32(k_err * math.sqrt(var * inv))
+    for k in range(n * n):
+        ky, kx = k // n, k % n
+        for sy in range((H - ky + n - 1) // n):
+            y = sy * n + ky
+            j0 = (sy + pad) * SW + pad
+            for sx in range((W - kx + n - 1) // n):
+                x = sx * n + kx
+                _guide_cell(s1[y, x], s2[y, x], inv, unbiased, k_err, gm[k], gt[k], j0 + sx)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -233,7 +241,7 @@ def gather_rows(vals_s, nrm_s, dep_s, n, pad, W, ya, yb, vals, nrm, depth) -> No
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo, hi, depth_threshold,
-               normal_threshold, w, wl, lobes, guided, gm, gt, s1, s2, img) -> None:
+               normal_threshold, w, wl, lobes, guided, gm, gt, s1, s2, m, k_err, wm, wt, img) -> None:
     """Image pixels of sub-image rows sy0 .. sy1 of every sub-image k of a frame kept per
     sub-image (interleave n): the discontinuity filter (as :func:`filter_rows`), the fading
     blend and the compose, written to ``img`` (H, W, 3) at (sy·n + k div n, sx·n + k mod n).
@@ -247,7 +255,10 @@ def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo,
     ``guided``: the irradiance's neighbours pass the edge-stopping test of ``master.edge_stopping``
     too, with the earlier frames' mean ``gm`` and tolerance ``gt`` in the planes' layout
     (:func:`guide_planes`). ``s1``, ``s2`` (H, W) float64, unless empty: the guide's sums, to
-    which each pixel adds its raw irradiance luminance (non-finite: 0) and its square.
+    which each pixel adds its raw irradiance luminance (non-finite: 0) and its square; then,
+    unless ``wm`` is empty or ``m`` (the frames in the sums with this one) < 2, it writes the
+    guide of the sums (the next frame's ``gm``, ``gt`` with ``k_err`` standard errors, as
+    :func:`guide_planes` computes it) to ``wm``, ``wt``: no pass of its own over the sums.
 
     The planes are flattened rows of SW = sw + 2 pad pixels with a border of ``pad``
     (:func:`plane_pad` of the window): ``vals_s`` (n², 12, (sh + 2 pad)·SW) reflectance,
@@ -280,6 +291,9 @@ def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo,
     lcnt = np.empty(cap if lobes else 0, np.int32)
     zero = np.float32(0.0)
     learn = s1.shape[0] > 0
+    plan = learn and wm.shape[0] > 0 and m >= 2  # write the next frame's guide
+    m_inv = 1.0 / max(m, 1.0)
+    unbiased = m / max(m - 1.0, 1.0)
     for ya in range(sy0, sy1, BLOCK_ROWS):  # all k of a row block together: their image rows stay in cache
         yb = min(sy1, ya + BLOCK_ROWS)
         for k in range(n * n):
@@ -361,6 +375,8 @@ def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo,
                         e = np.float64(v) if math.isfinite(v) else 0.0
                         s1[y, x] += e
                         s2[y, x] += e * e
+                        if plan:
+                            _guide_cell(s1[y, x], s2[y, x], m_inv, unbiased, k_err, wm[k], wt[k], j)
                     img[y, x, 0] = r0[j] * f0 + u0[j]
                     img[y, x, 1] = r1[j] * f1 + u1[j]
                     img[y, x, 2] = r2[j] * f2 + u2[j]

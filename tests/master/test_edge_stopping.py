@@ -211,3 +211,35 @@ def test_a_guided_irradiance_filter_does_not_fade_and_the_lobes_still_do():
     assert guided[flat][..., 0].std() < 0.5 * raw  # guided: still averaged
     np.testing.assert_allclose(img - guided, _lobe_reference(bufs, n, params["depth_threshold"],
                                                              params["normal_threshold"], fade), atol=1e-5)
+
+
+def test_the_filter_pass_writes_the_next_frames_guide_as_the_sums_give_it():
+    """The pass that learns a frame also writes the next frame's guide planes (no pass of its own
+    over the sums): they must be bit for bit what ``guide_planes`` computes from the sums, for
+    every frame from the first guided one on, and a guide changed by ``add`` (sums the planes
+    never saw) must be computed afresh, not read stale."""
+    from igi.master.kernels.discontinuity import guide_planes
+
+    w, h, n = 25, 13, 3
+    params = params_to_dict(make_params(interleave=n))
+    k = params["filter_guide"]
+    guide = EdgeStoppingGuide().track("view")
+    for i, frame in enumerate(_step_frames(MIN_FRAMES + 3, seed=5, w=w, h=h, n=n)):
+        asm = FrameAssembler(w, h, n)
+        for t, b in frame:
+            asm.add_wire(t, encode(b))
+        asm.image(params, i, guide)
+        if guide.count < MIN_FRAMES:
+            continue
+        layout, kk, count, gm, gt = guide._read
+        assert (kk, count) == (k, guide.count)
+        ref_m, ref_t = np.zeros_like(gm), np.full_like(gt, np.inf)
+        s1, s2, m = guide.sums(k, (h, w))
+        guide_planes(s1, s2, float(m), k, *layout[:3], ref_m, ref_t)
+        np.testing.assert_array_equal(gm, ref_m)
+        np.testing.assert_array_equal(gt, ref_t)
+        assert np.isinf(gt).sum() == gt.size - w * h  # every image pixel written, the rest misses
+    mean_before, _ = guide.tolerances(k, (h, w))
+    guide.add(np.full((h, w), 100.0))
+    mean_after, _ = guide.tolerances(k, (h, w))
+    np.testing.assert_allclose(mean_after, (mean_before * (guide.count - 1) + 100.0) / guide.count, rtol=1e-5)
