@@ -33,29 +33,45 @@ import numpy as np
 MIN_FRAMES = 3  # earlier frames before a frame is guided
 
 
+def image_layout(shape: tuple[int, int]) -> tuple:
+    """The planes' ``layout`` (n, pad, SW, planes, cells) of a frame kept in image order."""
+    H, W = shape
+    return (1, 0, W, 1, H * W)
+
+
+def _cells(layout: tuple, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """(plane, cell) of each image pixel (H, W) in ``layout``: sub-image k = (y mod n)·n + x mod n,
+    cell (y div n + pad)·SW + x div n + pad."""
+    n, pad, SW = layout[:3]
+    y, x = np.indices(shape)
+    return (y % n) * n + x % n, (y // n + pad) * SW + x // n + pad
+
+
 class EdgeStoppingGuide:
     """Per-pixel running sums of the raw irradiance luminance of one accumulation's frames.
 
     ``track(key)`` before each frame (a new key — camera, parameters, scene — starts over, as the
-    :class:`~igi.master.accumulation.Accumulator` does); the frame assembler reads :meth:`planes`
-    before filtering a frame and, in its compiled pass, adds the frame's luminance to the
-    :meth:`learner` sums and writes the next frame's guide into :meth:`next_planes` (then
-    :meth:`learnt`). :meth:`tolerances` and :meth:`add` are the same in numpy terms, for tests and
-    tools.
+    :class:`~igi.master.accumulation.Accumulator` does). The frame assembler takes the
+    :meth:`learner` sums, reads :meth:`planes` to filter a frame, and in the same compiled pass
+    adds the frame's luminance to the sums and writes the next frame's guide into
+    :meth:`next_planes` (then :meth:`learnt`). :meth:`sums`, :meth:`tolerances` and :meth:`add`
+    are the same in image order, for tests and tools.
 
-    The guide a frame reads is kept in the layout of the assembler's planes (``layout``: a tuple
-    the assembler names; the planes' shape is its last two entries): the pass that learns frame
-    m writes the mean and k standard errors of frames 1..m there, so the next frame reads them
-    without a pass of its own. Planes of another layout or ``k`` (or sums changed by :meth:`add`)
-    are computed from the sums instead."""
+    Sums and guide are kept in the layout of the assembler's planes (``layout`` = (n, pad, SW,
+    planes, cells), ``master.frame_assembly``): the pass reads and writes them cell by cell, in
+    step with the frame's own planes. The pass that learns frame m writes the mean and k standard
+    errors of frames 1..m, so the next frame reads them without a pass of its own; a guide for
+    another ``k`` or for sums :meth:`add` changed is computed from the sums instead."""
 
     def __init__(self):
         self.key = None
         self.count = 0
+        self.layout: tuple | None = None  # of the sums
+        self._shape: tuple[int, int] | None = None  # the frames' (H, W)
         self._s1: np.ndarray | None = None
         self._s2: np.ndarray | None = None
-        self._read: tuple | None = None  # (layout, k, count, gm, gt): the guide of `count` frames
-        self._write: tuple | None = None  # (layout, gm, gt): the buffers the next pass writes
+        self._read: tuple | None = None  # (k, count, gm, gt): the guide of `count` frames
+        self._spare: tuple | None = None  # (gm, gt): buffers the next pass may write
 
     def track(self, key) -> "EdgeStoppingGuide":
         """Start over when ``key`` differs from the last frame's; returns self."""
@@ -67,80 +83,84 @@ class EdgeStoppingGuide:
     def reset(self) -> None:
         """Forget the frames (the sums are zeroed in place: a moving view resets every frame)."""
         self.count = 0
+        self._read = None
         if self._s1 is not None:
             self._s1.fill(0.0)
             self._s2.fill(0.0)
 
-    def sums(self, k: float, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, int] | None:
-        """(luminance sums, sums of squares, frames) of the earlier frames, (H, W) float64; None
-        when ``k`` <= 0 (off), the frames had another shape or fewer than MIN_FRAMES were added."""
-        if k <= 0 or self._s1 is None or self._s1.shape != tuple(shape) or self.count < MIN_FRAMES:
-            return None
-        return self._s1, self._s2, self.count
-
-    def tolerances(self, k: float, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | None:
-        """(mean, k·standard error) of the earlier frames' luminance, (H, W) float32 each, as the
-        filter reads them (``master.kernels.discontinuity.guide_planes`` in image order); None
-        where :meth:`sums` is."""
-        H, W = shape
-        planes = self.planes(k, shape, (1, 0, W, 1, H * W))
-        if planes is None:
-            return None
-        return planes[0].reshape(H, W).copy(), planes[1].reshape(H, W).copy()
-
-    def planes(self, k: float, shape: tuple[int, int], layout: tuple) -> tuple[np.ndarray, np.ndarray] | None:
-        """(mean, k·standard error) of the earlier frames in the assembler's ``layout`` = (n, pad,
-        SW, planes, cells): (planes, cells) float32 each, cells outside the image a miss (mean 0,
-        tolerance +inf); None where :meth:`sums` is. Read-only: the next frame's pass may write
-        the buffers these were."""
-        s = self.sums(k, shape)
-        if s is None:
-            return None
-        r = self._read
-        if r is None or r[0] != layout or r[1] != k or r[2] != self.count:
-            from igi.master.kernels.discontinuity import guide_planes
-
-            n, pad, SW = layout[:3]
-            gm, gt = np.zeros(layout[3:], np.float32), np.full(layout[3:], np.inf, np.float32)
-            guide_planes(s[0], s[1], float(s[2]), float(k), n, pad, SW, gm, gt)
-            self._read = r = (layout, k, self.count, gm, gt)
-        return r[3], r[4]
-
-    def next_planes(self, layout: tuple) -> tuple[np.ndarray, np.ndarray]:
-        """The buffers a pass writes the guide of the frames so far plus its own into (see
-        :meth:`planes`), not those :meth:`planes` returned; pass them to :meth:`learnt`."""
-        w = self._write
-        if w is None or w[0] != layout:
-            shape = layout[3:]
-            w = (layout, np.zeros(shape, np.float32), np.full(shape, np.inf, np.float32))  # outside: misses
-        self._write = None
-        return w[1], w[2]
-
-    def learner(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-        """The (H, W) float64 sums a frame's luminance is added to (the frame assembler adds it in
-        its compiled pass, then calls :meth:`learnt`); frames of another shape start over."""
-        if self._s1 is None or self._s1.shape != tuple(shape):
-            self._s1 = np.zeros(shape)
-            self._s2 = np.zeros(shape)
+    def learner(self, shape: tuple[int, int], layout: tuple) -> tuple[np.ndarray, np.ndarray]:
+        """The sums ((planes, cells) float64 in ``layout``) a frame of ``shape`` (H, W) adds its
+        luminance to (the frame assembler, in its compiled pass; then :meth:`learnt`); frames of
+        another shape or layout start over."""
+        if self._s1 is None or self._shape != tuple(shape) or self.layout != tuple(layout):
+            self._shape, self.layout = tuple(shape), tuple(layout)
+            self._s1 = np.zeros(layout[3:])
+            self._s2 = np.zeros(layout[3:])
             self.count = 0
+            self._read = self._spare = None
         return self._s1, self._s2
 
-    def learnt(self, k: float = 0.0, layout: tuple | None = None, written=None) -> None:
-        """One more frame was added to the :meth:`learner` sums; ``written``: the
-        :meth:`next_planes` buffers its pass filled with the guide of all frames so far (mean and
-        ``k`` standard errors, in ``layout``), or None."""
+    def _ready(self, k: float, shape: tuple[int, int]) -> bool:
+        return k > 0 and self._s1 is not None and self._shape == tuple(shape) and self.count >= MIN_FRAMES
+
+    def planes(self, k: float, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | None:
+        """(mean, k·standard error) of the earlier frames in the sums' layout ((planes, cells)
+        float32 each); None when ``k`` <= 0 (off), the frames had another shape or fewer than
+        MIN_FRAMES were added. Read-only: a later pass may write the buffers they were."""
+        if not self._ready(k, shape):
+            return None
+        r = self._read
+        if r is None or r[0] != k or r[1] != self.count:
+            from igi.master.kernels.discontinuity import guide_cells
+
+            gm, gt = np.empty(self._s1.shape, np.float32), np.empty(self._s1.shape, np.float32)
+            guide_cells(self._s1.ravel(), self._s2.ravel(), float(self.count), float(k), gm.ravel(), gt.ravel())
+            self._read = r = (k, self.count, gm, gt)
+        return r[2], r[3]
+
+    def next_planes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Buffers (the sums' layout) a pass writes the guide of the frames so far plus its own
+        into — never those :meth:`planes` returned; pass them to :meth:`learnt`."""
+        spare, self._spare = self._spare, None
+        if spare is None:
+            spare = (np.zeros(self._s1.shape, np.float32), np.zeros(self._s1.shape, np.float32))
+        return spare
+
+    def learnt(self, k: float = 0.0, written: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        """One more frame was added to the sums; ``written``: the :meth:`next_planes` buffers its
+        pass filled with the guide of all frames so far (``k`` standard errors), or None."""
         self.count += 1
         if written is None:
             return
-        old = self._read
-        if old is not None and old[3] is not written[0]:
-            self._write = (old[0], old[3], old[4])  # the older buffers: the next pass writes them
-        self._read = (layout, k, self.count, written[0], written[1])
+        if self._read is not None:
+            self._spare = (self._read[2], self._read[3])  # the older guide: the next pass writes it
+        self._read = (k, self.count, written[0], written[1])
+
+    def sums(self, k: float, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, int] | None:
+        """(luminance sums, sums of squares, frames) of the earlier frames in image order, (H, W)
+        float64 copies; None where :meth:`planes` is."""
+        if not self._ready(k, shape):
+            return None
+        at = _cells(self.layout, shape)
+        return self._s1[at], self._s2[at], self.count
+
+    def tolerances(self, k: float, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | None:
+        """(mean, k·standard error) of the earlier frames' luminance, (H, W) float32 each, as the
+        filter reads them; None where :meth:`planes` is."""
+        planes = self.planes(k, shape)
+        if planes is None:
+            return None
+        at = _cells(self.layout, shape)
+        return planes[0][at], planes[1][at]
 
     def add(self, luminance: np.ndarray) -> None:
-        """Add one frame's raw irradiance luminance (H, W) (non-finite values count as 0)."""
+        """Add one frame's raw irradiance luminance (H, W) (non-finite values count as 0), in the
+        sums' layout (image order if none yet)."""
         lum = np.nan_to_num(np.asarray(luminance, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
-        s1, s2 = self.learner(lum.shape)
-        s1 += lum
-        s2 += lum * lum
+        shape = lum.shape
+        layout = self.layout if self._shape == shape else image_layout(shape)
+        s1, s2 = self.learner(shape, layout)
+        at = _cells(layout, shape)
+        s1[at] += lum
+        s2[at] += lum * lum
         self.learnt()

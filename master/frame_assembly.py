@@ -298,19 +298,19 @@ class _Planes:
         H, W, n, q, SW = self.height, self.width, self.n, self.pad, self.sw + 2 * self.pad
         img = np.empty((H, W, 3), np.float32)
         k = float(p.get("filter_guide", 0.0))
-        layout = (n, q, SW, n * n, self.vals.shape[2] * self.vals.shape[3])
+        layout = (n, q, SW, n * n, self.vals.shape[2] * SW)  # the guide's, cell for cell the planes'
         gm, gt = _NO_GUIDE, _NO_GUIDE
         s1, s2, wm, wt = _NO_SUMS, _NO_SUMS, _NO_GUIDE, _NO_GUIDE
         if guide is not None:
-            gm, gt = (use_filter and guide.planes(k, (H, W), layout)) or (_NO_GUIDE, _NO_GUIDE)
-            s1, s2 = guide.learner((H, W))
-            wm, wt = guide.next_planes(layout)
+            s1, s2 = guide.learner((H, W), layout)
+            gm, gt = (use_filter and guide.planes(k, (H, W))) or (_NO_GUIDE, _NO_GUIDE)
+            wm, wt = guide.next_planes()
         m = 0.0 if guide is None else guide.count + 1.0
         run_stripes(self.sh, W * n, lambda y0, y1: finish_sub(vals, nrm, depth, SW, n, q, H, W, y0, y1, use_filter,
                                                               lo, hi, dt, nt, float(w[0]), float(w[1]), self.lobes,
                                                               gm.size > 0, gm, gt, s1, s2, m, k, wm, wt, img))
         if guide is not None:
-            guide.learnt(k, layout, (wm, wt))
+            guide.learnt(k, (wm, wt))
         return img
 
     def to_buffers(self, b: dict[str, np.ndarray], tiles) -> None:

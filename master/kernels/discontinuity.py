@@ -82,7 +82,7 @@ def _filter_row(irr, i0, nrm, depth, y, lo, hi, t, nt, acc, cnt, dlo, dhi) -> No
                 s0, s1 = xa + ox, xb + ox
                 _add_offset(dj[s0:s1], m0[s0:s1], m1[s0:s1], m2[s0:s1], v0[s0:s1], v1[s0:s1], v2[s0:s1],
                             c0[xa:xb], c1[xa:xb], c2[xa:xb], dlo[xa:xb], dhi[xa:xb],
-                            a0[xa:xb], a1[xa:xb], a2[xa:xb], cnt[xa:xb], nt)
+                            a0[xa:xb], a1[xa:xb], a2[xa:xb], cnt[xa:xb], nt, False, dlo[:0])
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -107,67 +107,66 @@ def _add_if(ok, u0, u1, u2, a0, a1, a2, cnt, x) -> None:
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")  # inlined: its row views then cost nothing
-def _add_offset(dj, m0, m1, m2, v0, v1, v2, c0, c1, c2, dlo, dhi, a0, a1, a2, cnt, nt) -> None:
+def _add_offset(dj, m0, m1, m2, v0, v1, v2, c0, c1, c2, dlo, dhi, a0, a1, a2, cnt, nt, keep, okm) -> None:
     """One window offset over a row: neighbour arrays (depth, normal, irradiance) already
-    shifted to line up with the centres'. Branch-free, so LLVM vectorizes it."""
+    shifted to line up with the centres'. Branch-free, so LLVM vectorizes it. ``keep``: also
+    store the continuity test in ``okm`` (1 or 0) for :func:`_add_offset_lobe`."""
     for x in range(dj.shape[0]):
         dot = (m0[x] * c0[x] + m1[x] * c1[x]) + m2[x] * c2[x]
-        _add_if(_continuous(dj[x], dlo[x], dhi[x], dot, nt), v0[x], v1[x], v2[x], a0, a1, a2, cnt, x)
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _add_offset_guided(dj, m0, m1, m2, v0, v1, v2, gj, tj, c0, c1, c2, gc, tc, dlo, dhi, a0, a1, a2, cnt,
-                       nt) -> None:
-    """:func:`_add_offset` with the edge-stopping guide (``master.edge_stopping``): a continuous
-    neighbour counts only where its earlier frames' mean ``gj`` is within ``tj + tc`` of the
-    centre's ``gc``."""
-    for x in range(dj.shape[0]):
-        dot = (m0[x] * c0[x] + m1[x] * c1[x]) + m2[x] * c2[x]
-        ok = _continuous(dj[x], dlo[x], dhi[x], dot, nt) & (abs(gj[x] - gc[x]) <= tj[x] + tc[x])
+        ok = _continuous(dj[x], dlo[x], dhi[x], dot, nt)
+        if keep:
+            okm[x] = np.float32(ok)
         _add_if(ok, v0[x], v1[x], v2[x], a0, a1, a2, cnt, x)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _guide_cell(s1, s2, inv, unbiased, k_err, gm, gt, j) -> None:
-    """One pixel's guide from its sums (inv = 1/m, unbiased = m/(m-1)): the mean and k_err
-    standard errors of the mean, written at ``j``."""
-    mean = s1 * inv
-    var = max(s2 * inv - mean * mean, 0.0) * unbiased
-    gm[j] = np.float32(mean)
-    gt[j] = np.float32(k_err * math.sqrt(var * inv))
+def _add_offset_guided(dj, m0, m1, m2, v0, v1, v2, gj, tj, c0, c1, c2, gc, tc, dlo, dhi, a0, a1, a2, cnt,
+                       nt, keep, okm) -> None:
+    """:func:`_add_offset` with the edge-stopping guide (``master.edge_stopping``): a continuous
+    neighbour counts only where its earlier frames' mean ``gj`` is within ``tj + tc`` of the
+    centre's ``gc`` (``okm`` keeps the continuity test alone: the lobes are not guided)."""
+    for x in range(dj.shape[0]):
+        dot = (m0[x] * c0[x] + m1[x] * c1[x]) + m2[x] * c2[x]
+        cont = _continuous(dj[x], dlo[x], dhi[x], dot, nt)
+        if keep:
+            okm[x] = np.float32(cont)
+        _add_if(cont & (abs(gj[x] - gc[x]) <= tj[x] + tc[x]), v0[x], v1[x], v2[x], a0, a1, a2, cnt, x)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def guide_planes(s1, s2, m, k_err, n, pad, SW, gm, gt) -> None:
+def guide_cells(s1, s2, m, k_err, gm, gt) -> None:
     """The edge-stopping guide (``master.edge_stopping``) of ``m`` >= 2 frames with luminance sums
-    ``s1`` and sums of squares ``s2`` (H, W) float64: per pixel the mean and ``k_err`` standard
-    errors of the mean (sqrt of the unbiased sample variance over m), written in the layout of
-    the frame's planes (:func:`finish_sub`): ``gm``, ``gt`` (n², (sh + 2 pad)·SW), sub-image pixel
-    (sy, sx) of k at (sy + pad)·SW + sx + pad for image pixel (sy·n + k div n, sx·n + k mod n);
-    n = 1, pad = 0, SW = W is image order. Cells outside the image keep what they hold (the
-    caller fills them: they are misses, nobody's neighbour)."""
-    H, W = s1.shape
+    ``s1`` and sums of squares ``s2`` (float64, any layout, 1-D views): per cell the mean and
+    ``k_err`` standard errors of the mean (sqrt of the unbiased sample variance over m), float32
+    ``gm``, ``gt`` of the same layout. Cells that hold no pixel (sums 0) get 0 and 0: misses, which
+    the continuity test rejects before the guide's is read."""
     inv = 1.0 / m
     unbiased = m / (m - 1.0)
-    for k in range(n * n):
-        ky, kx = k // n, k % n
-        for sy in range((H - ky + n - 1) // n):
-            y = sy * n + ky
-            j0 = (sy + pad) * SW + pad
-            for sx in range((W - kx + n - 1) // n):
-                x = sx * n + kx
-                _guide_cell(s1[y, x], s2[y, x], inv, unbiased, k_err, gm[k], gt[k], j0 + sx)
+    for j in range(s1.shape[0]):
+        mean = s1[j] * inv
+        var = max(s2[j] * inv - mean * mean, 0.0) * unbiased
+        gm[j] = np.float32(mean)
+        gt[j] = np.float32(k_err * math.sqrt(var * inv))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _add_offset_lobe(dj, m0, m1, m2, l0, l1, l2, c0, c1, c2, dlo, dhi, b0, b1, b2, lcnt, nt) -> None:
+def _learn(i0, i1, i2, s1, s2) -> None:
+    """Add each cell's irradiance luminance (non-finite: 0) and its square to the guide's sums."""
+    for j in range(i0.shape[0]):
+        v = (_LR * i0[j] + _LG * i1[j]) + _LB * i2[j]
+        e = np.float64(v) if abs(v) < np.float32(np.inf) else 0.0
+        s1[j] += e
+        s2[j] += e * e
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _add_offset_lobe(okm, l0, l1, l2, b0, b1, b2, lcnt) -> None:
     """The split lobes' sums of one window offset (after :func:`_add_offset`'s, in a pass of its
-    own: one loop over both vectorized ~7x worse): a continuous neighbour adds its lobe ``l*``
-    where it has one (l0 >= 0; one without — another material on the same plane — must not
-    dim it)."""
-    for x in range(dj.shape[0]):
-        dot = (m0[x] * c0[x] + m1[x] * c1[x]) + m2[x] * c2[x]
-        ok = _continuous(dj[x], dlo[x], dhi[x], dot, nt) & (l0[x] >= np.float32(0.0))
+    own: one loop over both vectorized ~7x worse), with the continuity test that pass kept in
+    ``okm``: a continuous neighbour adds its lobe ``l*`` where it has one (l0 >= 0; one without —
+    another material on the same plane — must not dim it)."""
+    for x in range(l0.shape[0]):
+        ok = (okm[x] > np.float32(0.0)) & (l0[x] >= np.float32(0.0))
         _add_if(ok, l0[x], l1[x], l2[x], b0, b1, b2, lcnt, x)
 
 
@@ -254,11 +253,11 @@ def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo,
 
     ``guided``: the irradiance's neighbours pass the edge-stopping test of ``master.edge_stopping``
     too, with the earlier frames' mean ``gm`` and tolerance ``gt`` in the planes' layout
-    (:func:`guide_planes`). ``s1``, ``s2`` (H, W) float64, unless empty: the guide's sums, to
-    which each pixel adds its raw irradiance luminance (non-finite: 0) and its square; then,
-    unless ``wm`` is empty or ``m`` (the frames in the sums with this one) < 2, it writes the
-    guide of the sums (the next frame's ``gm``, ``gt`` with ``k_err`` standard errors, as
-    :func:`guide_planes` computes it) to ``wm``, ``wt``: no pass of its own over the sums.
+    (:func:`guide_cells`). ``s1``, ``s2`` (n², cells) float64 in the planes' layout, unless
+    empty: the guide's sums, to which each pixel adds its raw irradiance luminance (non-finite:
+    0) and its square; then, unless ``wm`` is empty or ``m`` (the frames in the sums with this
+    one) < 2, it writes the guide of the sums (the next frame's ``gm``, ``gt`` with ``k_err``
+    standard errors) to ``wm``, ``wt``: no pass of its own over the sums.
 
     The planes are flattened rows of SW = sw + 2 pad pixels with a border of ``pad``
     (:func:`plane_pad` of the window): ``vals_s`` (n², 12, (sh + 2 pad)·SW) reflectance,
@@ -289,11 +288,10 @@ def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo,
     dhi = np.empty(cap, np.float32)
     lac = np.empty((3, cap if lobes else 0), np.float32)
     lcnt = np.empty(cap if lobes else 0, np.int32)
+    okm = np.empty(cap if lobes else 0, np.float32)  # an offset's continuity test, for the lobes' pass
     zero = np.float32(0.0)
     learn = s1.shape[0] > 0
     plan = learn and wm.shape[0] > 0 and m >= 2  # write the next frame's guide
-    m_inv = 1.0 / max(m, 1.0)
-    unbiased = m / max(m - 1.0, 1.0)
     for ya in range(sy0, sy1, BLOCK_ROWS):  # all k of a row block together: their image rows stay in cache
         yb = min(sy1, ya + BLOCK_ROWS)
         for k in range(n * n):
@@ -341,16 +339,18 @@ def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo,
                                                nrm_s[kp, 2, s:e], vals_s[kp, 3, s:e], vals_s[kp, 4, s:e],
                                                vals_s[kp, 5, s:e], gm[kp, s:e], gt[kp, s:e], c0, c1, c2,
                                                gm[k, i_s:i_e], gt[k, i_s:i_e], dlo[:L], dhi[:L], a0, a1, a2,
-                                               cnt[:L], nt)
+                                               cnt[:L], nt, lobes, okm[:L])
                         else:
                             _add_offset(dep_s[kp, s:e], nrm_s[kp, 0, s:e], nrm_s[kp, 1, s:e], nrm_s[kp, 2, s:e],
                                         vals_s[kp, 3, s:e], vals_s[kp, 4, s:e], vals_s[kp, 5, s:e],
-                                        c0, c1, c2, dlo[:L], dhi[:L], a0, a1, a2, cnt[:L], nt)
+                                        c0, c1, c2, dlo[:L], dhi[:L], a0, a1, a2, cnt[:L], nt, lobes, okm[:L])
                         if lobes:
-                            _add_offset_lobe(dep_s[kp, s:e], nrm_s[kp, 0, s:e], nrm_s[kp, 1, s:e], nrm_s[kp, 2, s:e],
-                                             vals_s[kp, 9, s:e], vals_s[kp, 10, s:e], vals_s[kp, 11, s:e],
-                                             c0, c1, c2, dlo[:L], dhi[:L], lac[0, :L], lac[1, :L], lac[2, :L],
-                                             lcnt[:L], nt)
+                            _add_offset_lobe(okm[:L], vals_s[kp, 9, s:e], vals_s[kp, 10, s:e], vals_s[kp, 11, s:e],
+                                             lac[0, :L], lac[1, :L], lac[2, :L], lcnt[:L])
+            if learn:  # the block's rows, border cells included (they hold zeros: their sums stay 0)
+                _learn(i0[i_s:i_e], i1[i_s:i_e], i2[i_s:i_e], s1[k, i_s:i_e], s2[k, i_s:i_e])
+                if plan:
+                    guide_cells(s1[k, i_s:i_e], s2[k, i_s:i_e], m, k_err, wm[k, i_s:i_e], wt[k, i_s:i_e])
             r0, r1, r2 = vals_s[k, 0], vals_s[k, 1], vals_s[k, 2]
             u0, u1, u2 = vals_s[k, 6], vals_s[k, 7], vals_s[k, 8]
             for sy in range(ya, yend):
@@ -370,13 +370,6 @@ def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo,
                         f1 = wf * f1 + wr * i1[j]
                         f2 = wf * f2 + wr * i2[j]
                     x = sx * n + kx
-                    if learn:
-                        v = (_LR * i0[j] + _LG * i1[j]) + _LB * i2[j]
-                        e = np.float64(v) if math.isfinite(v) else 0.0
-                        s1[y, x] += e
-                        s2[y, x] += e * e
-                        if plan:
-                            _guide_cell(s1[y, x], s2[y, x], m_inv, unbiased, k_err, wm[k], wt[k], j)
                     img[y, x, 0] = r0[j] * f0 + u0[j]
                     img[y, x, 1] = r1[j] * f1 + u1[j]
                     img[y, x, 2] = r2[j] * f2 + u2[j]

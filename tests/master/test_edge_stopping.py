@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from igi.common.codec import encode
+from igi.common.lights import LUMINANCE_WEIGHTS
 from igi.common.frame import TileBuffers
 from igi.common.params import make_params, params_to_dict
 from igi.master.edge_stopping import MIN_FRAMES, EdgeStoppingGuide
@@ -145,7 +146,8 @@ def test_a_frame_is_guided_by_the_frames_before_it_not_by_itself(path):
     dt, nt = params["depth_threshold"], params["normal_threshold"]
     np.testing.assert_allclose(img, _guided_reference(bufs, mean, tol, n, dt, nt), rtol=1e-5, atol=1e-6)
     with_itself = copy.deepcopy(before)
-    with_itself.add(guide._s1 - before._s1)  # the frame's own luminance, learnt before its filter
+    k = params["filter_guide"]
+    with_itself.add(guide.sums(k, (h, w))[0] - before.sums(k, (h, w))[0])  # the frame's own luminance, learnt first
     mean2, tol2 = with_itself.tolerances(params["filter_guide"], (h, w))
     assert not np.allclose(img, _guided_reference(bufs, mean2, tol2, n, dt, nt), rtol=1e-5, atol=1e-6)
 
@@ -214,31 +216,35 @@ def test_a_guided_irradiance_filter_does_not_fade_and_the_lobes_still_do():
 
 
 def test_the_filter_pass_writes_the_next_frames_guide_as_the_sums_give_it():
-    """The pass that learns a frame also writes the next frame's guide planes (no pass of its own
-    over the sums): they must be bit for bit what ``guide_planes`` computes from the sums, for
-    every frame from the first guided one on, and a guide changed by ``add`` (sums the planes
-    never saw) must be computed afresh, not read stale."""
-    from igi.master.kernels.discontinuity import guide_planes
+    """The pass that learns a frame also writes the next frame's guide (no pass of its own over
+    the sums): bit for bit what ``guide_cells`` computes from the sums, for every frame from the
+    first guided one on; the sums are each pixel's own, whatever the planes' layout; and a guide
+    changed by ``add`` (sums the written guide never saw) is computed afresh, not read stale."""
+    from igi.master.kernels.discontinuity import guide_cells
 
     w, h, n = 25, 13, 3
     params = params_to_dict(make_params(interleave=n))
     k = params["filter_guide"]
     guide = EdgeStoppingGuide().track("view")
+    lum = []
     for i, frame in enumerate(_step_frames(MIN_FRAMES + 3, seed=5, w=w, h=h, n=n)):
         asm = FrameAssembler(w, h, n)
         for t, b in frame:
             asm.add_wire(t, encode(b))
         asm.image(params, i, guide)
+        irr = asm.buffers["irradiance"].astype(np.float64)
+        lum.append(irr @ np.array(LUMINANCE_WEIGHTS))
         if guide.count < MIN_FRAMES:
             continue
-        layout, kk, count, gm, gt = guide._read
+        kk, count, gm, gt = guide._read
         assert (kk, count) == (k, guide.count)
-        ref_m, ref_t = np.zeros_like(gm), np.full_like(gt, np.inf)
-        s1, s2, m = guide.sums(k, (h, w))
-        guide_planes(s1, s2, float(m), k, *layout[:3], ref_m, ref_t)
+        ref_m, ref_t = np.empty_like(gm), np.empty_like(gt)
+        guide_cells(guide._s1.ravel(), guide._s2.ravel(), float(guide.count), k, ref_m.ravel(), ref_t.ravel())
         np.testing.assert_array_equal(gm, ref_m)
         np.testing.assert_array_equal(gt, ref_t)
-        assert np.isinf(gt).sum() == gt.size - w * h  # every image pixel written, the rest misses
+        s1, s2, m = guide.sums(k, (h, w))
+        np.testing.assert_allclose(s1, np.sum(lum, 0), rtol=1e-5)  # pixel by pixel, in image order
+        np.testing.assert_allclose(s2, np.sum(np.square(lum), 0), rtol=1e-5)
     mean_before, _ = guide.tolerances(k, (h, w))
     guide.add(np.full((h, w), 100.0))
     mean_after, _ = guide.tolerances(k, (h, w))
