@@ -154,6 +154,12 @@ class LightSampler:
         if lit.sum() > 1:
             self.pmf = (1 - UNIFORM_SHARE) * self.pmf + UNIFORM_SHARE * lit / lit.sum()
         self.cdf = np.cumsum(self.pmf)
+        from .environment_map import environment_map, no_map
+
+        # the sky as a map (Mitsuba's envmap; None: a constant sky, or none) and its kernels' tables
+        self.env_map = environment_map(scene)
+        self.env_tables = self.env_map.env if self.env_map is not None else no_map()
+        self.env_index = next((i for i, e in enumerate(scene.emitters) if e.kind == CONSTANT), -1)
 
     def emitter_spheres(self) -> tuple[np.ndarray, np.ndarray]:
         """Bounding spheres of the area emitters (centres, radii), computed once."""
@@ -221,7 +227,10 @@ class LightSampler:
         area = s.kind == VPL_AREA
         s.pdf[area] = pmf[em[area]] / np.maximum(self.area_total[em[area]], 1e-300)
         env = (s.pdf > 0) & ~area  # the environment's directions (delta lights have pdf 0)
-        s.pdf[env] = pmf[em[env]] / (4 * np.pi)
+        if self.env_map is None:
+            s.pdf[env] = pmf[em[env]] / (4 * np.pi)
+        else:
+            s.pdf[env] = pmf[em[env]] * s.pdf[env]  # × the map's pdf of each direction
         s.power /= np.maximum(pmf[em], 1e-300)[:, None]
         return s
 
@@ -252,6 +261,13 @@ class LightSampler:
                 nrm[sel] = e.direction / np.linalg.norm(e.direction)
                 kind[sel] = VPL_DIRECTIONAL
                 power[sel] = e.irradiance
+            elif e.kind == CONSTANT and self.env_map is not None:
+                # Light from a direction drawn from the map (where it is bright): E = L(ω) / p(ω).
+                d, p = self.env_map.sample(u[sel, 0:2])
+                nrm[sel] = -d
+                kind[sel] = VPL_DIRECTIONAL
+                power[sel] = self.env_map.radiance(d) / p[:, None]
+                pdf[sel] = p
             elif e.kind == CONSTANT:
                 # Light arriving from a uniformly chosen direction: E = L·4π per sample.
                 d = uniform_sphere(u[sel, 0:2])
@@ -279,6 +295,20 @@ class LightSampler:
             if e.kind == CONSTANT:
                 tot += pmf[i] / (4 * np.pi)
         return tot
+
+    def environment_pdfs(self, d: np.ndarray, pmf: np.ndarray | None = None) -> np.ndarray | float:
+        """Solid-angle pdf with which sample_points draws the sky along unit directions ``d``
+        (N, 3): per direction for a map, :meth:`environment_pdf` (one number) for a constant sky."""
+        if self.env_map is None:
+            return self.environment_pdf(pmf)
+        pmf = self.pmf if pmf is None else pmf
+        return float(pmf[self.env_index]) * self.env_map.pdf(d)
+
+    def environment_radiance(self, d: np.ndarray) -> np.ndarray:
+        """Radiance (N, 3) of rays leaving the scene along unit directions ``d`` (N, 3)."""
+        if self.env_map is None:
+            return np.broadcast_to(self.environment(), (len(d), 3))
+        return self.env_map.radiance(d)
 
     def emit_rays(self, u: np.ndarray) -> EmittedRays:
         """Light rays for walks and photons from u (N, 5); flux is per ray, not divided by N."""
@@ -320,6 +350,10 @@ class LightSampler:
                 if e.kind == DIRECTIONAL:
                     dirs = np.broadcast_to(e.direction / np.linalg.norm(e.direction), (len(sel), 3)).copy()
                     scale = e.irradiance
+                elif self.env_map is not None:  # from the map's bright directions: L(ω) / p(ω)
+                    sky, p = self.env_map.sample(u[sel, 3:5])
+                    dirs = -sky
+                    scale = self.env_map.radiance(sky) / p[:, None]
                 else:
                     dirs = -uniform_sphere(u[sel, 3:5])
                     scale = e.radiance * 4 * np.pi

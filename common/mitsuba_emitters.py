@@ -1,4 +1,4 @@
-"""Mitsuba emitters (``point``, ``spot``, ``directional``, ``constant``; ``envmap`` as a constant)
+"""Mitsuba emitters (``point``, ``spot``, ``directional``, ``constant``, ``envmap``)
 -> :class:`common.scene.Emitter`; area emitters come with their shape (:mod:`common.mitsuba_shapes`).
 A plain function of the loader at work (:class:`common.mitsuba_xml._Loader`)."""
 from __future__ import annotations
@@ -45,23 +45,24 @@ def load_emitter(loader, node: Node) -> None:
     elif kind == "envmap":
         fn = p.string("filename")
         scale = p.float("scale", 1.0)
-        p.transform("to_world")
-        rad = np.ones(3)
-        if fn is not None:
-            from .image_io import read_image
+        M = p.transform("to_world")
+        if fn is None:
+            raise loader.error(node, "<emitter type='envmap'> needs a filename")
+        from .environment_map import EnvironmentMap
+        from .image_io import read_image
 
-            try:
-                img = read_image(loader.resolve(fn, node)).astype(np.float64)
-                h = img.shape[0]
-                w = np.sin((np.arange(h) + 0.5) / h * np.pi)  # lat-long solid-angle weights
-                rad = (img.mean(axis=1) * w[:, None]).sum(axis=0) / w.sum()
-            except SceneRootError:
-                raise
-            except SceneError as err:
-                loader.warn(node, f"envmap file unusable ({err})", "using radiance 1")
-        rad = rad * scale
-        loader.warn(node, "emitter 'envmap' is not supported", f"using a constant emitter with its mean {fmt_rgb(rad)}")
-        e = Emitter(kind=CONSTANT, radiance=rad, name=name)
+        try:
+            img = read_image(loader.resolve(fn, node)).astype(np.float32) * np.float32(scale)
+            rad = EnvironmentMap(img, M[:3, :3]).mean
+        except SceneRootError:
+            raise
+        except SceneError as err:
+            raise loader.error(node, f"envmap '{fn}': {err}") from None
+        R = M[:3, :3]
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-4):  # a scaled or sheared frame: directions only
+            q, _ = np.linalg.qr(R)
+            R = q * np.sign(np.diag(_))[None, :]
+        e = Emitter(kind=CONSTANT, radiance=rad, image=img, to_world=np.ascontiguousarray(R, np.float64), name=name)
     else:
         loader.warn(node, f"unsupported emitter '{kind}'", "skipped")
         return

@@ -11,8 +11,8 @@ the element, its ``file:line`` and the fallback):
   ``roughdielectric`` falls back to ``dielectric``; ``mask``/``bumpmap``/``normalmap``/``blendbsdf``
   fall back to their (first) nested BSDF; textures ``bitmap`` (``filename``, ``filter_type``,
   ``raw``, ``to_uv`` scale/translate); other textures fall back to their mean colour;
-- emitters ``area``, ``point``, ``spot``, ``directional``, ``constant`` (``envmap`` falls back to
-  a ``constant`` with the map's solid-angle mean radiance);
+- emitters ``area``, ``point``, ``spot``, ``directional``, ``constant``, ``envmap`` (``filename``,
+  ``scale``, ``to_world``; at most one environment emitter when one is a map);
 - sensor ``perspective`` (``fov``/``focal_length``, ``fov_axis``, ``to_world``, ``near_clip``) with
   an ``hdrfilm`` (``width``, ``height``); ``<integrator>``'s ``max_depth``;
 - ``<default>`` + ``$name`` substitution (the ``defaults`` argument wins), ``<ref>``, ids,
@@ -52,7 +52,7 @@ from .mitsuba_doc import IOR_TABLE, OBJECT_TAGS, Node, parse_xml_file
 from .mitsuba_emitters import load_emitter
 from .mitsuba_sensors import default_camera, load_integrator, load_sensor
 from .mitsuba_shapes import load_shape
-from .scene import AREA, Camera, Emitter, Material, Mesh, Scene, SceneError, Texture
+from .scene import AREA, CONSTANT, Camera, Emitter, Material, Mesh, Scene, SceneError, Texture
 from .scene_root import SceneRoot
 
 log = logging.getLogger("igi.scene")
@@ -321,6 +321,10 @@ class _Loader:
                 self.warn(c, f"unsupported element <{tag}>", "ignored")
         if not self.meshes and not any(e.kind != AREA for e in self.emitters):
             self.warn(root, "the scene has no shapes", "nothing to render")
+        skies = [e for e in self.emitters if e.kind == CONSTANT]
+        if len(skies) > 1 and any(e.image is not None for e in skies):
+            raise self.error(root, "only one environment emitter (constant or envmap) per scene, as in Mitsuba 3; "
+                             f"found {len(skies)}: " + ", ".join(e.name for e in skies))
         if self.camera is None:
             self.camera = default_camera(self)
             self.warn(root, "no <sensor>", "using Mitsuba's default camera (45 deg, looking along +z at the scene)")

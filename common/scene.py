@@ -165,6 +165,10 @@ class Emitter:
     beam_width: float = 15.0  # spot, degrees (Mitsuba default: 3/4 of cutoff)
     mesh: int = -1  # area: index into Scene.meshes
     name: str = ""
+    # constant with a map (Mitsuba's envmap): the lat-long image (H, W, 3) times its scale, and
+    # its rotation (3, 3); radiance is then the map's solid-angle mean (common.environment_map)
+    image: np.ndarray | None = None
+    to_world: np.ndarray | None = None
 
 
 @dataclass
@@ -237,6 +241,9 @@ class Scene:
             h.update(repr((mat.kind, mat.alpha, mat.int_ior, mat.ext_ior, mat.distribution)).encode())
         for e in self.emitters:
             h.update(repr((e.kind, e.radiance.tolist(), e.intensity.tolist(), e.position.tolist())).encode())
+            if e.image is not None:
+                h.update(np.ascontiguousarray(e.image, np.float32).tobytes())
+                h.update(np.asarray(e.to_world if e.to_world is not None else np.eye(3), np.float64).tobytes())
         h.update(np.asarray(self.camera.to_world).tobytes())
         return h.hexdigest()[:16]
 

@@ -272,6 +272,11 @@ def validate_scene(scene: Scene) -> None:
         for vname in ("radiance", "intensity", "irradiance", "position", "direction"):
             if np.shape(getattr(e, vname)) != (3,):
                 raise SceneError(f"emitter {i} ({e.name}) {vname}: expected 3 values")
+        if e.image is not None and (e.kind != scene_mod.CONSTANT or e.image.ndim != 3 or e.image.shape[2] != 3
+                                    or e.image.shape[0] < 3 or e.image.shape[1] < 2):
+            raise SceneError(f"emitter {i} ({e.name}): environment map image shape {e.image.shape}")
+        if e.to_world is not None and np.shape(e.to_world) != (3, 3):
+            raise SceneError(f"emitter {i} ({e.name}) to_world: expected a 3x3 matrix")
     if np.shape(scene.camera.to_world) != (4, 4):
         raise SceneError("camera to_world: expected a 4x4 matrix")
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from igi.common.environment_map import EnvironmentMap, no_map
 from igi.common.geometry import Geometry
 from igi.common.lights import VPL_DIRECTIONAL, LightSampler, cosine_hemisphere, to_world
 from igi.common.scene import CONSTANT, Scene
@@ -41,11 +42,15 @@ class EnvGuide:
     # enters what the view sees (worker.portals starts light walks there); None: not kept.
     escape_origin: np.ndarray | None = None
     escape_direction: np.ndarray | None = None
+    # the sky's environment map (common.environment_map), if it is one: the mixture's share that is
+    # otherwise uniform over the sphere is drawn from the map (its bright directions: the sun)
+    sky_map: EnvironmentMap | None = None
 
     def pdf(self, d: np.ndarray) -> np.ndarray:
         """q(ω) per steradian for unit world directions (N, 3) (kernels.environment_bins)."""
         out = np.empty(len(d))
-        guide_pdfs(self.density, np.ascontiguousarray(d, np.float64), out)
+        tables = self.sky_map.env if self.sky_map is not None else no_map()
+        guide_pdfs(self.density, tables, np.ascontiguousarray(d, np.float64), out)
         return out
 
     def sample(self, u: np.ndarray) -> np.ndarray:
@@ -61,7 +66,10 @@ class EnvGuide:
             z[guided] = -1 + 2 * (bz + u[guided, 1]) / BINS_Z
             phi[guided] = 2 * np.pi * (bp + u[guided, 2]) / BINS_PHI
         r = np.sqrt(np.maximum(0.0, 1 - z * z))
-        return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1).reshape(n, 3)
+        out = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1).reshape(n, 3)
+        if self.sky_map is not None and not guided.all():
+            out[~guided] = self.sky_map.sample(u[~guided, 1:3])[0]
+        return out
 
 
 def _bin(d: np.ndarray) -> np.ndarray:
@@ -103,13 +111,13 @@ def build_guide(scene: Scene, geom: Geometry, lights: LightSampler, end, g: np.r
     counts = np.bincount(_bin(out), minlength=BINS_Z * BINS_PHI).astype(np.float64)
     hist = counts / counts.sum()
     return EnvGuide(np.cumsum(hist), hist / (4 * np.pi / (BINS_Z * BINS_PHI)), float(lights.pmf[ei]),
-                    o[escaped], out)
+                    o[escaped], out, lights.env_map)
 
 
 def guide_environment_samples(vpls, lights: LightSampler, guide: EnvGuide, direct_vpls: int,
                               g: np.random.Generator) -> None:
     """Redraw a set's environment samples (directional VPLs with a pdf) from the guide, in place:
-    direction ω ~ q, power L/(q·pmf)/D, light pdf pmf·q."""
+    direction ω ~ q, power L(ω)/(q·pmf)/D, light pdf pmf·q."""
     rows = np.nonzero((vpls.kind == VPL_DIRECTIONAL) & (vpls.light_pdf > 0))[0]
     if len(rows) == 0 or direct_vpls <= 0:
         return
@@ -117,5 +125,6 @@ def guide_environment_samples(vpls, lights: LightSampler, guide: EnvGuide, direc
     q = guide.pdf(w)
     vpls.normal[rows] = -w
     vpls.ng[rows] = -w
-    vpls.power[rows] = lights.environment()[None, :] / (q * guide.pmf)[:, None] / direct_vpls
+    sky = lights.environment()[None, :] if lights.env_map is None else lights.environment_radiance(w)
+    vpls.power[rows] = sky / (q * guide.pmf)[:, None] / direct_vpls
     vpls.light_pdf[rows] = guide.pmf * q

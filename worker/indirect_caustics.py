@@ -57,9 +57,9 @@ def lensed_arrivals(scene: Scene, geom: Geometry, lights: LightSampler, end: End
     seg = end.segments[rows].astype(np.int64) + 1  # segments once the ray reached the surface
     env = lights.environment()
     chain = (rows, thr, d, pos, ns, ng, mat_i, uv, seg)
-    ends = _compiled_chains(scene, geom, *chain, specular_depth, max_depth, rng, env, out)
+    ends = _compiled_chains(scene, geom, *chain, specular_depth, max_depth, rng, env, lights.env_tables, out)
     if ends is None:
-        ends = _numpy_chains(scene, geom, kinds, *chain, specular_depth, max_depth, rng, env, out)
+        ends = _numpy_chains(scene, geom, kinds, *chain, specular_depth, max_depth, rng, env, out, lights)
     if not ends:
         return out, None
     # each row's chain ends once (here or as a miss above): its rows are unique
@@ -68,7 +68,7 @@ def lensed_arrivals(scene: Scene, geom: Geometry, lights: LightSampler, end: End
 
 
 def _compiled_chains(scene, geom, rows, thr, d, pos, ns, ng, mat_i, _uv, seg, specular_depth, max_depth, rng,
-                     env, out) -> list[tuple] | None:
+                     env, sky_map, out) -> list[tuple] | None:
     """The chains of :func:`lensed_arrivals` followed in one compiled call
     (kernels.specular_chain.follow_chains: the same draws, rays and ends as its numpy loop),
     their ends as that loop lists them (one entry, or none); None where the loop must run instead: rays that must
@@ -88,14 +88,14 @@ def _compiled_chains(scene, geom, rows, thr, d, pos, ns, ng, mat_i, _uv, seg, sp
     _center, eps, ulps = geom.offset_terms()
     done, traced = sc.follow_chains(P, specular, rng, terms, c(rows, np.int64), c(pos, np.float64), c(ns, np.float64),
                                     c(ng, np.float64), c(d, np.float64), c(thr, np.float64), c(seg, np.int64), prow,
-                                    int(specular_depth), int(max_depth), eps, ulps, c(env, np.float64),
+                                    int(specular_depth), int(max_depth), eps, ulps, c(env, np.float64), sky_map,
                                     out, ends)
     geom.counters["intersect_rays"] += traced
     return [tuple(a[:done] for a in ends)] if done else []
 
 
 def _numpy_chains(scene, geom, kinds, rows, thr, d, pos, ns, ng, mat_i, uv, seg, specular_depth, max_depth, rng, env,
-                  out) -> list[tuple]:
+                  out, lights=None) -> list[tuple]:
     """The chains of :func:`lensed_arrivals` followed bounce by bounce in numpy (where
     :func:`_compiled_chains` cannot): the sky along misses added to ``out``, the chain ends
     listed per bounce (rows, throughput, segments, direction, position, ns, ng, material, uv, t)."""
@@ -109,7 +109,8 @@ def _numpy_chains(scene, geom, kinds, rows, thr, d, pos, ns, ng, mat_i, uv, seg,
         h = geom.intersect(origin, d)
         miss = np.nonzero(~h.valid)[0]
         if len(miss) and np.any(env > 0):
-            np.add.at(out, rows[miss], thr[miss] * env)
+            sky = env if lights is None or lights.env_map is None else lights.environment_radiance(d[miss])
+            np.add.at(out, rows[miss], thr[miss] * sky)
         hit = np.nonzero(h.valid)[0]
         spec = kind_in(kinds[h.material[hit]], SPECULAR_KINDS)
         y = hit[~spec]

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from igi.common.environment_map import EnvironmentMap
 from igi.common.geometry import Geometry
 from igi.common.lights import EmittedRays, LightSampler, frame_from, uniform_sphere
 
@@ -60,6 +61,9 @@ class Portals:
     hi: np.ndarray
     choice: np.ndarray  # (G, BINS) P(box g, direction bin b)
     cdf: np.ndarray  # (G * BINS,) cumulative of choice, row-major
+    # the sky's environment map (common.environment_map), if it is one: the disk's directions are
+    # drawn from it (where it is bright) instead of uniformly
+    sky_map: EnvironmentMap | None = None
 
     def __len__(self) -> int:
         return len(self.lo)
@@ -69,7 +73,7 @@ class Portals:
         """(ω, origin) for uniforms u (n, 5): u0 picks disk or portal (and the box and bin), u1..2
         the point across the ray, u3..4 the direction. ω points to the sky; the origin lies on the
         plane 1.01 bounding radii from the centre towards ω (outside the scene)."""
-        w = uniform_sphere(u[:, 3:5])
+        w = uniform_sphere(u[:, 3:5]) if self.sky_map is None else self.sky_map.sample(u[:, 3:5])[0]
         rr = self.radius * np.sqrt(u[:, 1])
         phi = 2 * np.pi * u[:, 2]
         s_ax, t_ax = frame_from(w)
@@ -94,7 +98,10 @@ class Portals:
         rel = origin - self.centre
         off = rel - w * np.einsum("ij,ij->i", rel, w)[:, None]
         on_disk = np.einsum("ij,ij->i", off, off) <= self.radius ** 2 * (1 + 1e-9)
-        p = DISK_SHARE * on_disk / (4 * np.pi * np.pi * self.radius ** 2)
+        if self.sky_map is None:
+            p = DISK_SHARE * on_disk / (4 * np.pi * np.pi * self.radius ** 2)
+        else:
+            p = DISK_SHARE * on_disk * self.sky_map.pdf(w) / (np.pi * self.radius ** 2)
         if len(self) == 0:
             return p
         b = _bin(w)
@@ -154,7 +161,7 @@ def find_portals(geom: Geometry, lights: LightSampler, emitter: int, origin: np.
     np.add.at(choice, (np.searchsorted(ids, box), _bin(d)), 1.0)
     choice /= choice.sum()
     return Portals(emitter, np.asarray(lights.center, np.float64), float(lights.radius), lo, hi, choice,
-                   np.cumsum(choice.ravel()))
+                   np.cumsum(choice.ravel()), lights.env_map)
 
 
 def portal_walks(rays: EmittedRays, u: np.ndarray, lights: LightSampler, portals: Portals) -> None:
@@ -171,12 +178,13 @@ def portal_walks(rays: EmittedRays, u: np.ndarray, lights: LightSampler, portals
     uu[:, 0] = np.clip((uu[:, 0] * cdf[-1] - lo) / width, 0.0, np.nextafter(1.0, 0.0))
     w, s = portals.sample(uu)
     p = portals.pdf(w, s)
-    radiance = lights.scene.emitters[portals.emitter].radiance
+    radiance = lights.scene.emitters[portals.emitter].radiance[None, :] if lights.env_map is None \
+        else lights.environment_radiance(w)
     pmf = max(float(lights.pmf[portals.emitter]), 1e-300)
     rays.origin[rows] = s
     rays.direction[rows] = -w
     rays.normal[rows] = -w
-    rays.flux[rows] = radiance[None, :] / (np.maximum(p, 1e-300) * pmf)[:, None]
+    rays.flux[rows] = radiance / (np.maximum(p, 1e-300) * pmf)[:, None]
 
 
 # -- geometry helpers ---------------------------------------------------------------------------

@@ -147,7 +147,7 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
         # Misses keep their rows (material -1: the NULL kind, so no end point or chain starts
         # there): one copy of the per-hit arrays less than dropping them first.
         miss = ~v
-        unf[miss] += env
+        unf[miss] += env if lights.env_map is None else lights.environment_radiance(d[miss])
         normal[miss] = 0.0
     lit = np.flatnonzero(hits.emitter >= 0)  # emission seen directly (the rest would add 0)
     if len(lit):
@@ -234,9 +234,16 @@ def _compiled_eye(scene, geom, lights, origins, dirs, max_depth, specular_depth,
     # the sky's pdf along an escaping lobe ray (emitter_pdf): the environment's, or its guide's
     # pmf × q(ω) (q from the guide's histogram, per direction in the kernel)
     guide = light_mis.env_guide if sky and light_mis is not None else None
-    env_pdf = (float(guide.pmf) if guide is not None else float(lights.environment_pdf(pmf))) if sky else 0.0
+    if not sky:
+        env_pdf = 0.0
+    elif guide is not None:
+        env_pdf = float(guide.pmf)
+    elif lights.env_map is not None:  # the kernel takes the map's pdf per direction
+        env_pdf = float((lights.pmf if pmf is None else pmf)[lights.env_index])
+    else:
+        env_pdf = float(lights.environment_pdf(pmf))
     density = np.ascontiguousarray(guide.density, np.float64) if guide is not None else _NO_DENSITY
-    lobes = (split, smooth, P_lobe, count, area_pdf, env_pdf, density)
+    lobes = (split, smooth, P_lobe, count, area_pdf, env_pdf, density, lights.env_tables)
     p = len(origins)
     unf, depth, normal = np.zeros((p, 3)), np.empty(p), np.empty((p, 3))
     n = 3 * p  # room enough unless chains keep meeting smooth glossy surfaces (then: the numpy form)
@@ -317,7 +324,7 @@ def sky_pdf(lights: LightSampler, light_mis: LightMIS, dirs: np.ndarray) -> np.n
     its guide's pmf × q(ω) where the set's sky samples are guided, else the environment's pdf
     (the compiled eye paths take the same two: worker.shading._compiled_eye)."""
     g = light_mis.env_guide
-    return g.pmf * g.pdf(dirs) if g is not None else lights.environment_pdf(light_mis.emitter_pmf)
+    return g.pmf * g.pdf(dirs) if g is not None else lights.environment_pdfs(dirs, light_mis.emitter_pmf)
 
 
 def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis_pdf, unf, env,
@@ -343,7 +350,7 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis
                 lh, lv, ld = hits.rows(lit), v[lit], dirs[lit]
                 w_mis = _mis_emission(lights, lh, lv, ld, mis_pdf[lit], light_mis)
                 le = np.zeros((len(lit), 3))
-                le[~lv] = env
+                le[~lv] = env if lights.env_map is None else lights.environment_radiance(ld[~lv])
                 if lv.any():
                     le[lv] = lights.emitted_radiance(lh.emitter[lv], -np.einsum("ij,ij->i", ld[lv], lh.ns[lv]))
                 np.add.at(unf, pix[lit], thr[lit] * le * w_mis[:, None])
@@ -1000,5 +1007,5 @@ def add_bsdf_direct(lights: LightSampler, ray_sets: Sequence[tuple[BSDFRays, int
             if miss.any():
                 env_pl[miss] = sky_pdf(lights, light_mis, rays.direction[miss])
         kbd.add_emission(rays.rows, int(base), rays.weight, rays.pdf, rays.delta, rays.direction, h.valid, h.t, h.ns,
-                         h.emitter, lights.area_radiance, area_pdf, env, sky, env_pl, float(light_mis.direct_count),
-                         alb, irr)
+                         h.emitter, lights.area_radiance, area_pdf, env, lights.env_tables, sky, env_pl,
+                         float(light_mis.direct_count), alb, irr)

@@ -26,7 +26,7 @@ def bsdf_direct_numpy(lights, rays, albedo: np.ndarray, light_mis) -> np.ndarray
         cos_front = -(dv[:, 0] * nv[:, 0] + dv[:, 1] * nv[:, 1] + dv[:, 2] * nv[:, 2])
         le[v] = lights.emitted_radiance(hits.emitter[v], cos_front)
     if np.any(env > 0) and (~v).any():
-        le[~v] = env
+        le[~v] = env if lights.env_map is None else lights.environment_radiance(d[~v])
     # emitter_pdf's solid-angle pdf, its cosine summed left to right as above
     pl = np.zeros(len(d))
     if v.any():
@@ -34,7 +34,7 @@ def bsdf_direct_numpy(lights, rays, albedo: np.ndarray, light_mis) -> np.ndarray
                  / np.maximum(np.abs(cos_front), 1e-7))
     if (~v).any() and np.any(env > 0):
         g = light_mis.env_guide
-        pl[~v] = g.pmf * g.pdf(d[~v]) if g is not None else lights.environment_pdf(light_mis.emitter_pmf)
+        pl[~v] = g.pmf * g.pdf(d[~v]) if g is not None else lights.environment_pdfs(d[~v], light_mis.emitter_pmf)
     pl = pl * light_mis.direct_count
     w_mis = np.where(delta, 1.0, pdf_b ** 2 / np.maximum(pdf_b ** 2 + pl ** 2, 1e-300))
     contrib = weight * le * w_mis[:, None] / np.maximum(albedo[ok], 1e-6)

@@ -11,17 +11,21 @@ import math
 
 from numba import njit
 
+from igi.common.kernels import environment_map as env_map
+
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def add_emission(rows, base, weight, pdf_b, delta, d, valid, t, ns, emitter, radiance, area_pdf, env, sky, env_pl,
-                 direct_count, albedo, irr) -> int:
+def add_emission(rows, base, weight, pdf_b, delta, d, valid, t, ns, emitter, radiance, area_pdf, env, sky_map, sky,
+                 env_pl, direct_count, albedo, irr) -> int:
     """irr[base + rows[q]] += weight_q × L_e × w_MIS / max(albedo, 1e-6) (0 where not finite)
     for each ray q that reaches an emitter (``valid`` and ``emitter`` >= 0: L_e its row of
     ``radiance`` (emitters + 1, 3; the last row 0) on the front side, else 0; the emitter
     samples' solid-angle pdf area_pdf[emitter] · t² / max(|cos|, 1e-7)) or, with ``sky``,
-    misses (L_e = ``env``, pdf ``env_pl[q]``); w_MIS = 1 for a delta sample, else
+    misses (L_e = ``env``, or the environment map ``sky_map``'s radiance along the ray where it
+    is one — common.kernels.environment_map —, pdf ``env_pl[q]``); w_MIS = 1 for a delta sample, else
     pdf_b² / max(pdf_b² + (direct_count · pdf)², 1e-300). Returns the rays that carried light."""
     last = radiance.shape[0] - 1
+    mapped = sky_map[0].shape[0] > 0
     lit = 0
     for q in range(rows.shape[0]):
         if valid[q]:
@@ -37,7 +41,10 @@ def add_emission(rows, base, weight, pdf_b, delta, d, valid, t, ns, emitter, rad
             pl = area_pdf[em if em < area_pdf.shape[0] else area_pdf.shape[0] - 1] * (t[q] * t[q]) / max(
                 abs(cos_front), 1e-7)
         elif sky:
-            l0, l1, l2 = env[0], env[1], env[2]
+            if mapped:
+                l0, l1, l2 = env_map.radiance(sky_map, d[q, 0], d[q, 1], d[q, 2])
+            else:
+                l0, l1, l2 = env[0], env[1], env[2]
             pl = env_pl[q]
         else:
             continue

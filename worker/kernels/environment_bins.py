@@ -9,8 +9,10 @@ import math
 import numpy as np
 from numba import njit
 
+from igi.common.kernels import environment_map as env_map
+
 BINS_Z, BINS_PHI = 16, 32  # equal-area bins: uniform in cos θ and φ about the world z axis
-UNIFORM_SHARE = 0.5  # the guide's mixture: this share uniform over the sphere, the rest the histogram
+UNIFORM_SHARE = 0.5  # the guide's mixture: this share uniform (or the sky's map), the rest the histogram
 _UNIFORM_PDF = UNIFORM_SHARE / (4 * np.pi)
 _TWO_PI = 2 * np.pi
 
@@ -31,9 +33,12 @@ def direction_bin(dx, dy, dz) -> int:
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def guide_pdf(density, dx, dy, dz) -> float:
-    """The guide's mixture q(ω) per steradian (``density``: the histogram's pdf per bin)."""
-    return _UNIFORM_PDF + (1 - UNIFORM_SHARE) * density[direction_bin(dx, dy, dz)]
+def guide_pdf(density, env, dx, dy, dz) -> float:
+    """The guide's mixture q(ω) per steradian (``density``: the histogram's pdf per bin): its
+    UNIFORM_SHARE uniform over the sphere, or drawn from the environment map ``env`` where the
+    sky is one (``common.kernels.environment_map``; an empty map: none)."""
+    base = _UNIFORM_PDF if env[0].shape[0] == 0 else UNIFORM_SHARE * env_map.pdf(env, dx, dy, dz)
+    return base + (1 - UNIFORM_SHARE) * density[direction_bin(dx, dy, dz)]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -44,7 +49,7 @@ def direction_bins(d, out) -> None:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def guide_pdfs(density, d, out) -> None:
+def guide_pdfs(density, env, d, out) -> None:
     """:func:`guide_pdf` of each row of ``d`` (n, 3) into ``out`` (n,)."""
     for i in range(d.shape[0]):
-        out[i] = guide_pdf(density, d[i, 0], d[i, 1], d[i, 2])
+        out[i] = guide_pdf(density, env, d[i, 0], d[i, 1], d[i, 2])

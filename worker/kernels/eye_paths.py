@@ -14,6 +14,7 @@ import numpy as np
 from numba import njit
 
 from igi.common.kernels import bsdf as kb
+from igi.common.kernels import environment_map as env_map
 from igi.common.kernels import shading_frame
 from igi.common.kernels.hit_surface import offset_point
 from igi.common.kernels.ray_packets import closest_surfaces, hit_buffers
@@ -85,13 +86,16 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
     brighter one the pixel's main) followed by :func:`_chains`, their end points after.
     ``lobes``: (split smooth glossy hits?, smooth per material row, P with the plastics' kind
     their lobe's, light samples per set (0: the lobes take none, no MIS), area pdf per emitter
-    (a last row of 0), the environment's pdf — its emitter-choice probability where guided — and
-    the environment guide's histogram density (empty: not guided; worker.env_guide, its mixture
-    q(ω) per direction: kernels.environment_bins.guide_pdf)). The main chain ends' distance and ns replace their
+    (a last row of 0), the environment's pdf — its emitter-choice probability where guided or a
+    map —, the environment guide's histogram density (empty: not guided; worker.env_guide, its
+    mixture q(ω) per direction: kernels.environment_bins.guide_pdf) and the sky's environment
+    map (common.kernels.environment_map; empty: a constant ``env``)). The main chain ends' distance and ns replace their
     pixels' depth and normal. Returns (end points written, rays traced); (-1, rays) where
     ``ends`` was too small."""
     center = closest[1]
     split, smooth, P_lobe, direct_count = lobes[0], lobes[1], lobes[2], lobes[3]
+    sky_map = lobes[7]
+    mapped = sky_map[0].shape[0] > 0
     p = o.shape[0]
     hits = hit_buffers(p)
     closest_surfaces(closest, o, d, p, hits)
@@ -111,8 +115,15 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
         for a in range(3):
             normal[i, a] = hns[i, a]
         if not valid[i]:
+            if mapped:
+                lr, lg, lb = env_map.radiance(sky_map, d[i, 0], d[i, 1], d[i, 2])
+                unf[i, 0] += lr
+                unf[i, 1] += lg
+                unf[i, 2] += lb
+            else:
+                for a in range(3):
+                    unf[i, a] += env[a]
             for a in range(3):
-                unf[i, a] += env[a]
                 normal[i, a] = 0.0
         e = hem[i]
         if e >= 0:  # emission seen directly, front side only
@@ -254,8 +265,9 @@ def _chains(P, kind, specular, null_kind, rng, closest, rays, live, specular_dep
     on: the delta samples', then the lobes'. Returns (ends written in all, rays traced); -1 for
     the first where ``ends`` was too small."""
     center = closest[1]
-    split, smooth, P_lobe, direct_count, area_pdf, env_pdf, env_density = lobes
+    split, smooth, P_lobe, direct_count, area_pdf, env_pdf, env_density, sky_map = lobes
     guided = env_density.shape[0] > 0
+    mapped = sky_map[0].shape[0] > 0
     cur = rays
     n = cur[0].shape[0]
     nxt = (np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_),
@@ -285,10 +297,22 @@ def _chains(P, kind, specular, null_kind, rng, closest, rays, live, specular_dep
                 for i in range(live):
                     if not valid[i]:
                         # a guided sky's pdf along the ray (worker.shading.emitter_pdf: pmf × q(ω))
-                        pe = env_pdf * guide_pdf(env_density, d[i, 0], d[i, 1], d[i, 2]) if guided else env_pdf
+                        # (a map's: pmf × its pdf; a constant sky's env_pdf is already pmf / 4π)
+                        if guided:
+                            pe = env_pdf * guide_pdf(env_density, sky_map, d[i, 0], d[i, 1], d[i, 2])
+                        elif mapped:
+                            pe = env_pdf * env_map.pdf(sky_map, d[i, 0], d[i, 1], d[i, 2])
+                        else:
+                            pe = env_pdf
                         w = _emission_mis(direct_count, area_pdf, pe, mis[i], False, -1, htt[i], 0.0)
-                        for a in range(3):
-                            unf[pix[i], a] += thr[i, a] * env[a] * w
+                        if mapped:
+                            lr, lg, lb = env_map.radiance(sky_map, d[i, 0], d[i, 1], d[i, 2])
+                            unf[pix[i], 0] += thr[i, 0] * lr * w
+                            unf[pix[i], 1] += thr[i, 1] * lg * w
+                            unf[pix[i], 2] += thr[i, 2] * lb * w
+                        else:
+                            for a in range(3):
+                                unf[pix[i], a] += thr[i, a] * env[a] * w
             for i in range(live):
                 e = hem[i]
                 if valid[i] and e >= 0:

@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from igi.common.kernels import environment_map as env_map
+
 from igi.common.kernels import bsdf as kb
 from igi.common.kernels import shading_frame
 from igi.common.kernels.hit_surface import offset_point
@@ -58,12 +60,13 @@ def delta_bounce(P, prow, src, pos, ns, ng, d, thr, seg, u1, u2, max_depth, delt
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def follow_chains(P, specular, rng, closest, rows, pos, ns, ng, d, thr, seg, prow, specular_depth, max_depth,
-                  eps, ulps, env, out, ends):
+                  eps, ulps, env, sky_map, out, ends):
     """Whole mirror/glass chains (worker.indirect_caustics), bounce after bounce in one call:
     each vertex samples its delta BSDF (:func:`delta_bounce`, u1 then u2 drawn from ``rng``
     per bounce, as the numpy loop draws them), the rays go to Embree in packets and their hits
     are reconstructed (``closest``: common.geometry.Geometry.closest_terms); a miss adds
-    throughput × ``env`` to its row of ``out`` (under a lit sky), a hit on a surface
+    throughput × ``env`` (or the environment map ``sky_map``'s radiance along it, where the sky
+    is one: common.kernels.environment_map) to its row of ``out`` (under a lit sky), a hit on a surface
     whose material row is not ``specular`` ends the chain and is written to ``ends`` (rows,
     throughput, segments, direction, position, ns, ng, material, uv, t: per bounce, in ray
     order), a specular one goes on. The chain state (``rows`` … ``prow``: the vertices of
@@ -77,6 +80,7 @@ def follow_chains(P, specular, rng, closest, rows, pos, ns, ng, d, thr, seg, pro
     order = np.arange(n)
     e_rows, e_thr, e_seg, e_d, e_pos, e_ns, e_ng, e_mat, e_uv, e_t = ends
     sky = env[0] > 0.0 or env[1] > 0.0 or env[2] > 0.0
+    mapped = sky_map[0].shape[0] > 0
     null_row = specular.shape[0] - 1
     live, done, traced = n, 0, 0
     for _ in range(specular_depth):
@@ -93,7 +97,12 @@ def follow_chains(P, specular, rng, closest, rows, pos, ns, ng, d, thr, seg, pro
         for i in range(c):
             r = rows[src[i]]
             if not valid[i]:
-                if sky:
+                if sky and mapped:
+                    lr, lg, lb = env_map.radiance(sky_map, bd[i, 0], bd[i, 1], bd[i, 2])
+                    out[r, 0] += bthr[i, 0] * lr
+                    out[r, 1] += bthr[i, 1] * lg
+                    out[r, 2] += bthr[i, 2] * lb
+                elif sky:
                     for a in range(3):
                         out[r, a] += bthr[i, a] * env[a]
                 continue

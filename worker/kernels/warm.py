@@ -125,7 +125,8 @@ def _empty_args(disp) -> list:
 def _direct_calls() -> dict:
     """Tiny calls of the kernels the render does not register: the worker never decodes,
     and helpers that are loaded from the cache inside their caller keep no signature."""
-    from igi.common.kernels import shading_frame, texture, wire_decode
+    from igi.common.environment_map import no_map
+    from igi.common.kernels import environment_map, shading_frame, texture, wire_decode
     from igi.worker.kernels import environment_bins, light_paths, photon_query, tile_buffers, vpl_gather
 
     z = np.zeros(0, np.uint8)
@@ -151,7 +152,14 @@ def _direct_calls() -> dict:
         "igi.worker.kernels.environment_bins.direction_bins": lambda: environment_bins.direction_bins(
             np.zeros((0, 3)), np.zeros(0, np.int64)),
         "igi.worker.kernels.environment_bins.guide_pdfs": lambda: environment_bins.guide_pdfs(
-            np.zeros(1), np.zeros((0, 3)), np.zeros(0)),
+            np.zeros(1), no_map(), np.zeros((0, 3)), np.zeros(0)),
+        # an environment map's numpy-facing calls (the tiny scene's sky is no map)
+        "igi.common.kernels.environment_map.radiance_many": lambda: environment_map.radiance_many(
+            no_map(), np.zeros((0, 3)), np.zeros((0, 3))),
+        "igi.common.kernels.environment_map.pdf_many": lambda: environment_map.pdf_many(
+            no_map(), np.zeros((0, 3)), np.zeros(0)),
+        "igi.common.kernels.environment_map.sample_many": lambda: environment_map.sample_many(
+            no_map(), np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0)),
         # _stage and the array path's pair_weights: the scoring's rows and columns (empty
         # arrays of the types scored_draws takes) in their order
         "igi.worker.kernels.vpl_gather._stage": lambda: _stage_call(vpl_gather),

@@ -1,0 +1,154 @@
+"""An environment map's radiance, pdf and samples, compiled (``common.environment_map``).
+
+One set of tables, built once per map by ``common.environment_map.EnvironmentMap`` and passed to
+every kernel that reads the sky as a tuple ``ENV`` = (tex, to_local, to_world, row_cdf, col_cdf,
+patch_pdf, cos_rows):
+
+- ``tex`` (H, W + 1, 3) float32: the lat-long image times its scale, with a last column repeating
+  the first (periodic in azimuth), as Mitsuba 3's ``envmap`` keeps it; texel row r lies at polar
+  angle θ = π r / (H - 1), texel column c at azimuth u = (c + ½) / W.
+- ``to_local``, ``to_world`` (3, 3) float64: the map's rotation (Mitsuba's ``to_world``).
+- The sampling density, piecewise constant over the (H - 1) × W patches between texel rows r,
+  r + 1 and texel columns c, c + 1: a patch's probability ∝ (the largest channel of its four
+  corners — positive wherever the bilinear radiance is) × (its solid angle). ``row_cdf``
+  (H,) and ``col_cdf`` (H - 1, W + 1) are the cumulative sums (0 first, 1 last), ``patch_pdf``
+  (H - 1, W) the solid-angle pdf inside each patch, ``cos_rows`` (H,) cos θ of the texel rows.
+  Inside a patch the azimuth is uniform and cos θ is uniform (its solid angle evenly), so the pdf
+  is constant there: a constant map is sampled exactly uniformly over the sphere.
+
+Radiance is Mitsuba 3's ``envmap.eval``: local = to_local · ω, u = atan2(x, -z) / 2π,
+v = acos(y) / π, bilinear between texel centres with the half-texel shift in u. An empty ``tex``
+(0 rows) is "no map": callers keep their constant sky (kernels take the tuple either way, so
+their types do not change with the scene).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+INV_2PI = 1.0 / (2.0 * math.pi)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _local_uv(env, dx, dy, dz):
+    """(u, v) in [0, 1)² of world direction (dx, dy, dz) (unit) in the map's lat-long frame."""
+    m = env[1]
+    x = m[0, 0] * dx + m[0, 1] * dy + m[0, 2] * dz
+    y = m[1, 0] * dx + m[1, 1] * dy + m[1, 2] * dz
+    z = m[2, 0] * dx + m[2, 1] * dy + m[2, 2] * dz
+    u = math.atan2(x, -z) * INV_2PI
+    u -= math.floor(u)
+    v = math.acos(min(1.0, max(-1.0, y))) / math.pi
+    return u, v
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def radiance(env, dx, dy, dz):
+    """The map's radiance (r, g, b) arriving from world direction (dx, dy, dz) (unit, pointing
+    at the sky): Mitsuba 3's bilinear lookup."""
+    tex = env[0]
+    H = tex.shape[0]
+    W = tex.shape[1] - 1
+    u, v = _local_uv(env, dx, dy, dz)
+    u -= 0.5 / W
+    u -= math.floor(u)
+    x = u * W
+    y = v * (H - 1)
+    px = min(int(x), W - 1)
+    py = min(int(y), H - 2)
+    fx = x - px
+    fy = y - py
+    gx = 1.0 - fx
+    gy = 1.0 - fy
+    return _bilinear(tex, py, px, fx, fy, gx, gy, 0), _bilinear(tex, py, px, fx, fy, gx, gy, 1), \
+        _bilinear(tex, py, px, fx, fy, gx, gy, 2)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _bilinear(tex, py, px, fx, fy, gx, gy, c) -> float:
+    """Channel ``c`` between texels (py, px) .. (py + 1, px + 1) with weights (gx, fx) x (gy, fy)."""
+    return gy * (gx * tex[py, px, c] + fx * tex[py, px + 1, c]) + fy * (gx * tex[py + 1, px, c]
+                                                                        + fx * tex[py + 1, px + 1, c])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def pdf(env, dx, dy, dz) -> float:
+    """Solid-angle pdf with which :func:`sample` draws world direction (dx, dy, dz)."""
+    H = env[0].shape[0]
+    W = env[0].shape[1] - 1
+    u, v = _local_uv(env, dx, dy, dz)
+    cos_rows = env[6]
+    y = v * (H - 1)
+    r = min(int(y), H - 2)
+    # the patch row by cos θ (rows are equal in θ; the float row may round across a boundary)
+    ct = math.cos(v * math.pi)
+    if r > 0 and ct > cos_rows[r]:
+        r -= 1
+    elif r < H - 2 and ct < cos_rows[r + 1]:
+        r += 1
+    c = int(math.floor(u * W - 0.5)) % W
+    return env[5][r, c]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _search(cdf, lo, hi, x) -> int:
+    """The largest i in [lo, hi) with cdf[i] <= x (cdf ascending)."""
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if cdf[mid] <= x:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def sample(env, u0, u1):
+    """A world direction (dx, dy, dz) drawn from the map's density for uniforms (u0, u1), and its
+    solid-angle pdf: a patch row by ``row_cdf``, a patch in it by ``col_cdf`` (each uniform's
+    fraction inside its interval reused), then uniform azimuth and cos θ inside the patch."""
+    H = env[0].shape[0]
+    W = env[0].shape[1] - 1
+    rows, cols, cos_rows = env[3], env[4], env[6]
+    r = _search(rows, 0, H - 1, u0)
+    w = rows[r + 1] - rows[r]
+    fv = min(max((u0 - rows[r]) / w, 0.0), 1.0) if w > 0 else 0.5
+    cr = cols[r]
+    c = _search(cr, 0, W, u1)
+    w = cr[c + 1] - cr[c]
+    fu = min(max((u1 - cr[c]) / w, 0.0), 1.0) if w > 0 else 0.5
+    ct = cos_rows[r] + fv * (cos_rows[r + 1] - cos_rows[r])
+    st = math.sqrt(max(0.0, 1.0 - ct * ct))
+    phi = 2.0 * math.pi * ((c + 0.5 + fu) / W)
+    lx = math.sin(phi) * st
+    ly = ct
+    lz = -math.cos(phi) * st
+    m = env[2]
+    dx = m[0, 0] * lx + m[0, 1] * ly + m[0, 2] * lz
+    dy = m[1, 0] * lx + m[1, 1] * ly + m[1, 2] * lz
+    dz = m[2, 0] * lx + m[2, 1] * ly + m[2, 2] * lz
+    n = math.sqrt((dx * dx + dy * dy) + dz * dz)
+    return dx / n, dy / n, dz / n, env[5][r, c]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def radiance_many(env, d, out) -> None:
+    """:func:`radiance` of each row of ``d`` (N, 3) into ``out`` (N, 3)."""
+    for i in range(d.shape[0]):
+        out[i, 0], out[i, 1], out[i, 2] = radiance(env, d[i, 0], d[i, 1], d[i, 2])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def pdf_many(env, d, out) -> None:
+    """:func:`pdf` of each row of ``d`` (N, 3) into ``out`` (N,)."""
+    for i in range(d.shape[0]):
+        out[i] = pdf(env, d[i, 0], d[i, 1], d[i, 2])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def sample_many(env, u, d, p) -> None:
+    """:func:`sample` for each row of ``u`` (N, 2): directions into ``d`` (N, 3), pdfs into ``p``."""
+    for i in range(u.shape[0]):
+        d[i, 0], d[i, 1], d[i, 2], p[i] = sample(env, u[i, 0], u[i, 1])
