@@ -428,6 +428,11 @@ def apply_edit(scene: Scene, edit: dict) -> Scene:
                 if n == 0:
                     raise ValueError("edit: direction must be non-zero")
                 v = v / n
+            if param == "radiance" and em.image is not None:
+                # a map's radiance is its mean: the edit scales the map to the new mean, per channel
+                old = np.asarray(em.radiance, np.float64)
+                ratio = np.divide(v, old, out=np.zeros(3), where=old > 0)
+                em.image = (em.image * ratio).astype(np.float32)
             setattr(em, param, v)
             if param == "position" and em.kind == scene_mod.AREA and 0 <= em.mesh < len(scene.meshes):
                 mesh = copy.copy(scene.meshes[em.mesh])

@@ -1,0 +1,160 @@
+"""Environment maps (common/environment_map.py, common/kernels/environment_map.py): Mitsuba 3's
+``envmap`` read as Mitsuba reads it, and sampled where it is bright without bias.
+
+The Mitsuba figures come from tests/data/envmap (made by its make_assets.py with Mitsuba 3's
+Python API: ``emitter.eval`` / ``pdf_direction`` on 2,000 random directions of a rotated map)."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from igi.common.environment_map import EnvironmentMap, environment_map
+from igi.common.loader import load_scene
+from igi.common.scene import SceneError
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "envmap"
+
+
+def _lookup_map(tmp_path: Path, name: str) -> EnvironmentMap:
+    """The map of the scene the ``name`` records were made with: lookup.xml (no geometry: loaded
+    from a copy with a small ball added, igi renders nothing without triangles) or outdoor.xml."""
+    scene = str(np.load(DATA / f"lookup_rays_{name}.npz")["scene"])
+    if scene != "lookup.xml":
+        return environment_map(load_scene(DATA / scene))
+    shutil.copy(DATA / f"{name}.exr", tmp_path / f"{name}.exr")
+    xml = (DATA / "lookup.xml").read_text().replace("pattern.exr", f"{name}.exr")
+    xml = xml.replace("</scene>", '<shape type="sphere"><float name="radius" value="0.1"/></shape></scene>')
+    (tmp_path / "lookup.xml").write_text(xml)
+    return environment_map(load_scene(tmp_path / "lookup.xml"))
+
+
+def _uniform_sphere(rng, n):
+    z = 1 - 2 * rng.random(n)
+    phi = 2 * np.pi * rng.random(n)
+    r = np.sqrt(1 - z * z)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+@pytest.mark.parametrize("name", ["pattern", "sky"])
+def test_radiance_is_mitsubas_bilinear_lookup_of_the_rotated_map(name, tmp_path):
+    """Every direction reads what Mitsuba 3's envmap.eval returns for it: the lat-long frame,
+    the rotation, the half-texel shift, the periodic column and the rows' polar angles."""
+    rec = np.load(DATA / f"lookup_rays_{name}.npz")
+    got = _lookup_map(tmp_path, name).radiance(rec["d"])
+    np.testing.assert_allclose(got, rec["L"], rtol=2e-4, atol=1e-5 * float(np.abs(rec["L"]).max()))
+
+
+def test_the_sampling_density_is_a_pdf_that_covers_every_lit_direction():
+    """The density integrates to 1 over the sphere, is positive wherever the map is not black
+    (so L / p is unbiased), and sample() lands where pdf() says, with the pdf pdf() gives."""
+    rng = np.random.default_rng(4)
+    img = rng.gamma(0.5, 1.0, (9, 14, 3))
+    img[3:5, 2:4] = 0.0  # a black patch: its interior need not be sampled
+    img[6, 9] = 3000.0  # a sun
+    R = np.linalg.qr(rng.standard_normal((3, 3)))[0]
+    m = EnvironmentMap(img, R)
+    d = _uniform_sphere(rng, 400_000)
+    p = m.pdf(d)
+    assert abs(p.mean() * 4 * np.pi - 1) < 0.02
+    lit = m.radiance(d).max(axis=1) > 0
+    assert (p[lit] > 0).all()
+    w, q = m.sample(rng.random((200_000, 2)))
+    np.testing.assert_allclose(np.linalg.norm(w, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(m.pdf(w), q, rtol=1e-9)
+    # the integral of L over the sphere: importance-sampled against uniform directions
+    est = (m.radiance(w) / q[:, None]).mean(0)
+    ref = m.radiance(_uniform_sphere(rng, 2_000_000)).mean(0) * 4 * np.pi
+    np.testing.assert_allclose(est, ref, rtol=0.03)
+    # the sun's patches take a share of the samples near their share of the power
+    sun = m.radiance(w).max(axis=1) > 100
+    assert sun.mean() > 0.5
+
+
+def test_a_constant_map_is_sampled_uniformly_over_the_sphere():
+    m = EnvironmentMap(np.full((5, 8, 3), 2.0))
+    w, q = m.sample(np.random.default_rng(1).random((100_000, 2)))
+    np.testing.assert_allclose(q, 1 / (4 * np.pi), rtol=1e-9)
+    np.testing.assert_allclose(m.radiance(w), 2.0, rtol=1e-6)
+    assert np.abs(w.mean(axis=0)).max() < 0.01
+
+
+def test_the_samples_follow_the_mitsuba_frames_sun_direction(tmp_path):
+    """The brightest direction Mitsuba reports for the sky of outdoor.xml (rotated by its
+    to_world) is where the map's samples crowd (the samples' frame is the lookup's)."""
+    rec = np.load(DATA / "lookup_rays_sky.npz")
+    sun_mi = rec["d"][np.argmax(rec["L"].sum(axis=1))]
+    m = _lookup_map(tmp_path, "sky")
+    w, _q = m.sample(np.random.default_rng(2).random((20_000, 2)))
+    bright = w[m.radiance(w).sum(axis=1) > 1000]
+    assert len(bright) > 1000
+    assert float(bright.mean(axis=0) @ sun_mi) > 0.95
+
+
+def _scene(tmp_path, emitters: str, sky: np.ndarray | None = None) -> Path:
+    from igi.common.image_io import write_exr
+
+    if sky is not None:
+        write_exr(tmp_path / "sky.exr", sky)
+    p = tmp_path / "scene.xml"
+    p.write_text(f"""<scene version="3.0.0">
+        <shape type="sphere"><float name="radius" value="1"/></shape>
+        {emitters}
+    </scene>""")
+    return p
+
+
+def test_the_loader_keeps_the_map_its_scale_and_rotation(tmp_path):
+    sky = np.random.default_rng(3).random((6, 12, 3)).astype(np.float32)
+    p = _scene(tmp_path, """<emitter type="envmap"><string name="filename" value="sky.exr"/>
+        <float name="scale" value="2.5"/><transform name="to_world"><rotate y="1" angle="90"/></transform></emitter>""",
+               sky)
+    scene = load_scene(p)
+    (e,) = scene.emitters
+    np.testing.assert_allclose(e.image, sky * 2.5, rtol=1e-6)
+    np.testing.assert_allclose(e.to_world @ [1.0, 0, 0], [0, 0, -1.0], atol=1e-6)
+    np.testing.assert_allclose(e.radiance, environment_map(scene).mean)
+    assert not any("envmap" in w for w in scene.warnings)  # no longer a fallback
+
+
+@pytest.mark.parametrize("emitters, words", [
+    ("""<emitter type="envmap"><string name="filename" value="sky.exr"/></emitter>
+        <emitter type="constant"/>""", "only one environment emitter"),
+    ("""<emitter type="envmap"><string name="filename" value="none.exr"/></emitter>""", "none.exr"),
+    ("""<emitter type="envmap"/>""", "needs a filename"),
+])
+def test_bad_environment_maps_are_errors_that_name_the_problem(tmp_path, emitters, words):
+    p = _scene(tmp_path, emitters, np.ones((4, 8, 3), np.float32))
+    with pytest.raises(SceneError, match=words):
+        load_scene(p)
+
+
+def test_a_map_with_nan_is_refused_naming_it(tmp_path):
+    sky = np.ones((4, 8, 3), np.float32)
+    sky[1, 2, 0] = np.nan
+    p = _scene(tmp_path, """<emitter type="envmap"><string name="filename" value="sky.exr"/></emitter>""", sky)
+    with pytest.raises(SceneError, match="non-finite"):
+        load_scene(p)
+
+
+def test_a_map_travels_to_the_workers_whole_and_an_edit_of_its_radiance_scales_it(tmp_path):
+    """The scene codec carries the map and its rotation (a worker's sky is the master's, bit for
+    bit; a changed map changes the digest), and a viewer's edit of the sky's radiance — the
+    map's mean — scales the map to the new mean."""
+    from igi.common.scene_codec import apply_edit, decode_scene, encode_scene
+
+    sky = np.random.default_rng(5).random((6, 12, 3)).astype(np.float32) + 0.1
+    p = _scene(tmp_path, """<emitter type="envmap"><string name="filename" value="sky.exr"/>
+        <transform name="to_world"><rotate x="1" angle="25"/></transform></emitter>""", sky)
+    scene = load_scene(p)
+    back = decode_scene(encode_scene(scene))
+    np.testing.assert_array_equal(back.emitters[0].image, scene.emitters[0].image)
+    np.testing.assert_array_equal(back.emitters[0].to_world, scene.emitters[0].to_world)
+    assert back.digest() == scene.digest()
+    brighter = apply_edit(scene, {"op": "set_emitter", "emitter": 0, "param": "radiance",
+                                  "value": (2 * scene.emitters[0].radiance).tolist()})
+    np.testing.assert_allclose(brighter.emitters[0].image, 2 * scene.emitters[0].image, rtol=1e-6)
+    np.testing.assert_allclose(environment_map(brighter).mean, 2 * environment_map(scene).mean, rtol=1e-6)
+    assert brighter.digest() != scene.digest()
