@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .kernels import environment_map as kern
+from .lights import LUMINANCE_WEIGHTS
 from .scene import CONSTANT, Emitter, Scene, SceneError
 
 _EMPTY = None  # the "no map" tuple, made once
@@ -32,26 +33,26 @@ class EnvironmentMap:
         tex = np.concatenate([img, img[:, :1]], axis=1).astype(np.float32)  # periodic column
         R = np.eye(3) if to_world is None else np.asarray(to_world, np.float64)[:3, :3]
         to_local = np.linalg.inv(R)
-        theta = np.pi * np.arange(H) / (H - 1)
-        cos_rows = np.cos(theta)
-        cos_rows[-1] = -1.0
-        peak = tex.astype(np.float64).max(axis=2)
-        corners = np.maximum(np.maximum(peak[:-1, :-1], peak[:-1, 1:]), np.maximum(peak[1:, :-1], peak[1:, 1:]))
-        solid = (2 * np.pi / W) * (cos_rows[:-1] - cos_rows[1:])  # (H - 1,) a patch's solid angle
-        weight = corners * solid[:, None]
-        total = weight.sum()
-        if not total > 0:  # a black map: sample uniformly (nothing to find, but pdfs stay valid)
-            weight = np.broadcast_to(solid[:, None], weight.shape).copy()
-            total = weight.sum()
-        row_w = weight.sum(axis=1)
+        sin_rows = np.sin(np.pi * np.arange(H) / (H - 1))
+        sin_rows[[0, -1]] = 0.0
+        # the density grid, as Mitsuba's warp: luminance x sin θ of the row, bilinear between texels
+        lum = tex.astype(np.float64) @ np.asarray(LUMINANCE_WEIGHTS)
+        grid = lum * sin_rows[:, None]
+        patch = 0.25 * (grid[:-1, :-1] + grid[:-1, 1:] + grid[1:, :-1] + grid[1:, 1:])  # (H - 1, W)
+        if not patch.sum() > 0:  # a black map: sample by solid angle (nothing to find, pdfs stay valid)
+            grid = np.broadcast_to(sin_rows[:, None], grid.shape).copy()
+            patch = 0.25 * (grid[:-1, :-1] + grid[:-1, 1:] + grid[1:, :-1] + grid[1:, 1:])
+        total = patch.sum()
+        row_w = patch.sum(axis=1)
         row_cdf = np.concatenate([[0.0], np.cumsum(row_w)]) / total
         row_cdf[-1] = 1.0
         col_cdf = np.zeros((H - 1, W + 1))
-        col_cdf[:, 1:] = np.cumsum(weight, axis=1) / np.maximum(row_w, 1e-300)[:, None]
+        col_cdf[:, 1:] = np.cumsum(patch, axis=1) / np.maximum(row_w, 1e-300)[:, None]
         col_cdf[:, -1] = 1.0
-        patch_pdf = (weight / total) / solid[:, None]
+        # p_uv = bilinear(grid) / (total · du · dv); p_ω = p_uv / (2π² sin θ)
+        density = grid / (total / (W * (H - 1))) / (2 * np.pi * np.pi)
         self.env = (tex, np.ascontiguousarray(to_local), np.ascontiguousarray(R), row_cdf, col_cdf,
-                    np.ascontiguousarray(patch_pdf), cos_rows)
+                    np.ascontiguousarray(density), sin_rows)
         self.shape = (H, W)
         # the solid-angle mean radiance of the map (what a constant sky of the same power emits)
         self.mean = (np.asarray(image, np.float64).clip(0).mean(axis=1) * solid_rows(H)[:, None]).sum(axis=0) \

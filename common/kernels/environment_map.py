@@ -2,19 +2,19 @@
 
 One set of tables, built once per map by ``common.environment_map.EnvironmentMap`` and passed to
 every kernel that reads the sky as a tuple ``ENV`` = (tex, to_local, to_world, row_cdf, col_cdf,
-patch_pdf, cos_rows):
+density, sin_rows):
 
 - ``tex`` (H, W + 1, 3) float32: the lat-long image times its scale, with a last column repeating
   the first (periodic in azimuth), as Mitsuba 3's ``envmap`` keeps it; texel row r lies at polar
   angle θ = π r / (H - 1), texel column c at azimuth u = (c + ½) / W.
 - ``to_local``, ``to_world`` (3, 3) float64: the map's rotation (Mitsuba's ``to_world``).
-- The sampling density, piecewise constant over the (H - 1) × W patches between texel rows r,
-  r + 1 and texel columns c, c + 1: a patch's probability ∝ (the largest channel of its four
-  corners — positive wherever the bilinear radiance is) × (its solid angle). ``row_cdf``
-  (H,) and ``col_cdf`` (H - 1, W + 1) are the cumulative sums (0 first, 1 last), ``patch_pdf``
-  (H - 1, W) the solid-angle pdf inside each patch, ``cos_rows`` (H,) cos θ of the texel rows.
-  Inside a patch the azimuth is uniform and cos θ is uniform (its solid angle evenly), so the pdf
-  is constant there: a constant map is sampled exactly uniformly over the sphere.
+- The sampling density, as Mitsuba 3's warp: piecewise bilinear in (u, v) over the same grid,
+  ∝ luminance × sin θ of the texel rows — where the bilinear radiance is positive, so is the
+  density, and over a small bright sun L / p hardly varies. ``density`` (H, W + 1) holds the
+  grid's values scaled so that the solid-angle pdf is bilinear(density) / sin θ; ``row_cdf`` (H,)
+  and ``col_cdf`` (H - 1, W + 1) the cumulative sums of the (H - 1) × W patches' integrals (0
+  first, 1 last); ``sin_rows`` (H,) sin θ of the texel rows. A sample picks a patch by the sums,
+  then v and u inside it by the bilinear function's linear marginal and conditional.
 
 Radiance is Mitsuba 3's ``envmap.eval``: local = to_local · ω, u = atan2(x, -z) / 2π,
 v = acos(y) / π, bilinear between texel centres with the half-texel shift in u. An empty ``tex``
@@ -74,22 +74,26 @@ def _bilinear(tex, py, px, fx, fy, gx, gy, c) -> float:
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _density_at(dens, x, y, W, H) -> float:
+    """bilinear(``dens``) at grid coordinates (x, y) = (u W - ½ wrapped, v (H - 1))."""
+    px = min(int(x), W - 1)
+    py = min(int(y), H - 2)
+    fx = x - px
+    fy = y - py
+    return (1.0 - fy) * ((1.0 - fx) * dens[py, px] + fx * dens[py, px + 1]) + fy * (
+        (1.0 - fx) * dens[py + 1, px] + fx * dens[py + 1, px + 1])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def pdf(env, dx, dy, dz) -> float:
     """Solid-angle pdf with which :func:`sample` draws world direction (dx, dy, dz)."""
     H = env[0].shape[0]
     W = env[0].shape[1] - 1
     u, v = _local_uv(env, dx, dy, dz)
-    cos_rows = env[6]
-    y = v * (H - 1)
-    r = min(int(y), H - 2)
-    # the patch row by cos θ (rows are equal in θ; the float row may round across a boundary)
-    ct = math.cos(v * math.pi)
-    if r > 0 and ct > cos_rows[r]:
-        r -= 1
-    elif r < H - 2 and ct < cos_rows[r + 1]:
-        r += 1
-    c = int(math.floor(u * W - 0.5)) % W
-    return env[5][r, c]
+    u -= 0.5 / W
+    u -= math.floor(u)
+    st = math.sin(v * math.pi)
+    return _density_at(env[5], u * W, v * (H - 1), W, H) / max(st, 1e-7)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -105,22 +109,34 @@ def _search(cdf, lo, hi, x) -> int:
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _linear(a, b, xi) -> float:
+    """x in [0, 1] drawn from the density ∝ (1 - x) a + x b (a, b >= 0, not both 0) for uniform
+    xi: the inverse of its CDF, in the form without cancellation (a = b: x = xi)."""
+    return min(xi * (a + b) / max(a + math.sqrt(max(a * a + xi * (b * b - a * a), 0.0)), 1e-300), 1.0)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def sample(env, u0, u1):
     """A world direction (dx, dy, dz) drawn from the map's density for uniforms (u0, u1), and its
     solid-angle pdf: a patch row by ``row_cdf``, a patch in it by ``col_cdf`` (each uniform's
-    fraction inside its interval reused), then uniform azimuth and cos θ inside the patch."""
+    fraction inside its interval reused), then v and u inside the patch from the bilinear
+    density's marginal and conditional (both linear)."""
     H = env[0].shape[0]
     W = env[0].shape[1] - 1
-    rows, cols, cos_rows = env[3], env[4], env[6]
+    rows, cols, dens = env[3], env[4], env[5]
     r = _search(rows, 0, H - 1, u0)
     w = rows[r + 1] - rows[r]
-    fv = min(max((u0 - rows[r]) / w, 0.0), 1.0) if w > 0 else 0.5
+    xv = min(max((u0 - rows[r]) / w, 0.0), 1.0) if w > 0 else 0.5
     cr = cols[r]
     c = _search(cr, 0, W, u1)
     w = cr[c + 1] - cr[c]
-    fu = min(max((u1 - cr[c]) / w, 0.0), 1.0) if w > 0 else 0.5
-    ct = cos_rows[r] + fv * (cos_rows[r + 1] - cos_rows[r])
-    st = math.sqrt(max(0.0, 1.0 - ct * ct))
+    xu = min(max((u1 - cr[c]) / w, 0.0), 1.0) if w > 0 else 0.5
+    a, b, cc, d = dens[r, c], dens[r, c + 1], dens[r + 1, c], dens[r + 1, c + 1]
+    fv = _linear(a + b, cc + d, xv)
+    fu = _linear((1.0 - fv) * a + fv * cc, (1.0 - fv) * b + fv * d, xu)
+    v = (r + fv) / (H - 1)
+    st = math.sin(v * math.pi)
+    ct = math.cos(v * math.pi)
     phi = 2.0 * math.pi * ((c + 0.5 + fu) / W)
     lx = math.sin(phi) * st
     ly = ct
@@ -130,7 +146,8 @@ def sample(env, u0, u1):
     dy = m[1, 0] * lx + m[1, 1] * ly + m[1, 2] * lz
     dz = m[2, 0] * lx + m[2, 1] * ly + m[2, 2] * lz
     n = math.sqrt((dx * dx + dy * dy) + dz * dz)
-    return dx / n, dy / n, dz / n, env[5][r, c]
+    p = ((1.0 - fv) * ((1.0 - fu) * a + fu * b) + fv * ((1.0 - fu) * cc + fu * d)) / max(st, 1e-7)
+    return dx / n, dy / n, dz / n, p
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
