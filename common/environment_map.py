@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .kernels import environment_map as kern
-from .lights import LUMINANCE_WEIGHTS
+from .luminance import luminance
 from .scene import CONSTANT, Emitter, Scene, SceneError
 
 _EMPTY = None  # the "no map" tuple, made once
@@ -36,7 +36,7 @@ class EnvironmentMap:
         sin_rows = np.sin(np.pi * np.arange(H) / (H - 1))
         sin_rows[[0, -1]] = 0.0
         # the density grid, as Mitsuba's warp: luminance x sin θ of the row, bilinear between texels
-        lum = tex.astype(np.float64) @ np.asarray(LUMINANCE_WEIGHTS)
+        lum = luminance(tex)
         grid = lum * sin_rows[:, None]
         patch = 0.25 * (grid[:-1, :-1] + grid[:-1, 1:] + grid[1:, :-1] + grid[1:, 1:])  # (H - 1, W)
         if not patch.sum() > 0:  # a black map: sample by solid angle (nothing to find, pdfs stay valid)

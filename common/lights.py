@@ -11,8 +11,10 @@ from functools import cached_property
 
 import numpy as np
 
+from .environment_map import environment_map, no_map
 from .geometry import Geometry, rows3
 from .kernels import bounding_spheres, shading_frame
+from .luminance import LUMINANCE_WEIGHTS, luminance  # noqa: F401 - re-exported: the callers' name for them
 from .scene import AREA, CONSTANT, DIRECTIONAL, POINT, SPOT, Scene
 
 # Kinds of point-light records (VPLs and emitter samples), see worker/vpl.py.
@@ -25,13 +27,6 @@ VPL_SPOT = 3  # spot light: I · falloff(angle to axis)
 VPL_DIRECTIONAL = 4  # light from infinity along -direction: irradiance E (also the environment)
 
 
-LUMINANCE_WEIGHTS = (0.212671, 0.715160, 0.072169)  # linear sRGB -> Y (Mitsuba's luminance)
-
-
-def luminance(rgb: np.ndarray) -> np.ndarray:
-    rgb = np.asarray(rgb, np.float64)
-    wr, wg, wb = LUMINANCE_WEIGHTS
-    return rgb[..., 0] * wr + rgb[..., 1] * wg + rgb[..., 2] * wb
 
 
 def frame_from(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -154,8 +149,6 @@ class LightSampler:
         if lit.sum() > 1:
             self.pmf = (1 - UNIFORM_SHARE) * self.pmf + UNIFORM_SHARE * lit / lit.sum()
         self.cdf = np.cumsum(self.pmf)
-        from .environment_map import environment_map, no_map
-
         # the sky as a map (Mitsuba's envmap; None: a constant sky, or none) and its kernels' tables
         self.env_map = environment_map(scene)
         self.env_tables = self.env_map.env if self.env_map is not None else no_map()
