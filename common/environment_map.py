@@ -31,8 +31,10 @@ class EnvironmentMap:
         img = np.maximum(img, 0.0)  # negative radiance (EXR round-off) emits nothing
         H, W = img.shape[:2]
         tex = np.concatenate([img, img[:, :1]], axis=1).astype(np.float32)  # periodic column
-        R = np.eye(3) if to_world is None else np.asarray(to_world, np.float64)[:3, :3]
-        to_local = np.linalg.inv(R)
+        R = np.eye(3) if to_world is None else np.array(np.asarray(to_world, np.float64)[:3, :3])  # own, writeable
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-4):
+            raise SceneError("an environment map's to_world must be a rotation")
+        to_local = np.ascontiguousarray(R.T)
         sin_rows = np.sin(np.pi * np.arange(H) / (H - 1))
         sin_rows[[0, -1]] = 0.0
         # the density grid, as Mitsuba's warp: luminance x sin θ of the row, bilinear between texels

@@ -259,7 +259,7 @@ class LightSampler:
                 d, p = self.env_map.sample(u[sel, 0:2])
                 nrm[sel] = -d
                 kind[sel] = VPL_DIRECTIONAL
-                power[sel] = self.env_map.radiance(d) / p[:, None]
+                power[sel] = self.env_map.radiance(d) / np.where(p > 0, p, np.inf)[:, None]
                 pdf[sel] = p
             elif e.kind == CONSTANT:
                 # Light arriving from a uniformly chosen direction: E = L·4π per sample.
@@ -346,7 +346,7 @@ class LightSampler:
                 elif self.env_map is not None:  # from the map's bright directions: L(ω) / p(ω)
                     sky, p = self.env_map.sample(u[sel, 3:5])
                     dirs = -sky
-                    scale = self.env_map.radiance(sky) / p[:, None]
+                    scale = self.env_map.radiance(sky) / np.where(p > 0, p, np.inf)[:, None]
                 else:
                     dirs = -uniform_sphere(u[sel, 3:5])
                     scale = e.radiance * 4 * np.pi

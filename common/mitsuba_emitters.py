@@ -51,18 +51,22 @@ def load_emitter(loader, node: Node) -> None:
         from .environment_map import EnvironmentMap
         from .image_io import read_image
 
+        R = M[:3, :3]
+        if not abs(np.linalg.det(R)) > 1e-12:
+            raise loader.error(node, "envmap to_world is singular")
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-4):  # a scaled or sheared frame: its rotation
+            q, tri = np.linalg.qr(R)
+            R = q * np.sign(np.diag(tri))[None, :]
+        R = np.array(R, np.float64)
         try:
             img = read_image(loader.resolve(fn, node)).astype(np.float32) * np.float32(scale)
-            rad = EnvironmentMap(img, M[:3, :3]).mean
+            env_map = EnvironmentMap(img, R)
         except SceneRootError:
             raise
         except SceneError as err:
             raise loader.error(node, f"envmap '{fn}': {err}") from None
-        R = M[:3, :3]
-        if not np.allclose(R @ R.T, np.eye(3), atol=1e-4):  # a scaled or sheared frame: directions only
-            q, _ = np.linalg.qr(R)
-            R = q * np.sign(np.diag(_))[None, :]
-        e = Emitter(kind=CONSTANT, radiance=rad, image=img, to_world=np.ascontiguousarray(R, np.float64), name=name)
+        e = Emitter(kind=CONSTANT, radiance=env_map.mean, image=img, to_world=R, name=name)
+        e.__dict__["_environment_map"] = (img, R, env_map)  # (common.environment_map.emitter_map's cache)
     else:
         loader.warn(node, f"unsupported emitter '{kind}'", "skipped")
         return

@@ -275,8 +275,12 @@ def validate_scene(scene: Scene) -> None:
         if e.image is not None and (e.kind != scene_mod.CONSTANT or e.image.ndim != 3 or e.image.shape[2] != 3
                                     or e.image.shape[0] < 3 or e.image.shape[1] < 2):
             raise SceneError(f"emitter {i} ({e.name}): environment map image shape {e.image.shape}")
-        if e.to_world is not None and np.shape(e.to_world) != (3, 3):
-            raise SceneError(f"emitter {i} ({e.name}) to_world: expected a 3x3 matrix")
+        if e.to_world is not None and (np.shape(e.to_world) != (3, 3) or not np.allclose(
+                np.asarray(e.to_world, np.float64) @ np.asarray(e.to_world, np.float64).T, np.eye(3), atol=1e-4)):
+            raise SceneError(f"emitter {i} ({e.name}) to_world: expected a 3x3 rotation")
+    skies = [e for e in scene.emitters if e.kind == scene_mod.CONSTANT]
+    if len(skies) > 1 and any(e.image is not None for e in skies):
+        raise SceneError("only one environment emitter (constant or envmap) per scene, as in Mitsuba 3")
     if np.shape(scene.camera.to_world) != (4, 4):
         raise SceneError("camera to_world: expected a 4x4 matrix")
 
@@ -430,9 +434,11 @@ def apply_edit(scene: Scene, edit: dict) -> Scene:
                 v = v / n
             if param == "radiance" and em.image is not None:
                 # a map's radiance is its mean: the edit scales the map to the new mean, per channel
+                # (never to 0: its pixels would be lost, and no later edit could bring them back)
                 old = np.asarray(em.radiance, np.float64)
-                ratio = np.divide(v, old, out=np.zeros(3), where=old > 0)
-                em.image = (em.image * ratio).astype(np.float32)
+                if np.any(v <= 0) or np.any(old <= 0):
+                    raise ValueError("edit: an environment map's radiance can be scaled, not set to 0 in a channel")
+                em.image = (em.image * (v / old)).astype(np.float32)
             setattr(em, param, v)
             if param == "position" and em.kind == scene_mod.AREA and 0 <= em.mesh < len(scene.meshes):
                 mesh = copy.copy(scene.meshes[em.mesh])

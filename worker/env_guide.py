@@ -6,8 +6,9 @@ directions mostly hit walls, so a set's few environment samples light almost not
 direct sky light is blotchy. Here, per set, cosine-distributed rays from the view's camera
 points (the ones vpl_importance already traced) that leave the scene fill an equal-area
 histogram of directions; the environment samples are drawn from the mixture
-q(ω) = ½·uniform + ½·histogram and weighted 1/q — unbiased, since q > 0 everywhere — and the
-BSDF-sampled ray's MIS weight uses the same q. Like the VPLs, it is a pure function of
+q(ω) = ½·uniform + ½·histogram (the first half the sky's map where it is one) and weighted 1/q —
+unbiased, since q > 0 wherever the sky is lit — and the BSDF-sampled ray's MIS weight uses the
+same q. Like the VPLs, it is a pure function of
 (scene, seed, k, view): every worker builds the same set.
 """
 from __future__ import annotations

@@ -52,6 +52,8 @@ def radiance(env, dx, dy, dz):
     H = tex.shape[0]
     W = tex.shape[1] - 1
     u, v = _local_uv(env, dx, dy, dz)
+    if not (u >= 0.0 and v >= 0.0):  # a NaN direction: no texel to read
+        return 0.0, 0.0, 0.0
     u -= 0.5 / W
     u -= math.floor(u)
     x = u * W
@@ -90,6 +92,8 @@ def pdf(env, dx, dy, dz) -> float:
     H = env[0].shape[0]
     W = env[0].shape[1] - 1
     u, v = _local_uv(env, dx, dy, dz)
+    if not (u >= 0.0 and v >= 0.0):  # a NaN direction
+        return 0.0
     u -= 0.5 / W
     u -= math.floor(u)
     st = math.sin(v * math.pi)
@@ -132,7 +136,8 @@ def sample(env, u0, u1):
     w = cr[c + 1] - cr[c]
     xu = min(max((u1 - cr[c]) / w, 0.0), 1.0) if w > 0 else 0.5
     a, b, cc, d = dens[r, c], dens[r, c + 1], dens[r + 1, c], dens[r + 1, c + 1]
-    fv = _linear(a + b, cc + d, xv)
+    # (never exactly on a pole row: there sin θ = 0 and the density with it, where L need not be)
+    fv = min(max(_linear(a + b, cc + d, xv), 1e-9), 1.0 - 1e-9)
     fu = _linear((1.0 - fv) * a + fv * cc, (1.0 - fv) * b + fv * d, xu)
     v = (r + fv) / (H - 1)
     st = math.sin(v * math.pi)

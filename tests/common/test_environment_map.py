@@ -172,3 +172,26 @@ def test_a_map_travels_to_the_workers_whole_and_an_edit_of_its_radiance_scales_i
     np.testing.assert_allclose(brighter.emitters[0].image, 2 * scene.emitters[0].image, rtol=1e-6)
     np.testing.assert_allclose(environment_map(brighter).mean, 2 * environment_map(scene).mean, rtol=1e-6)
     assert brighter.digest() != scene.digest()
+
+
+def test_a_sample_on_a_pole_row_or_a_nan_direction_carries_no_infinity():
+    """u0 = 0 picks the zenith's patch row, where the density (∝ sin θ) vanishes on the row
+    itself: the sample lands just off it, with a positive pdf; a NaN direction reads nothing."""
+    m = EnvironmentMap(np.random.default_rng(6).random((6, 8, 3)) + 0.1)
+    w, p = m.sample(np.array([[0.0, 0.3], [1.0 - 1e-16, 0.7], [0.0, 0.0]]))
+    assert np.all(p > 0) and np.all(np.isfinite(p))
+    assert np.all(np.isfinite(m.radiance(w) / p[:, None]))
+    assert np.all(m.radiance(np.full((1, 3), np.nan)) == 0) and m.pdf(np.full((1, 3), np.nan))[0] == 0
+
+
+def test_a_maps_radiance_edit_to_zero_is_refused_and_a_rotation_must_be_one(tmp_path):
+    from igi.common.scene_codec import apply_edit, decode_scene, encode_scene
+
+    p = _scene(tmp_path, """<emitter type="envmap"><string name="filename" value="sky.exr"/></emitter>""",
+               np.ones((4, 8, 3), np.float32))
+    scene = load_scene(p)
+    with pytest.raises(ValueError, match="not set to 0"):
+        apply_edit(scene, {"op": "set_emitter", "emitter": 0, "param": "radiance", "value": [0, 1, 1]})
+    scene.emitters[0].to_world = np.diag([2.0, 1.0, 1.0])  # a scale, not a rotation
+    with pytest.raises(SceneError, match="rotation"):
+        decode_scene(encode_scene(scene))
