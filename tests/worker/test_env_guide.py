@@ -4,6 +4,8 @@ pdf) give the same direct light as uniform ones, with less noise, in a room lit 
 window."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from igi.common import bundled
@@ -14,6 +16,8 @@ from igi.worker.env_guide import BINS_PHI, BINS_Z, EnvGuide, build_guide, guide_
 from igi.worker.renderer import Renderer
 from igi.worker.shading import bsdf_direct, gather_vpls, trace_eye
 from igi.worker.vpl import build_vpl_set
+
+ENVMAP_DATA = Path(__file__).resolve().parents[1] / "data" / "envmap"
 
 
 def _guide(seed=0) -> EnvGuide:
@@ -42,14 +46,18 @@ def test_pdf_integrates_to_one_and_sampling_follows_it():
     assert abs(est - 4 * np.pi * (1 + 1 / 3)) < 0.03 * 4 * np.pi
 
 
-def _window_room():
-    scene = load_scene(bundled.resolve("window-room"))
+def _view_end_points(scene):
+    """A renderer of ``scene`` and the end points of its camera's 24 x 18 eye rays."""
     r = Renderer(scene)
     cam = scene.camera
     ys, xs = np.mgrid[0:18, 0:24]
     o, d = camera_rays(cam.to_world, cam.fov_x, 24, 18, xs.ravel() * cam.width / 24, ys.ravel() * cam.height / 18)
     end = trace_eye(scene, r.geom, r.lights, o, d, -1, 8, rng(0, 9)).end
     return r, end
+
+
+def _window_room():
+    return _view_end_points(load_scene(bundled.resolve("window-room")))
 
 
 def _direct_totals(r, end, guided: bool, seeds) -> np.ndarray:
@@ -112,15 +120,7 @@ def test_guided_sky_over_an_open_floor_is_exactly_the_sky_radiance():
 
 
 def _envmap_scene(name: str):
-    from pathlib import Path
-
-    scene = load_scene(Path(__file__).resolve().parents[1] / "data" / "envmap" / f"{name}.xml")
-    r = Renderer(scene)
-    cam = scene.camera
-    ys, xs = np.mgrid[0:18, 0:24]
-    o, d = camera_rays(cam.to_world, cam.fov_x, 24, 18, xs.ravel() * cam.width / 24, ys.ravel() * cam.height / 18)
-    end = trace_eye(scene, r.geom, r.lights, o, d, -1, 8, rng(0, 9)).end
-    return r, end
+    return _view_end_points(load_scene(ENVMAP_DATA / f"{name}.xml"))
 
 
 def test_a_sky_map_guided_through_a_window_gives_the_light_of_its_own_samples():
@@ -153,7 +153,7 @@ def test_a_floor_under_a_sky_map_reflects_the_maps_irradiance_through_any_guide(
     from igi.common.camera import look_at
     from igi.common.scene import DIFFUSE, Camera, Material, Mesh, Scene, Texture
 
-    sky = load_scene(__import__("pathlib").Path(__file__).resolve().parents[1] / "data" / "envmap" / "outdoor.xml")
+    sky = load_scene(ENVMAP_DATA / "outdoor.xml")
     (env,) = [e for e in sky.emitters]
     v = np.array([[-50, 0, -50], [50, 0, -50], [50, 0, 50], [-50, 0, 50]], float)
     f = np.array([[0, 2, 1], [0, 3, 2]], np.int32)
