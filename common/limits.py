@@ -8,7 +8,9 @@ A memory budget (``--memory-budget``, else ``$IGI_MEMORY_BUDGET``, else 8 GiB; e
   :data:`MAX_SIDE` (the wire protocol's limit);
 - VPLs and photons: the per-worker sets (``interleave² × (VPLs + photons × emitters)``) must fit
   in a quarter of it;
-- frames: at most :data:`MAX_FRAMES` (a frame adds no memory; the bound only stops nonsense).
+- frames: at most :data:`MAX_FRAMES` (a frame adds no memory; the bound only stops nonsense);
+- an environment map: ``width × height × ENV_MAP_BYTES_PER_PIXEL`` (the image, its lookup and
+  sampling tables, its copy in the scene blob each worker receives) within half of it.
 
 Cameras must be finite (and not absurdly large: ``|x| ≤ MAX_COORD``), with a non-zero forward
 direction, a non-zero up that is not parallel to it, and ``0 < fov < 180``. A scene must have at
@@ -36,6 +38,7 @@ MAX_FRAMES = 10_000_000
 MAX_COORD = 1e9  # camera coordinates beyond this lose every digit of a scene in float32
 VPL_BYTES = 96  # position, normal, power, kind, pdf … per VPL
 PHOTON_BYTES = 64  # position, direction, power + the hash-grid entry
+ENV_MAP_BYTES_PER_PIXEL = 80  # float32 image + padded texture + blob copy, float64 density, CDFs, temporaries
 
 _override: int | None = None
 
@@ -136,6 +139,14 @@ def check_params(params, emitters: int = 1) -> None:
         hint = " (--photon-share 0 keeps --photons)" if boost else ""
         raise LimitError(f"{n2} interleaved sets of {vpls} VPLs and {photons:,} photons{hint} need ~{fmt_bytes(need)}, "
                          f"over a quarter of the {_budget_hint()}")
+
+
+def check_environment_map(width: int, height: int, what: str = "environment map") -> None:
+    """An environment map of ``width`` x ``height`` pixels against half the budget (every process
+    that renders holds it with its tables)."""
+    need = int(width) * int(height) * ENV_MAP_BYTES_PER_PIXEL
+    if need > memory_budget() // 2:
+        raise LimitError(f"{what} {width}x{height} needs ~{fmt_bytes(need)}, over half the {_budget_hint()}")
 
 
 def check_camera(to_world, fov=None, what: str = "camera") -> np.ndarray:

@@ -50,6 +50,7 @@ def load_emitter(loader, node: Node) -> None:
             raise loader.error(node, "<emitter type='envmap'> needs a filename")
         from .environment_map import EnvironmentMap
         from .image_io import read_image
+        from .limits import LimitError, check_environment_map
 
         R = M[:3, :3]
         if not abs(np.linalg.det(R)) > 1e-12:
@@ -60,9 +61,12 @@ def load_emitter(loader, node: Node) -> None:
         R = np.array(R, np.float64)
         try:
             img = read_image(loader.resolve(fn, node)).astype(np.float32) * np.float32(scale)
+            check_environment_map(img.shape[1], img.shape[0], f"envmap '{fn}'")
             env_map = EnvironmentMap(img, R)
         except SceneRootError:
             raise
+        except LimitError as err:
+            raise loader.error(node, str(err)) from None
         except SceneError as err:
             raise loader.error(node, f"envmap '{fn}': {err}") from None
         e = Emitter(kind=CONSTANT, radiance=env_map.mean, image=img, to_world=R, name=name)

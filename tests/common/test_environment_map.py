@@ -195,3 +195,17 @@ def test_a_maps_radiance_edit_to_zero_is_refused_and_a_rotation_must_be_one(tmp_
     scene.emitters[0].to_world = np.diag([2.0, 1.0, 1.0])  # a scale, not a rotation
     with pytest.raises(SceneError, match="rotation"):
         decode_scene(encode_scene(scene))
+
+
+def test_a_map_beyond_the_memory_budget_is_refused_naming_its_size(tmp_path):
+    from igi.common.limits import set_memory_budget
+
+    p = _scene(tmp_path, """<emitter type="envmap"><string name="filename" value="sky.exr"/></emitter>""",
+               np.ones((64, 128, 3), np.float32))
+    set_memory_budget("1M")
+    try:
+        with pytest.raises(SceneError, match=r"128x64 needs .* over half the memory budget"):
+            load_scene(p)
+    finally:
+        set_memory_budget(None)
+    assert environment_map(load_scene(p)).shape == (64, 128)
