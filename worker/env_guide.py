@@ -1,4 +1,4 @@
-"""Sky light sampled where the view can see it: an environment (constant) emitter's direct
+"""Sky light sampled where the view can see it: an environment emitter's direct
 samples drawn from the directions that escape from the camera points.
 
 A room lit through windows sees the sky through a small solid angle; uniform environment

@@ -1,9 +1,9 @@
 """Light walks from the sky that start where light can enter: portals found from the view.
 
-Instant radiosity starts a walk from an environment (constant) emitter on a disk around the
-whole scene (common.lights.emit_rays). In a room lit through windows almost every such walk
-misses the building or hits its outside, so the few VPLs inside carry huge flux
-(grey-white-room: of 36 walks a set, 22 VPLs, 17% of them where the camera sees).
+Instant radiosity starts a walk from an environment emitter (constant, or a map: then from its
+bright directions) on a disk around the whole scene (common.lights.emit_rays). In a room lit
+through windows almost every such walk misses the building or hits its outside, so the few VPLs
+inside carry huge flux (grey-white-room: of 36 walks a set, 22 VPLs, 17% of them where the camera sees).
 
 The openings are found from the view: rays from camera points that leave the scene (the
 environment guide's escaped rays, worker.env_guide) pass through them. Along each escaped ray
