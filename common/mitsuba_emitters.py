@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .mitsuba_doc import Node, Props, fmt_rgb
+from .mitsuba_doc import Node, Props
 from .scene import CONSTANT, DIRECTIONAL, POINT, SPOT, Emitter, SceneError
 from .scene_root import SceneRootError
 

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
 INV_2PI = 1.0 / (2.0 * math.pi)

@@ -10,7 +10,7 @@ from igi.common.lights import LUMINANCE_WEIGHTS
 from igi.common.frame import TileBuffers
 from igi.common.params import make_params, params_to_dict
 from igi.master.edge_stopping import MIN_FRAMES, EdgeStoppingGuide
-from igi.master.frame_assembly import FrameAssembler, task_tiles, tile_pixel_count
+from igi.master.frame_assembly import FrameAssembler, task_tiles
 
 
 def test_the_guide_is_the_earlier_frames_mean_and_k_standard_errors_once_it_has_enough():
