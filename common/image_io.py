@@ -69,6 +69,8 @@ def read_image(path, raw: bool = False) -> np.ndarray:
         raise SceneError(f"{path}: file not found")
     if path.suffix.lower() == ".exr":
         return _read_exr(path)
+    if path.suffix.lower() in (".hdr", ".pic", ".rgbe"):
+        return _read_rgbe(path)
     from PIL import Image, UnidentifiedImageError
 
     try:
@@ -91,6 +93,17 @@ def read_image(path, raw: bool = False) -> np.ndarray:
     if raw:
         return (a8.astype(np.float32) / np.float32(255.0)).reshape(a8.shape)
     return _LUT8[a8]
+
+
+def _read_rgbe(path: Path) -> np.ndarray:
+    """A Radiance RGBE (.hdr) image — the other HDR format of environment maps — as linear RGB
+    float32, through OpenCV's reader (Pillow has none)."""
+    import cv2
+
+    a = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if a is None or a.ndim != 3 or a.shape[2] < 3 or a.dtype != np.float32:
+        raise SceneError(f"{path}: cannot read image (not a Radiance RGBE file)")
+    return np.ascontiguousarray(a[..., 2::-1])  # BGR -> RGB
 
 
 def write_exr(path, rgb) -> None:

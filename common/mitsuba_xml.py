@@ -11,8 +11,9 @@ the element, its ``file:line`` and the fallback):
   ``roughdielectric`` falls back to ``dielectric``; ``mask``/``bumpmap``/``normalmap``/``blendbsdf``
   fall back to their (first) nested BSDF; textures ``bitmap`` (``filename``, ``filter_type``,
   ``raw``, ``to_uv`` scale/translate); other textures fall back to their mean colour;
-- emitters ``area``, ``point``, ``spot``, ``directional``, ``constant``, ``envmap`` (``filename``,
-  ``scale``, ``to_world``; at most one environment emitter when one is a map);
+- emitters ``area``, ``point``, ``spot``, ``directional``, ``constant``, ``envmap`` (``filename``:
+  OpenEXR or Radiance .hdr, ``scale``, ``to_world``; at most one environment emitter when one is
+  a map);
 - sensor ``perspective`` (``fov``/``focal_length``, ``fov_axis``, ``to_world``, ``near_clip``) with
   an ``hdrfilm`` (``width``, ``height``); ``<integrator>``'s ``max_depth``;
 - ``<default>`` + ``$name`` substitution (the ``defaults`` argument wins), ``<ref>``, ids,

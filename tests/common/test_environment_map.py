@@ -209,3 +209,17 @@ def test_a_map_beyond_the_memory_budget_is_refused_naming_its_size(tmp_path):
     finally:
         set_memory_budget(None)
     assert environment_map(load_scene(p)).shape == (64, 128)
+
+
+def test_a_radiance_hdr_map_loads_as_its_exr_twin(tmp_path):
+    """Poly Haven and most HDRI libraries ship Radiance .hdr files: the map reads the same (to
+    RGBE's precision) as an OpenEXR of the same pixels."""
+    import cv2
+
+    sky = np.random.default_rng(8).uniform(0.2, 2.0, (6, 12, 3)).astype(np.float32)
+    cv2.imwrite(str(tmp_path / "sky.hdr"), sky[..., ::-1])
+    hdr = load_scene(_scene(tmp_path, """<emitter type="envmap"><string name="filename" value="sky.hdr"/></emitter>"""))
+    exr = load_scene(_scene(tmp_path, """<emitter type="envmap"><string name="filename" value="sky.exr"/></emitter>""",
+                            sky))
+    a, b = hdr.emitters[0].image, exr.emitters[0].image  # one exponent a pixel: a step of 1/256 of its brightest
+    assert np.all(np.abs(a - b) <= b.max(axis=2, keepdims=True) / 128)

@@ -77,3 +77,34 @@ def test_missing_or_corrupt_images_raise_scene_error(tmp_path):
     (tmp_path / "bad.exr").write_bytes(b"not an exr")
     with pytest.raises(SceneError, match="bad.exr"):
         read_image(tmp_path / "bad.exr")
+
+
+def _write_rgbe(path, rgb: np.ndarray) -> None:
+    """A flat (uncompressed) Radiance RGBE file written from its definition, row 0 at the top."""
+    h, w, _ = rgb.shape
+    v = rgb.max(axis=2)
+    m, e = np.frexp(v)
+    scale = np.where(v > 0, m * 256.0 / np.where(v > 0, v, 1), 0.0)
+    px = np.zeros((h, w, 4), np.uint8)
+    px[..., :3] = np.clip(rgb * scale[..., None], 0, 255).astype(np.uint8)
+    px[..., 3] = np.where(v > 0, e + 128, 0).astype(np.uint8)
+    head = f"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y {h} +X {w}\n".encode()
+    path.write_bytes(head + px.tobytes())
+
+
+def test_radiance_hdr_images_read_as_linear_rgb_in_row_order(tmp_path):
+    rng = np.random.default_rng(2)
+    img = np.exp2(rng.integers(-6, 12, (5, 9, 1))) * rng.uniform(0.5, 1.0, (5, 9, 3))
+    img[0, 0] = [4000.0, 3600.0, 3000.0]  # a sun
+    img[4, 8] = [0.0, 0.0, 0.0]
+    p = tmp_path / "sky.hdr"
+    _write_rgbe(p, img)
+    back = read_image(p)
+    assert back.dtype == np.float32 and back.shape == (5, 9, 3)
+    # one shared exponent: each channel within a step of 1/256 of the pixel's brightest
+    tol = img.max(axis=2, keepdims=True) / 128
+    assert np.all(np.abs(back - img) <= tol)
+    bad = tmp_path / "bad.hdr"
+    bad.write_bytes(b"not an image")
+    with pytest.raises(SceneError, match="bad.hdr"):
+        read_image(bad)
