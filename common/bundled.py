@@ -14,6 +14,7 @@ DEFAULT_SCENE = "cornell-box"
 DESCRIPTIONS = {
     "cornell-box": "Cornell box with a mirror sphere and a glass sphere under an area light",
     "window-room": "closed room lit through a window by sun and sky (mostly indirect light)",
+    "outdoor-sky": "a ball and a cube on a ground plane under an HDR environment map with a sun",
 }
 
 

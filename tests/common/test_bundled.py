@@ -13,7 +13,7 @@ from igi.common import bundled
 def test_names_and_descriptions():
     rows = bundled.scenes()
     names = [n for n, _, _ in rows]
-    assert {"cornell-box", "window-room"} <= set(names) and bundled.DEFAULT_SCENE in names
+    assert {"cornell-box", "window-room", "outdoor-sky"} <= set(names) and bundled.DEFAULT_SCENE in names
     assert all(desc and path.is_file() for _, desc, path in rows)
     assert (bundled.SCENES_DIR / "README.md").read_text().count("CC0") >= 1
 
@@ -29,7 +29,7 @@ def test_resolve(tmp_path, monkeypatch):
     assert bundled.resolve("cornell-box") == Path("cornell-box"), "an existing path wins"
 
 
-@pytest.mark.parametrize("name", ["cornell-box", "window-room"])
+@pytest.mark.parametrize("name", ["cornell-box", "window-room", "outdoor-sky"])
 def test_bundled_scene_loads_and_its_reference_fits(name):
     from igi.common.image_io import read_image
     from igi.common.loader import load_scene

@@ -162,11 +162,12 @@ def _alive(pid: int) -> bool:
 def test_scenes_lists_the_bundled_scenes():
     r = igi("scenes")
     assert r.returncode == 0, r.stderr
-    names = [line.split()[0] for line in r.stdout.splitlines() if line.strip()]
-    assert "cornell-box" in names and "window-room" in names
+    rows = {line.split()[0]: line.split(None, 1)[1:] for line in r.stdout.splitlines() if line.strip()}
+    assert {"cornell-box", "window-room", "outdoor-sky"} <= set(rows)
+    assert all(rows.values())  # each with its description
 
 
-@pytest.mark.parametrize("name", ["cornell-box", "window-room"])
+@pytest.mark.parametrize("name", ["cornell-box", "window-room", "outdoor-sky"])
 def test_bundled_scene_renders_by_name(tmp_path, name):
     from igi.common.image_io import read_image
 
