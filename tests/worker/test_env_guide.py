@@ -75,14 +75,19 @@ def _direct_totals(r, end, guided: bool, seeds) -> np.ndarray:
     return np.array(out)
 
 
-def test_guided_sky_samples_are_unbiased_and_less_noisy():
-    r, end = _window_room()
+def _agreeing_totals(r, end) -> tuple[np.ndarray, np.ndarray]:
+    """Direct light of 60 sets, plain and guided, whose means agree within 4 standard errors."""
     seeds = range(60)
     plain = _direct_totals(r, end, False, seeds)
     guided = _direct_totals(r, end, True, seeds)
     assert plain.mean() > 0
     se = np.sqrt(plain.var(ddof=1) / len(plain) + guided.var(ddof=1) / len(guided))
     assert abs(plain.mean() - guided.mean()) < 4 * se
+    return plain, guided
+
+
+def test_guided_sky_samples_are_unbiased_and_less_noisy():
+    plain, guided = _agreeing_totals(*_window_room())
     assert guided.std() < plain.std()
 
 
@@ -129,12 +134,7 @@ def test_a_sky_map_guided_through_a_window_gives_the_light_of_its_own_samples():
     MIS through the same q — give the direct light the map's own samples give."""
     r, end = _envmap_scene("room")
     assert r.lights.env_map is not None
-    seeds = range(60)
-    plain = _direct_totals(r, end, False, seeds)
-    guided = _direct_totals(r, end, True, seeds)
-    assert plain.mean() > 0
-    se = np.sqrt(plain.var(ddof=1) / len(plain) + guided.var(ddof=1) / len(guided))
-    assert abs(plain.mean() - guided.mean()) < 4 * se
+    _agreeing_totals(r, end)
 
 
 def test_an_open_sky_that_is_a_map_is_not_guided_a_window_is():
