@@ -106,22 +106,29 @@ def test_guided_sky_over_an_open_floor_is_exactly_the_sky_radiance():
                   [Emitter(CONSTANT, radiance=np.ones(3))],
                   Camera(look_at([0, 5, 5], [0, 0, 0], [0, 1, 0]), fov=40, width=16, height=16))
     r = Renderer(scene)
-    cam = scene.camera
-    ys, xs = np.mgrid[0:16, 0:16]
-    o, d = camera_rays(cam.to_world, cam.fov_x, 16, 16, xs.ravel(), ys.ravel())
-    end = trace_eye(scene, r.geom, r.lights, o, d, -1, 8, rng(0, 1)).end
-    assert len(end) == 256 and np.all(end.ns[:, 1] > 0.99)
     guide = _guide(3)
-    guide = EnvGuide(guide.cdf, guide.density, float(r.lights.pmf[0]))
-    means = []
-    for s in range(200):
-        vs = build_vpl_set(scene, r.geom, r.lights, s, 0, 16, 0, 1)
-        guide_environment_samples(vs, r.lights, guide, 16, rng(s, "samples"))
-        a, irr = gather_vpls(r.geom, end, vs, 0.0, 2)
-        irr = irr + bsdf_direct(scene, r.geom, r.lights, end, a, vs.direct_count, 2, rng(s, "bsdf"), guide)
-        means.append(irr.mean())
+    means = _floor_irradiance(r, EnvGuide(guide.cdf, guide.density, float(r.lights.pmf[0]))).mean(axis=1)
     se = np.std(means) / np.sqrt(len(means))
     assert abs(np.mean(means) - 1.0) < 4 * se + 0.005  # the deliberately peaked guide is noisy
+
+
+def _floor_irradiance(r, guide: EnvGuide) -> np.ndarray:
+    """(200, 3): per set (seeds 0..199) the mean irradiance per unit albedo over the 16 x 16 camera
+    pixels of a floor scene, from environment samples redrawn from ``guide`` and the BSDF ray's MIS
+    through it, direct light only."""
+    cam = r.scene.camera
+    ys, xs = np.mgrid[0:16, 0:16]
+    o, d = camera_rays(cam.to_world, cam.fov_x, 16, 16, xs.ravel(), ys.ravel())
+    end = trace_eye(r.scene, r.geom, r.lights, o, d, -1, 8, rng(0, 1)).end
+    assert len(end) == 256 and np.all(end.ns[:, 1] > 0.99)
+    means = []
+    for s in range(200):
+        vs = build_vpl_set(r.scene, r.geom, r.lights, s, 0, 16, 0, 1)
+        guide_environment_samples(vs, r.lights, guide, 16, rng(s, "samples"))
+        a, irr = gather_vpls(r.geom, end, vs, 0.0, 2)
+        irr = irr + bsdf_direct(r.scene, r.geom, r.lights, end, a, vs.direct_count, 2, rng(s, "bsdf"), guide)
+        means.append(irr.mean(axis=0))
+    return np.array(means)
 
 
 def _envmap_scene(name: str):
@@ -163,19 +170,7 @@ def test_a_floor_under_a_sky_map_reflects_the_maps_irradiance_through_any_guide(
     m = r.lights.env_map
     w, p = m.sample(np.random.default_rng(7).random((1_000_000, 2)))
     e_over_pi = (m.radiance(w) * (np.maximum(w[:, 1], 0) / p)[:, None]).mean(0) / np.pi
-    cam = scene.camera
-    ys, xs = np.mgrid[0:16, 0:16]
-    o, d = camera_rays(cam.to_world, cam.fov_x, 16, 16, xs.ravel(), ys.ravel())
-    end = trace_eye(scene, r.geom, r.lights, o, d, -1, 8, rng(0, 1)).end
     peaked = _guide(3)
-    guide = EnvGuide(peaked.cdf, peaked.density, float(r.lights.pmf[0]), sky_map=m)
-    means = []
-    for s in range(200):
-        vs = build_vpl_set(scene, r.geom, r.lights, s, 0, 16, 0, 1)
-        guide_environment_samples(vs, r.lights, guide, 16, rng(s, "samples"))
-        a, irr = gather_vpls(r.geom, end, vs, 0.0, 2)
-        irr = irr + bsdf_direct(scene, r.geom, r.lights, end, a, vs.direct_count, 2, rng(s, "bsdf"), guide)
-        means.append(irr.mean(axis=0))
-    means = np.array(means)
+    means = _floor_irradiance(r, EnvGuide(peaked.cdf, peaked.density, float(r.lights.pmf[0]), sky_map=m))
     se = means.std(axis=0) / np.sqrt(len(means))
     assert np.all(np.abs(means.mean(axis=0) - e_over_pi) < 4 * se + 0.005 * e_over_pi)
