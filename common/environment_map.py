@@ -40,10 +40,9 @@ class EnvironmentMap:
         # the density grid, as Mitsuba's warp: luminance x sin θ of the row, bilinear between texels
         lum = luminance(tex)
         grid = lum * sin_rows[:, None]
-        patch = 0.25 * (grid[:-1, :-1] + grid[:-1, 1:] + grid[1:, :-1] + grid[1:, 1:])  # (H - 1, W)
-        if not patch.sum() > 0:  # a black map: sample by solid angle (nothing to find, pdfs stay valid)
+        if not grid.sum() > 0:  # a black map: sample by solid angle (nothing to find, pdfs stay valid)
             grid = np.broadcast_to(sin_rows[:, None], grid.shape).copy()
-            patch = 0.25 * (grid[:-1, :-1] + grid[:-1, 1:] + grid[1:, :-1] + grid[1:, 1:])
+        patch = 0.25 * (grid[:-1, :-1] + grid[:-1, 1:] + grid[1:, :-1] + grid[1:, 1:])  # (H - 1, W) integrals
         total = patch.sum()
         row_w = patch.sum(axis=1)
         row_cdf = np.concatenate([[0.0], np.cumsum(row_w)]) / total
@@ -57,8 +56,8 @@ class EnvironmentMap:
                     np.ascontiguousarray(density), sin_rows)
         self.shape = (H, W)
         # the solid-angle mean radiance of the map (what a constant sky of the same power emits)
-        self.mean = (np.asarray(image, np.float64).clip(0).mean(axis=1) * solid_rows(H)[:, None]).sum(axis=0) \
-            / solid_rows(H).sum()
+        weights = solid_rows(H)
+        self.mean = (img.mean(axis=1) * weights[:, None]).sum(axis=0) / weights.sum()
 
     def radiance(self, d: np.ndarray) -> np.ndarray:
         """Radiance (N, 3) arriving from unit world directions ``d`` (N, 3)."""

@@ -27,8 +27,6 @@ VPL_SPOT = 3  # spot light: I · falloff(angle to axis)
 VPL_DIRECTIONAL = 4  # light from infinity along -direction: irradiance E (also the environment)
 
 
-
-
 def frame_from(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Orthonormal tangents (s, t) for unit normals n (N, 3), Duff et al. 2017."""
     sign = np.where(n[:, 2] >= 0, 1.0, -1.0)

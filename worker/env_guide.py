@@ -134,6 +134,5 @@ def guide_environment_samples(vpls, lights: LightSampler, guide: EnvGuide, direc
     q = guide.pdf(w)
     vpls.normal[rows] = -w
     vpls.ng[rows] = -w
-    sky = lights.environment()[None, :] if lights.env_map is None else lights.environment_radiance(w)
-    vpls.power[rows] = sky / (q * guide.pmf)[:, None] / direct_vpls
+    vpls.power[rows] = lights.environment_radiance(w) / (q * guide.pmf)[:, None] / direct_vpls
     vpls.light_pdf[rows] = guide.pmf * q

@@ -59,7 +59,7 @@ def lensed_arrivals(scene: Scene, geom: Geometry, lights: LightSampler, end: End
     chain = (rows, thr, d, pos, ns, ng, mat_i, uv, seg)
     ends = _compiled_chains(scene, geom, *chain, specular_depth, max_depth, rng, env, lights.env_tables, out)
     if ends is None:
-        ends = _numpy_chains(scene, geom, kinds, *chain, specular_depth, max_depth, rng, env, out, lights)
+        ends = _numpy_chains(scene, geom, kinds, *chain, specular_depth, max_depth, rng, lights, out)
     if not ends:
         return out, None
     # each row's chain ends once (here or as a miss above): its rows are unique
@@ -94,8 +94,8 @@ def _compiled_chains(scene, geom, rows, thr, d, pos, ns, ng, mat_i, _uv, seg, sp
     return [tuple(a[:done] for a in ends)] if done else []
 
 
-def _numpy_chains(scene, geom, kinds, rows, thr, d, pos, ns, ng, mat_i, uv, seg, specular_depth, max_depth, rng, env,
-                  out, lights=None) -> list[tuple]:
+def _numpy_chains(scene, geom, kinds, rows, thr, d, pos, ns, ng, mat_i, uv, seg, specular_depth, max_depth, rng,
+                  lights, out) -> list[tuple]:
     """The chains of :func:`lensed_arrivals` followed bounce by bounce in numpy (where
     :func:`_compiled_chains` cannot): the sky along misses added to ``out``, the chain ends
     listed per bounce (rows, throughput, segments, direction, position, ns, ng, material, uv, t)."""
@@ -108,9 +108,8 @@ def _numpy_chains(scene, geom, kinds, rows, thr, d, pos, ns, ng, mat_i, uv, seg,
             break
         h = geom.intersect(origin, d)
         miss = np.nonzero(~h.valid)[0]
-        if len(miss) and np.any(env > 0):
-            sky = env if lights is None or lights.env_map is None else lights.environment_radiance(d[miss])
-            np.add.at(out, rows[miss], thr[miss] * sky)
+        if len(miss) and np.any(lights.environment() > 0):
+            np.add.at(out, rows[miss], thr[miss] * lights.environment_radiance(d[miss]))
         hit = np.nonzero(h.valid)[0]
         spec = kind_in(kinds[h.material[hit]], SPECULAR_KINDS)
         y = hit[~spec]

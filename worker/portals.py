@@ -178,8 +178,7 @@ def portal_walks(rays: EmittedRays, u: np.ndarray, lights: LightSampler, portals
     uu[:, 0] = np.clip((uu[:, 0] * cdf[-1] - lo) / width, 0.0, np.nextafter(1.0, 0.0))
     w, s = portals.sample(uu)
     p = portals.pdf(w, s)
-    radiance = lights.scene.emitters[portals.emitter].radiance[None, :] if lights.env_map is None \
-        else lights.environment_radiance(w)
+    radiance = lights.environment_radiance(w)
     pmf = max(float(lights.pmf[portals.emitter]), 1e-300)
     rays.origin[rows] = s
     rays.direction[rows] = -w

@@ -147,7 +147,7 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
         # Misses keep their rows (material -1: the NULL kind, so no end point or chain starts
         # there): one copy of the per-hit arrays less than dropping them first.
         miss = ~v
-        unf[miss] += env if lights.env_map is None else lights.environment_radiance(d[miss])
+        unf[miss] += lights.environment_radiance(d[miss])
         normal[miss] = 0.0
     lit = np.flatnonzero(hits.emitter >= 0)  # emission seen directly (the rest would add 0)
     if len(lit):
@@ -350,7 +350,7 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis
                 lh, lv, ld = hits.rows(lit), v[lit], dirs[lit]
                 w_mis = _mis_emission(lights, lh, lv, ld, mis_pdf[lit], light_mis)
                 le = np.zeros((len(lit), 3))
-                le[~lv] = env if lights.env_map is None else lights.environment_radiance(ld[~lv])
+                le[~lv] = lights.environment_radiance(ld[~lv])
                 if lv.any():
                     le[lv] = lights.emitted_radiance(lh.emitter[lv], -np.einsum("ij,ij->i", ld[lv], lh.ns[lv]))
                 np.add.at(unf, pix[lit], thr[lit] * le * w_mis[:, None])

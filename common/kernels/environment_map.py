@@ -53,18 +53,24 @@ def radiance(env, dx, dy, dz):
     u, v = _local_uv(env, dx, dy, dz)
     if not (u >= 0.0 and v >= 0.0):  # a NaN direction: no texel to read
         return 0.0, 0.0, 0.0
+    px, py, fx, fy = _cell(u, v, W, H)
+    gx = 1.0 - fx
+    gy = 1.0 - fy
+    return _bilinear(tex, py, px, fx, fy, gx, gy, 0), _bilinear(tex, py, px, fx, fy, gx, gy, 1), \
+        _bilinear(tex, py, px, fx, fy, gx, gy, 2)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _cell(u, v, W, H):
+    """The grid cell (px, py) of lat-long (u, v) and the fractions (fx, fy) inside it: texel
+    columns at u = (c + ½) / W (u shifted by half a texel, wrapped), rows at v = r / (H - 1)."""
     u -= 0.5 / W
     u -= math.floor(u)
     x = u * W
     y = v * (H - 1)
     px = min(int(x), W - 1)
     py = min(int(y), H - 2)
-    fx = x - px
-    fy = y - py
-    gx = 1.0 - fx
-    gy = 1.0 - fy
-    return _bilinear(tex, py, px, fx, fy, gx, gy, 0), _bilinear(tex, py, px, fx, fy, gx, gy, 1), \
-        _bilinear(tex, py, px, fx, fy, gx, gy, 2)
+    return px, py, x - px, y - py
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -75,14 +81,10 @@ def _bilinear(tex, py, px, fx, fy, gx, gy, c) -> float:
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _density_at(dens, x, y, W, H) -> float:
-    """bilinear(``dens``) at grid coordinates (x, y) = (u W - ½ wrapped, v (H - 1))."""
-    px = min(int(x), W - 1)
-    py = min(int(y), H - 2)
-    fx = x - px
-    fy = y - py
-    return (1.0 - fy) * ((1.0 - fx) * dens[py, px] + fx * dens[py, px + 1]) + fy * (
-        (1.0 - fx) * dens[py + 1, px] + fx * dens[py + 1, px + 1])
+def _bilinear2(grid, py, px, fx, fy) -> float:
+    """``grid`` (2-D) between (py, px) .. (py + 1, px + 1) at fractions (fx, fy)."""
+    return (1.0 - fy) * ((1.0 - fx) * grid[py, px] + fx * grid[py, px + 1]) + fy * (
+        (1.0 - fx) * grid[py + 1, px] + fx * grid[py + 1, px + 1])
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -93,10 +95,8 @@ def pdf(env, dx, dy, dz) -> float:
     u, v = _local_uv(env, dx, dy, dz)
     if not (u >= 0.0 and v >= 0.0):  # a NaN direction
         return 0.0
-    u -= 0.5 / W
-    u -= math.floor(u)
-    st = math.sin(v * math.pi)
-    return _density_at(env[5], u * W, v * (H - 1), W, H) / max(st, 1e-7)
+    px, py, fx, fy = _cell(u, v, W, H)
+    return _bilinear2(env[5], py, px, fx, fy) / max(math.sin(v * math.pi), 1e-7)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -150,7 +150,7 @@ def sample(env, u0, u1):
     dy = m[1, 0] * lx + m[1, 1] * ly + m[1, 2] * lz
     dz = m[2, 0] * lx + m[2, 1] * ly + m[2, 2] * lz
     n = math.sqrt((dx * dx + dy * dy) + dz * dz)
-    p = ((1.0 - fv) * ((1.0 - fu) * a + fu * b) + fv * ((1.0 - fu) * cc + fu * d)) / max(st, 1e-7)
+    p = _bilinear2(dens, r, c, fu, fv) / max(st, 1e-7)
     return dx / n, dy / n, dz / n, p
 
 

@@ -108,6 +108,28 @@ OUTDOOR_ROTATION = '<rotate y="1" angle="40"/>'
 ROOM_ROTATION = '<rotate y="1" angle="190"/>'
 LOOKUP_ROTATION = '<rotate x="1" angle="30"/>\n            <rotate y="1" angle="70"/>'
 
+def _path_and_camera(max_depth: int, fov: float, origin: str, target: str, width: int, height: int) -> str:
+    """The scenes' integrator and perspective sensor (fov along x, box-filtered RGB film)."""
+    return f"""    <integrator type="path">
+        <integer name="max_depth" value="{max_depth}"/>
+    </integrator>
+
+    <sensor type="perspective">
+        <string name="fov_axis" value="x"/>
+        <float name="fov" value="{fov:g}"/>
+        <transform name="to_world">
+            <lookat origin="{origin}" target="{target}" up="0, 1, 0"/>
+        </transform>
+        <film type="hdrfilm">
+            <integer name="width" value="{width}"/>
+            <integer name="height" value="{height}"/>
+            <string name="pixel_format" value="rgb"/>
+            <rfilter type="box"/>
+        </film>
+    </sensor>
+"""
+
+
 OUTDOOR_XML = f"""<?xml version="1.0" encoding="utf-8"?>
 <!--
   igi envmap test scene "outdoor": a grey ground plane with a diffuse sphere and a diffuse cube,
@@ -115,24 +137,7 @@ OUTDOOR_XML = f"""<?xml version="1.0" encoding="utf-8"?>
   to_world. Own work for igi (tests/data/envmap/make_assets.py). Licence: CC0 1.0.
 -->
 <scene version="3.0.0">
-    <integrator type="path">
-        <integer name="max_depth" value="6"/>
-    </integrator>
-
-    <sensor type="perspective">
-        <string name="fov_axis" value="x"/>
-        <float name="fov" value="50"/>
-        <transform name="to_world">
-            <lookat origin="0, 1.8, 7" target="0, 0.4, 0" up="0, 1, 0"/>
-        </transform>
-        <film type="hdrfilm">
-            <integer name="width" value="160"/>
-            <integer name="height" value="120"/>
-            <string name="pixel_format" value="rgb"/>
-            <rfilter type="box"/>
-        </film>
-    </sensor>
-
+{_path_and_camera(6, 50, "0, 1.8, 7", "0, 0.4, 0", 160, 120)}
     <bsdf type="diffuse" id="grey">
         <rgb name="reflectance" value="0.5, 0.5, 0.5"/>
     </bsdf>
@@ -181,24 +186,7 @@ LOOKUP_XML = f"""<?xml version="1.0" encoding="utf-8"?>
   For checking the lat-long lookup convention. Own work for igi (make_assets.py). Licence: CC0 1.0.
 -->
 <scene version="3.0.0">
-    <integrator type="path">
-        <integer name="max_depth" value="1"/>
-    </integrator>
-
-    <sensor type="perspective">
-        <string name="fov_axis" value="x"/>
-        <float name="fov" value="90"/>
-        <transform name="to_world">
-            <lookat origin="0, 0, 0" target="0.8, 0.45, -0.6" up="0, 1, 0"/>
-        </transform>
-        <film type="hdrfilm">
-            <integer name="width" value="64"/>
-            <integer name="height" value="48"/>
-            <string name="pixel_format" value="rgb"/>
-            <rfilter type="box"/>
-        </film>
-    </sensor>
-
+{_path_and_camera(1, 90, "0, 0, 0", "0.8, 0.45, -0.6", 64, 48)}
     <emitter type="envmap" id="pattern">
         <string name="filename" value="pattern.exr"/>
         <transform name="to_world">
