@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from igi.common.frame import FrameSpec, frame_seed
+from igi.master.filter_selection import select
 from igi.master.kernels.accumulate import add_frame
 from igi.master.kernels.accumulate import mean as mean_kernel
 
@@ -98,12 +99,16 @@ class Accumulator:
         self.count += 1
         return self.count
 
-    def mean(self) -> np.ndarray | None:
-        """The accumulated image (float32), None before the first frame."""
+    def mean(self, guide=None) -> np.ndarray | None:
+        """The accumulated image (float32), None before the first frame. ``guide``: the frames'
+        ``master.edge_stopping.EdgeStoppingGuide``; each pixel then keeps the filter's share of the
+        mean only as far as its measured bias allows (``master.filter_selection``)."""
         if self._sum is None or self.count == 0:
             return None
         out = np.empty(self._sum.shape, np.float32)
         mean_kernel(self._sum.reshape(-1), self.count, out.reshape(-1))  # float32(sum / count)
+        if guide is not None:
+            return select(out, guide.shares_learnt())
         return out
 
     def halves(self) -> tuple[np.ndarray, np.ndarray] | None:

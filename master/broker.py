@@ -331,7 +331,7 @@ class Broker:
             res = futures.popleft().result(timeout)
             key = accumulation_key(res.spec)
             acc.add(res.image(guide.track(key)), key)
-            image = acc.mean()
+            image = acc.mean(guide)
             if on_frame is not None:
                 on_frame(i, image)
         return image

@@ -71,6 +71,9 @@ class EdgeStoppingGuide:
         self._s1: np.ndarray | None = None
         self._s2: np.ndarray | None = None
         self._read: tuple | None = None  # (k, count, gm, gt): the guide of `count` frames
+        self._share: np.ndarray | None = None  # the filter's share, (H, W, 3) float64 sums
+        self._share2: np.ndarray | None = None  # and of its luminance squared (H, W)
+        self._select: tuple = (0.0, 0)  # (c, window reach) the shares are weighed with
         self._spare: tuple | None = None  # (gm, gt): buffers the next pass may write
 
     def track(self, key) -> "EdgeStoppingGuide":
@@ -87,6 +90,9 @@ class EdgeStoppingGuide:
         if self._s1 is not None:
             self._s1.fill(0.0)
             self._s2.fill(0.0)
+        if self._share is not None:
+            self._share.fill(0.0)
+            self._share2.fill(0.0)
 
     def learner(self, shape: tuple[int, int], layout: tuple) -> tuple[np.ndarray, np.ndarray]:
         """The sums ((planes, cells) float64 in ``layout``) a frame of ``shape`` (H, W) adds its
@@ -98,7 +104,25 @@ class EdgeStoppingGuide:
             self._s2 = np.zeros(layout[3:])
             self.count = 0
             self._read = self._spare = None
+            self._share = self._share2 = None
         return self._s1, self._s2
+
+    def shares(self, c: float, reach: int) -> tuple[np.ndarray, np.ndarray]:
+        """The sums (float64, image order) the frame :meth:`learner` was called for adds its filter
+        share (H, W, 3) and that share's luminance squared (H, W) to
+        (``master.filter_selection``; weighed with ``c`` over a window of ``reach``)."""
+        if self._share is None:
+            self._share = np.zeros(self._shape + (3,))
+            self._share2 = np.zeros(self._shape)
+        self._select = (float(c), int(reach))
+        return self._share, self._share2
+
+    def shares_learnt(self) -> tuple | None:
+        """(share sums, luminance squares, frames, c, reach) for ``master.filter_selection.select``,
+        None when no frame added shares since the last reset."""
+        if self._share is None or self.count == 0:
+            return None
+        return self._share, self._share2, self.count, self._select[0], self._select[1]
 
     def _ready(self, k: float, shape: tuple[int, int]) -> bool:
         return k > 0 and self._s1 is not None and self._shape == tuple(shape) and self.count >= MIN_FRAMES

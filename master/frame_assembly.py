@@ -49,6 +49,7 @@ DEFAULT_TASK_PIXELS = LARGEST_TASK_PIXELS  # the broker's and render_local's fix
 VALUE_NAMES = ("reflectance", "irradiance", "unfiltered", "lobe")  # the planes' 12 value channels, in order
 _NO_GUIDE = np.zeros((0, 0), np.float32)  # finish_sub's guide planes when a frame is not guided
 _NO_SUMS = np.zeros((0, 0), np.float64)  # finish_sub's guide sums when no guide learns
+_NO_SHARES = np.zeros((0, 0, 3), np.float64)  # finish_sub's filter shares when none are summed
 
 
 def task_pixels_for(pixels: int, threads: int, frames_in_flight: int) -> int:
@@ -301,14 +302,19 @@ class _Planes:
         layout = (n, q, SW, n * n, self.vals.shape[2] * SW)  # the guide's, cell for cell the planes'
         gm, gt = _NO_GUIDE, _NO_GUIDE
         s1, s2, wm, wt = _NO_SUMS, _NO_SUMS, _NO_GUIDE, _NO_GUIDE
+        sh, sh2 = _NO_SHARES, _NO_SUMS
         if guide is not None:
             s1, s2 = guide.learner((H, W), layout)
             gm, gt = (use_filter and guide.planes(k, (H, W))) or (_NO_GUIDE, _NO_GUIDE)
             wm, wt = guide.next_planes()
+            c = float(p.get("filter_select", 0.0))
+            if c > 0:
+                sh, sh2 = guide.shares(c, max(lo, hi))
         m = 0.0 if guide is None else guide.count + 1.0
         run_stripes(self.sh, W * n, lambda y0, y1: finish_sub(vals, nrm, depth, SW, n, q, H, W, y0, y1, use_filter,
                                                               lo, hi, dt, nt, float(w[0]), float(w[1]), self.lobes,
-                                                              gm.size > 0, gm, gt, s1, s2, m, k, wm, wt, img))
+                                                              gm.size > 0, gm, gt, s1, s2, m, k, wm, wt, img,
+                                                              sh, sh2))
         if guide is not None:
             guide.learnt(k, (wm, wt))
         return img

@@ -69,7 +69,7 @@ def render_local(scene: Scene, params=None, frames: int = 1, camera=None,
         key = accumulation_key(spec)
         frame_img = asm.image(pdict, i if params.accumulate else 0, guide.track(key))
         acc.add(frame_img, key)
-        image = acc.mean()
+        image = acc.mean(guide)
         if on_frame is not None:
             on_frame(i, image)
     return image

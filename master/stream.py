@@ -218,7 +218,7 @@ class Stream:
         count = self._acc.add(img, key)
         with self._latest_cond:
             self._seq += 1
-            sf = StreamFrame(seq=self._seq, image=self._acc.mean(), frame_image=img, accumulated=count,
+            sf = StreamFrame(seq=self._seq, image=self._acc.mean(self._guide), frame_image=img, accumulated=count,
                              spec=res.spec, relative_error=self._acc.relative_error(),
                              time=time.monotonic(), generation=gen, view_time=self._gen_time)
             self._latest = sf

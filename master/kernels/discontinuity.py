@@ -160,6 +160,17 @@ def _learn(i0, i1, i2, s1, s2) -> None:
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _add_share(sh, sh2, y, x, e0, e1, e2) -> None:
+    """Add a pixel's filter share (float64 RGB) and its luminance squared, unless non-finite."""
+    e = (_LR * e0 + _LG * e1) + _LB * e2
+    if math.isfinite(e):
+        sh[y, x, 0] += e0
+        sh[y, x, 1] += e1
+        sh[y, x, 2] += e2
+        sh2[y, x] += e * e
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _add_offset_lobe(okm, l0, l1, l2, b0, b1, b2, lcnt) -> None:
     """The split lobes' sums of one window offset (after :func:`_add_offset`'s, in a pass of its
     own: one loop over both vectorized ~7x worse), with the continuity test that pass kept in
@@ -240,7 +251,7 @@ def gather_rows(vals_s, nrm_s, dep_s, n, pad, W, ya, yb, vals, nrm, depth) -> No
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo, hi, depth_threshold,
-               normal_threshold, w, wl, lobes, guided, gm, gt, s1, s2, m, k_err, wm, wt, img) -> None:
+               normal_threshold, w, wl, lobes, guided, gm, gt, s1, s2, m, k_err, wm, wt, img, sh, sh2) -> None:
     """Image pixels of sub-image rows sy0 .. sy1 of every sub-image k of a frame kept per
     sub-image (interleave n): the discontinuity filter (as :func:`filter_rows`), the fading
     blend and the compose, written to ``img`` (H, W, 3) at (sy·n + k div n, sx·n + k mod n).
@@ -258,6 +269,11 @@ def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo,
     0) and its square; then, unless ``wm`` is empty or ``m`` (the frames in the sums with this
     one) < 2, it writes the guide of the sums (the next frame's ``gm``, ``gt`` with ``k_err``
     standard errors) to ``wm``, ``wt``: no pass of its own over the sums.
+
+    ``sh`` (H, W, 3), ``sh2`` (H, W) float64 in image order, unless empty: the filter's share of
+    each pixel — its radiance less the radiance of its own raw irradiance and lobe — is added to
+    ``sh`` and its luminance squared to ``sh2`` (non-finite shares add 0), the sums
+    ``master.filter_selection`` weighs the filter's bias with.
 
     The planes are flattened rows of SW = sw + 2 pad pixels with a border of ``pad``
     (:func:`plane_pad` of the window): ``vals_s`` (n², 12, (sh + 2 pad)·SW) reflectance,
@@ -291,6 +307,7 @@ def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo,
     okm = np.empty(cap if lobes else 0, np.float32)  # an offset's continuity test, for the lobes' pass
     zero = np.float32(0.0)
     learn = s1.shape[0] > 0
+    share = sh.shape[0] > 0
     plan = learn and wm.shape[0] > 0 and m >= 2  # write the next frame's guide
     for ya in range(sy0, sy1, BLOCK_ROWS):  # all k of a row block together: their image rows stay in cache
         yb = min(sy1, ya + BLOCK_ROWS)
@@ -373,6 +390,11 @@ def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo,
                     img[y, x, 0] = r0[j] * f0 + u0[j]
                     img[y, x, 1] = r1[j] * f1 + u1[j]
                     img[y, x, 2] = r2[j] * f2 + u2[j]
+                    e0 = e1 = e2 = 0.0
+                    if share:  # in float64: exactly 0 where the filter kept the pixel's own value
+                        e0 = np.float64(r0[j]) * (np.float64(f0) - np.float64(i0[j]))
+                        e1 = np.float64(r1[j]) * (np.float64(f1) - np.float64(i1[j]))
+                        e2 = np.float64(r2[j]) * (np.float64(f2) - np.float64(i2[j]))
                     if lobes and q0[j] >= zero:
                         g0, g1, g2 = q0[j], q1[j], q2[j]
                         if use_filter and math.isfinite(d0[j]):
@@ -387,3 +409,9 @@ def finish_sub(vals_s, nrm_s, dep_s, SW, n, pad, H, W, sy0, sy1, use_filter, lo,
                         img[y, x, 0] += g0
                         img[y, x, 1] += g1
                         img[y, x, 2] += g2
+                        if share:
+                            e0 += np.float64(g0) - np.float64(q0[j])
+                            e1 += np.float64(g1) - np.float64(q1[j])
+                            e2 += np.float64(g2) - np.float64(q2[j])
+                    if share:
+                        _add_share(sh, sh2, y, x, e0, e1, e2)

@@ -1,7 +1,7 @@
 """Load the master's compiled kernels before its first frame (issue 16: start-up).
 
 The master decodes tiles (common.kernels.wire_decode), filters and composes frames
-(``discontinuity``) and accumulates them (``accumulate``) with numba kernels. The first call of
+(``discontinuity``) and accumulates them (``accumulate``, ``filter_selection``) with numba kernels. The first call of
 each in a process loads it from numba's disk cache, and the first of all builds numba's
 context: ~0.5 s that used to land inside the first frame a user waits for, after the workers'
 first tiles had arrived. :func:`warm_up_master` runs that path once on a tiny synthetic frame;
@@ -52,7 +52,7 @@ def warm_up_master() -> float:
     for index in range(MIN_FRAMES + 1):  # learning, then guided
         acc.add(frame.image(params, index, guide))
     acc.add(frame.image(params, 10 * int(params["filter_frames"])))  # past the fade
-    acc.mean()
+    acc.mean(guide)  # with the filter's shares weighed (master.filter_selection)
     return time.perf_counter() - t0
 
 

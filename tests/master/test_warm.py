@@ -1,6 +1,6 @@
 """The master loads the compiled kernels of its frame path before its first frame
 (master.kernels.warm): after warm_up_master the wire decode, the discontinuity buffer's
-finish pass and the accumulation sums have a compiled signature (checked in a fresh process,
+finish pass, the accumulation sums and the filter selection have a compiled signature (checked in a fresh process,
 where nothing else has called them); the broker starts the warm-up as it starts, once per
 process."""
 from __future__ import annotations
@@ -15,6 +15,7 @@ CHECK = """
 import json
 from numba.core.registry import CPUDispatcher
 import igi.master.kernels.accumulate as a, igi.master.kernels.discontinuity as d
+import igi.master.kernels.filter_selection as fs
 import igi.common.kernels.wire_decode as w
 from igi.master.kernels.warm import warm_up_master
 
@@ -22,7 +23,7 @@ def public(mod):
     return {f"{mod.__name__}.{k}": v for k, v in vars(mod).items() if isinstance(v, CPUDispatcher)
             and v.__module__ == mod.__name__ and v.targetoptions.get("inline") != "always"}
 
-used = {**public(a), **public(d), **public(w)}
+used = {**public(a), **public(d), **public(w), **public(fs)}
 before = sorted(k for k, v in used.items() if v.signatures)
 warm_up_master()
 after = sorted(k for k, v in used.items() if v.signatures)
@@ -37,7 +38,8 @@ def test_warm_up_master_loads_the_kernels_of_a_frame_in_a_fresh_process():
     # the frame path's kernels: decode, the discontinuity buffer + compose, the accumulation sums
     # (the edge-stopping guide's planes are written by finish_sub's pass: guide_planes is off the path)
     for name in ("igi.common.kernels.wire_decode.decode_tile", "igi.master.kernels.discontinuity.finish_sub",
-                 "igi.master.kernels.accumulate.add_frame", "igi.master.kernels.accumulate.mean"):
+                 "igi.master.kernels.accumulate.add_frame", "igi.master.kernels.accumulate.mean",
+                 "igi.master.kernels.filter_selection.select"):
         assert name in res["after"], name
 
 
