@@ -747,7 +747,7 @@ def measure_master(width: int, height: int, n: int, wire: list, pdict: dict, tas
             acc = Accumulator()
             c0 = cpu()
             acc.add(img, "k")
-            acc.mean()
+            acc.mean(guide)  # with the filter selection's blend (master.filter_selection)
             best["acc"] = min(best["acc"], cpu() - c0)
         parallel.set_threads(prev)
         for _ in range(max(1, reps)):

@@ -74,6 +74,7 @@ class EdgeStoppingGuide:
         self._share: np.ndarray | None = None  # the filter's share, (H, W, 3) float64 sums
         self._share2: np.ndarray | None = None  # and of its luminance squared (H, W)
         self._select: tuple = (0.0, 0)  # (c, window reach) the shares are weighed with
+        self._scratch: np.ndarray | None = None  # the weighing's planes, kept: fresh ones cost page faults
         self._spare: tuple | None = None  # (gm, gt): buffers the next pass may write
 
     def track(self, key) -> "EdgeStoppingGuide":
@@ -108,21 +109,29 @@ class EdgeStoppingGuide:
         return self._s1, self._s2
 
     def shares(self, c: float, reach: int) -> tuple[np.ndarray, np.ndarray]:
-        """The sums (float64, image order) the frame :meth:`learner` was called for adds its filter
-        share (H, W, 3) and that share's luminance squared (H, W) to
-        (``master.filter_selection``; weighed with ``c`` over a window of ``reach``)."""
+        """The sums (float64, in the :meth:`learner` layout: (planes, 3, cells) and (planes, cells))
+        the frame :meth:`learner` was called for adds its filter share (RGB) and that share's
+        luminance squared to (``master.filter_selection``; weighed with ``c`` over a window of
+        ``reach``)."""
         if self._share is None:
-            self._share = np.zeros(self._shape + (3,))
-            self._share2 = np.zeros(self._shape)
+            planes, cells = self.layout[3:]
+            self._share = np.zeros((planes, 3, cells))
+            self._share2 = np.zeros((planes, cells))
         self._select = (float(c), int(reach))
         return self._share, self._share2
 
     def shares_learnt(self) -> tuple | None:
-        """(share sums, luminance squares, frames, c, reach) for ``master.filter_selection.select``,
-        None when no frame added shares since the last reset."""
+        """(share sums, luminance squares, layout, frames, c, reach, scratch planes for a shape) for
+        ``master.filter_selection.select``, None when no frame added shares since the last reset."""
         if self._share is None or self.count == 0:
             return None
-        return self._share, self._share2, self.count, self._select[0], self._select[1]
+        return self._share, self._share2, self.layout, self.count, self._select[0], self._select[1], self._planes
+
+    def _planes(self, shape: tuple[int, int]) -> np.ndarray:
+        """Scratch planes (4, H, W) float32 for ``master.filter_selection``, kept between frames."""
+        if self._scratch is None or self._scratch.shape[1:] != tuple(shape):
+            self._scratch = np.empty((4,) + tuple(shape), np.float32)
+        return self._scratch
 
     def _ready(self, k: float, shape: tuple[int, int]) -> bool:
         return k > 0 and self._s1 is not None and self._shape == tuple(shape) and self.count >= MIN_FRAMES

@@ -49,7 +49,7 @@ DEFAULT_TASK_PIXELS = LARGEST_TASK_PIXELS  # the broker's and render_local's fix
 VALUE_NAMES = ("reflectance", "irradiance", "unfiltered", "lobe")  # the planes' 12 value channels, in order
 _NO_GUIDE = np.zeros((0, 0), np.float32)  # finish_sub's guide planes when a frame is not guided
 _NO_SUMS = np.zeros((0, 0), np.float64)  # finish_sub's guide sums when no guide learns
-_NO_SHARES = np.zeros((0, 0, 3), np.float64)  # finish_sub's filter shares when none are summed
+_NO_SHARES = np.zeros((0, 3, 0), np.float64)  # finish_sub's filter shares when none are summed
 
 
 def task_pixels_for(pixels: int, threads: int, frames_in_flight: int) -> int:

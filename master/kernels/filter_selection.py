@@ -1,7 +1,7 @@
 """The per-pixel blend of the filtered and the raw running means (``master.filter_selection``),
-compiled: one pass for the statistics, box means by running sums (two passes a box, rows then
-columns, clipped to the image), one pass for the output. float64 throughout: the blend weights a
-difference of running means. ``error_model="numpy"``: the divisors are counts >= 1 or guarded.
+compiled: one pass for the statistics, box means (:func:`box_mean`, clipped to the image), one
+pass for the output. Statistics and weights in float32 scratch planes (sums in float64): they only
+weigh the float64 sums. ``error_model="numpy"``: the divisors are counts >= 1 or guarded.
 """
 from __future__ import annotations
 
@@ -15,59 +15,96 @@ _LR, _LG, _LB = LUMINANCE_WEIGHTS
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def box_mean(src, r, tmp, dst) -> None:
-    """dst = the mean of ``src`` (H, W) over the (2r+1)² window around each pixel, clipped to the
-    image (the mean of the pixels inside); ``tmp`` (H, W) scratch."""
+    """dst = the mean of ``src`` (H, W) float32 over the (2r+1)² window around each pixel, clipped
+    to the image (the mean of the pixels inside); ``tmp`` (H, W) scratch. Along the rows one
+    unit-stride pass per window offset, down the columns running sums a whole row at a time: every
+    inner loop runs over a slice from index 0 (numba then drops its negative-index test and the
+    loop vectorizes; with x + offset indices it did not, 7x slower)."""
     H, W = src.shape
+    inv = np.float32(1.0 / (2 * r + 1))
+    L = W - 2 * r
     for y in range(H):
-        s = 0.0
-        for x in range(min(r, W)):
-            s += src[y, x]
+        for x in range(min(r, W)):  # the clipped ends
+            lo, hi = max(0, x - r), min(W, x + r + 1)
+            tmp[y, x] = np.sum(src[y, lo:hi]) / np.float32(hi - lo)
+        for x in range(max(r, W - r), W):
+            lo, hi = max(0, x - r), min(W, x + r + 1)
+            tmp[y, x] = np.sum(src[y, lo:hi]) / np.float32(hi - lo)
+        if L > 0:
+            t = tmp[y, r:W - r]
+            s0 = src[y, 0:L]
+            for x in range(L):
+                t[x] = s0[x]
+            for o in range(1, 2 * r + 1):
+                so = src[y, o:o + L]
+                for x in range(L):
+                    t[x] += so[x]
+            for x in range(L):
+                t[x] *= inv
+    col = np.zeros(W, np.float32)
+    for y in range(min(r, H)):
+        row = tmp[y]
         for x in range(W):
-            if x + r < W:
-                s += src[y, x + r]
-            if x - r - 1 >= 0:
-                s -= src[y, x - r - 1]
-            tmp[y, x] = s / (min(x + r, W - 1) - max(x - r, 0) + 1)
-    for x in range(W):
-        s = 0.0
-        for y in range(min(r, H)):
-            s += tmp[y, x]
-        for y in range(H):
-            if y + r < H:
-                s += tmp[y + r, x]
-            if y - r - 1 >= 0:
-                s -= tmp[y - r - 1, x]
-            dst[y, x] = s / (min(y + r, H - 1) - max(y - r, 0) + 1)
+            col[x] += row[x]
+    for y in range(H):
+        if y + r < H:
+            row = tmp[y + r]
+            for x in range(W):
+                col[x] += row[x]
+        if y - r - 1 >= 0:
+            row = tmp[y - r - 1]
+            for x in range(W):
+                col[x] -= row[x]
+        rinv = np.float32(1.0 / (min(y + r, H - 1) - max(y - r, 0) + 1))
+        out = dst[y]
+        for x in range(W):
+            out[x] = col[x] * rinv
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def select(mean, sh, sh2, count, c, reach, out) -> None:
-    """out = mean - a · sh / count per pixel (``master.filter_selection``): ``mean`` (H, W, 3)
-    float32, the filter's share sums ``sh`` (H, W, 3) and luminance squares ``sh2`` (H, W) of
-    ``count`` >= 2 frames; the share's bias² is the box mean (reach ``reach``) of d² - c·v (d the
-    mean share's luminance, v its variance), a = b²/(b² + v) per pixel, then its box mean of
-    reach 1."""
-    H, W = sh2.shape
+def select(mean, sh, sh2, n, pad, SW, count, c, reach, scratch, out) -> None:
+    """out = mean - a · d per pixel (``master.filter_selection``): ``mean`` (H, W, 3) float32,
+    the filter's share sums ``sh`` (n², 3, cells) and luminance squares ``sh2`` (n², cells) of
+    ``count`` >= 2 frames in the planes' layout (image pixel (y, x) in plane (y mod n)·n + x mod n
+    at cell (y div n + pad)·SW + x div n + pad); d = the mean share. With l its luminance and v
+    that luminance's variance, B and V the box means (reach ``reach``) of l² - (c + 2/(count - 1))·v
+    and of v, a = the box mean (reach 1) of max(B, 0) / (max(B, 0) + V). ``scratch`` (4, H, W)
+    float32 (kept by the caller: fresh megabytes cost page faults every frame)."""
+    H, W = mean.shape[0], mean.shape[1]
     inv = 1.0 / count
     dof = 1.0 / (count - 1.0)
-    v = np.empty((H, W))
-    e = np.empty((H, W))
-    tmp = np.empty((H, W))
-    b2 = np.empty((H, W))
-    for y in range(H):
-        for x in range(W):
-            d = (_LR * sh[y, x, 0] + _LG * sh[y, x, 1] + _LB * sh[y, x, 2]) * inv
-            var = max(sh2[y, x] * inv - d * d, 0.0) * dof
-            v[y, x] = var
-            e[y, x] = d * d - c * var
+    ce = c + 2.0 * dof
+    v, e, tmp, b2 = scratch[0], scratch[1], scratch[2], scratch[3]
+    for y in range(H):  # slices from index 0 (no negative-index tests: see box_mean)
+        k0 = (y % n) * n
+        row = (y // n + pad) * SW + pad
+        for kx in range(min(n, W)):  # a plane's cells in a row are unit stride
+            k = k0 + kx
+            sw = (W - kx + n - 1) // n
+            s0, s1, s2 = sh[k, 0, row:row + sw], sh[k, 1, row:row + sw], sh[k, 2, row:row + sw]
+            q = sh2[k, row:row + sw]
+            vr, er = v[y, kx::n], e[y, kx::n]
+            for sx in range(sw):
+                lum = (_LR * s0[sx] + _LG * s1[sx] + _LB * s2[sx]) * inv
+                var = max(q[sx] * inv - lum * lum, 0.0) * dof
+                vr[sx] = var
+                er[sx] = lum * lum - ce * var
     box_mean(e, reach, tmp, b2)
+    box_mean(v, reach, tmp, e)
     for y in range(H):
+        br, er, vr = b2[y], e[y], v[y]
         for x in range(W):
-            b = max(b2[y, x], 0.0)
-            e[y, x] = b / (b + v[y, x]) if b > 0.0 else 0.0
-    box_mean(e, 1, tmp, b2)
+            b = max(br[x], np.float32(0.0))
+            vr[x] = b / max(b + er[x], np.float32(1e-30))  # branch-free: b = 0 gives 0
+    box_mean(v, 1, tmp, b2)
     for y in range(H):
-        for x in range(W):
-            a = b2[y, x] * inv
+        k0 = (y % n) * n
+        row = (y // n + pad) * SW + pad
+        for kx in range(min(n, W)):
+            k = k0 + kx
+            sw = (W - kx + n - 1) // n
+            ar, mr, orow = b2[y, kx::n], mean[y, kx::n], out[y, kx::n]
             for ch in range(3):
-                out[y, x, ch] = np.float32(mean[y, x, ch] - a * sh[y, x, ch])
+                sc = sh[k, ch, row:row + sw]
+                for sx in range(sw):
+                    orow[sx, ch] = np.float32(mr[sx, ch] - (ar[sx] * inv) * sc[sx])

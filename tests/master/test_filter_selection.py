@@ -9,7 +9,7 @@ from igi.common.codec import encode
 from igi.common.lights import LUMINANCE_WEIGHTS
 from igi.common.params import make_params, params_to_dict
 from igi.master.accumulation import Accumulator
-from igi.master.edge_stopping import EdgeStoppingGuide
+from igi.master.edge_stopping import EdgeStoppingGuide, _cells, image_layout
 from igi.master.filter_selection import MIN_FRAMES, select
 from igi.master.frame_assembly import FrameAssembler
 from tests.master.test_edge_stopping import _step_frames
@@ -27,11 +27,26 @@ def _box(a: np.ndarray, r: int) -> np.ndarray:
     return out
 
 
+def _shares(sh: np.ndarray, sh2: np.ndarray, count: int, c: float, reach: int) -> tuple:
+    """Image-order sums (H, W, 3), (H, W) as ``shares_learnt`` gives them for a frame in image order."""
+    H, W = sh2.shape
+    return (np.ascontiguousarray(sh.reshape(H * W, 3).T[None]), sh2.reshape(1, H * W), image_layout((H, W)),
+            count, c, reach, lambda shape: np.empty((4,) + shape, np.float32))
+
+
+def _image_order(guide: EdgeStoppingGuide, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The guide's share sums in image order, (H, W, 3) and (H, W)."""
+    sh, sh2, layout = guide.shares_learnt()[:3]
+    at = _cells(layout, shape)
+    return sh[at[0], :, at[1]], sh2[at]
+
+
 def _select_reference(mean, sh, sh2, count, c, reach):
     d = (sh @ LUM) / count
     v = np.maximum(sh2 / count - d * d, 0.0) / (count - 1)
-    b2 = np.maximum(_box(d * d - c * v, reach), 0.0)
-    a = np.where(b2 > 0, b2 / np.where(b2 > 0, b2 + v, 1.0), 0.0)
+    b2 = np.maximum(_box(d * d - (c + 2.0 / (count - 1)) * v, reach), 0.0)
+    vp = _box(v, reach)
+    a = np.where(b2 > 0, b2 / np.where(b2 > 0, b2 + vp, 1.0), 0.0)
     return (mean - _box(a, 1)[..., None] * sh / count).astype(np.float32)
 
 
@@ -42,7 +57,7 @@ def test_the_blend_is_the_documented_formula_on_random_sums():
     sh, sh2 = shares.sum(0), ((shares @ LUM) ** 2).sum(0)
     mean = rng.random((H, W, 3)).astype(np.float32)
     for c, reach in ((1.5, 2), (0.5, 1), (4.0, 3)):
-        got = select(mean, (sh, sh2, n, c, reach))
+        got = select(mean, _shares(sh, sh2, n, c, reach))
         np.testing.assert_allclose(got, _select_reference(mean, sh, sh2, n, c, reach), rtol=1e-6, atol=1e-6)
 
 
@@ -57,7 +72,7 @@ def test_a_bias_beyond_the_noise_gives_the_raw_mean_and_pure_noise_keeps_the_fil
     shares = bias[None] + noise * rng.standard_normal((n, H, W, 1)) * np.ones(3)
     sh, sh2 = shares.sum(0), ((shares @ LUM) ** 2).sum(0)
     mean = np.full((H, W, 3), 1.0, np.float32)
-    out = select(mean, (sh, sh2, n, 1.5, 2))
+    out = select(mean, _shares(sh, sh2, n, 1.5, 2))
     taken = (mean - out)[..., 0] / (sh[..., 0] / n)  # the blend weight a per pixel
     left, right = taken[:, 3:W // 2 - 3], taken[:, W // 2 + 3:]
     assert left.min() > 0.97
@@ -68,9 +83,10 @@ def test_few_frames_none_off_or_another_shape_leave_the_mean_as_it_is():
     mean = np.ones((4, 5, 3), np.float32)
     sh, sh2 = np.ones((4, 5, 3)), np.ones((4, 5))
     assert select(mean, None) is mean
-    assert select(mean, (sh, sh2, MIN_FRAMES - 1, 1.5, 2)) is mean
-    assert select(mean, (sh, sh2, 10, 0.0, 2)) is mean
-    assert select(mean, (np.ones((5, 4, 3)), np.ones((5, 4)), 10, 1.5, 2)) is mean
+    assert select(mean, _shares(sh, sh2, MIN_FRAMES - 1, 1.5, 2)) is mean
+    assert select(mean, _shares(sh, sh2, 10, 0.0, 2)) is mean
+    assert select(mean, _shares(np.ones((5, 4, 3)), np.ones((5, 4)), 10, 1.5, 2)) is mean  # another size
+    assert select(mean, _shares(sh, sh2, 10, 1.5, 2)) is not mean
 
 
 @pytest.mark.parametrize("path", ["wire", "float"])
@@ -94,8 +110,9 @@ def test_the_filter_pass_sums_each_pixels_filtered_less_raw_radiance(path):
         img = asm.image(params, i, guide).astype(np.float64)
         shares.append(img - raw.image(raw_params, i).astype(np.float64))
         total += 1
-    sh, sh2, count, c, reach = guide.shares_learnt()
+    count, c, reach = guide.shares_learnt()[3:6]
     assert (count, c, reach) == (total, params["filter_select"], n // 2)
+    sh, sh2 = _image_order(guide, (h, w))
     np.testing.assert_allclose(sh, np.sum(shares, 0), atol=1e-5)
     np.testing.assert_allclose(sh2, np.sum([(s @ LUM) ** 2 for s in shares], 0), rtol=1e-4, atol=1e-8)
     assert np.abs(sh).max() > 0.1  # the step and the lobes: the filter did move pixels
@@ -110,7 +127,7 @@ def test_the_shares_start_over_with_the_view_and_a_new_shape():
         for t, b in frame:
             asm.add(t, b)
         asm.image(params, i, guide)
-    assert guide.shares_learnt()[2] == MIN_FRAMES
+    assert guide.shares_learnt()[3] == MIN_FRAMES
     assert guide.track("moved").shares_learnt() is None
     assert not guide._share.any() and not guide._share2.any()  # zeroed in place
     guide.learner((h + 1, w), (1, 0, w, 1, (h + 1) * w))
@@ -148,7 +165,7 @@ def test_a_sun_lit_scene_accumulates_closer_to_the_reference_with_the_blend():
     err = {c: relmse(render_local(scene, {"filter_select": c}, 24, width=ref.shape[1], height=ref.shape[0],
                                   renderer=r), ref) for c in (0.0, 1.5)}
     print(f"relMSE filtered {err[0.0]:.3g}, blended {err[1.5]:.3g}")
-    assert err[1.5] < 0.8 * err[0.0]  # measured: 0.00312 -> 0.00222
+    assert err[1.5] < 0.85 * err[0.0]  # measured: 0.00312 -> 0.00240
 
 
 def test_on_the_cornell_box_the_blend_costs_nothing_where_the_filter_is_right():
