@@ -16,10 +16,13 @@ _LR, _LG, _LB = LUMINANCE_WEIGHTS
 @njit(cache=True, nogil=True, error_model="numpy")
 def box_mean(src, r, tmp, dst) -> None:
     """dst = the mean of ``src`` (H, W) float32 over the (2r+1)² window around each pixel, clipped
-    to the image (the mean of the pixels inside); ``tmp`` (H, W) scratch. Along the rows one
-    unit-stride pass per window offset, down the columns running sums a whole row at a time: every
-    inner loop runs over a slice from index 0 (numba then drops its negative-index test and the
-    loop vectorizes; with x + offset indices it did not, 7x slower)."""
+    to the image (the mean of the pixels inside); ``tmp`` (H, W) scratch. Direct sums of the 2r+1
+    values, not running sums: the values span fireflies and flat walls, and a float32 running sum
+    that adds and later subtracts a firefly leaves an error larger than the wall's values (the
+    weights then left [0, 1]). One unit-stride pass per window offset along the rows, one per
+    window row down the columns; every inner loop runs over a slice from index 0 (numba then
+    drops its negative-index test and the loop vectorizes; with x + offset indices it did not,
+    7x slower)."""
     H, W = src.shape
     inv = np.float32(1.0 / (2 * r + 1))
     L = W - 2 * r
@@ -41,24 +44,19 @@ def box_mean(src, r, tmp, dst) -> None:
                     t[x] += so[x]
             for x in range(L):
                 t[x] *= inv
-    col = np.zeros(W, np.float32)
-    for y in range(min(r, H)):
-        row = tmp[y]
-        for x in range(W):
-            col[x] += row[x]
     for y in range(H):
-        if y + r < H:
-            row = tmp[y + r]
-            for x in range(W):
-                col[x] += row[x]
-        if y - r - 1 >= 0:
-            row = tmp[y - r - 1]
-            for x in range(W):
-                col[x] -= row[x]
-        rinv = np.float32(1.0 / (min(y + r, H - 1) - max(y - r, 0) + 1))
+        lo, hi = max(0, y - r), min(H, y + r + 1)
         out = dst[y]
+        first = tmp[lo]
         for x in range(W):
-            out[x] = col[x] * rinv
+            out[x] = first[x]
+        for yy in range(lo + 1, hi):
+            row = tmp[yy]
+            for x in range(W):
+                out[x] += row[x]
+        rinv = np.float32(1.0 / (hi - lo))
+        for x in range(W):
+            out[x] *= rinv
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -95,7 +93,7 @@ def select(mean, sh, sh2, n, pad, SW, count, c, reach, scratch, out) -> None:
         br, er, vr = b2[y], e[y], v[y]
         for x in range(W):
             b = max(br[x], np.float32(0.0))
-            vr[x] = b / max(b + er[x], np.float32(1e-30))  # branch-free: b = 0 gives 0
+            vr[x] = min(b / max(b + er[x], np.float32(1e-30)), np.float32(1.0))  # branch-free: b = 0 gives 0
     box_mean(v, 1, tmp, b2)
     for y in range(H):
         k0 = (y % n) * n

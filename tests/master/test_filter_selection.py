@@ -79,6 +79,24 @@ def test_a_bias_beyond_the_noise_gives_the_raw_mean_and_pure_noise_keeps_the_fil
     assert np.median(right) == 0.0 and right.mean() < 0.1
 
 
+def test_fireflies_beside_a_wall_leave_every_pixel_between_its_filtered_and_raw_means():
+    """The weights are a convex blend wherever the sums' magnitudes differ by 1e10 (a firefly's
+    share beside a flat wall's): each output pixel lies between its filtered and raw means."""
+    rng = np.random.default_rng(5)
+    H, W, n = 40, 60, 9
+    shares = 0.01 * rng.standard_normal((n, H, W, 3)) + 0.02
+    hot = rng.random((n, H, W)) < 0.01
+    shares[hot] += rng.choice([-1.0, 1.0], size=(hot.sum(), 1)) * 10.0 ** rng.uniform(3, 8, (hot.sum(), 1))
+    sh, sh2 = shares.sum(0), ((shares @ LUM) ** 2).sum(0)
+    mean = (1.0 + rng.random((H, W, 3))).astype(np.float32)
+    out = select(mean, _shares(sh, sh2, n, 1.5, 2)).astype(np.float64)
+    raw = mean - sh / n
+    lo, hi = np.minimum(mean, raw), np.maximum(mean, raw)
+    tol = 1e-6 * np.maximum(np.abs(lo), np.abs(hi)) + 1e-6
+    assert np.isfinite(out).all()
+    assert ((out >= lo - tol) & (out <= hi + tol)).all()
+
+
 def test_few_frames_none_off_or_another_shape_leave_the_mean_as_it_is():
     mean = np.ones((4, 5, 3), np.float32)
     sh, sh2 = np.ones((4, 5, 3)), np.ones((4, 5))
