@@ -130,8 +130,9 @@ PARAMS: tuple[Param, ...] = (
           "accumulate", 0.05, 1.0),
     Param("filter_frames", int, 32,
           "accumulated frames after which the discontinuity buffer is faded out (-1: always filter); "
-          "with --filter-guide only the split lobes fade (the guided irradiance filter's blur shrinks "
-          "with the noise)",
+          "with --filter-guide the irradiance does not fade (the guided filter's blur shrinks with the "
+          "noise), nor, with --filter-select, the split lobes (the running mean takes back their "
+          "measured bias)",
           "accumulate", -1, 100000),
     Param("filter_guide", float, 2.0,
           "edge stopping from the frames accumulated so far: a neighbour's irradiance is averaged only "

@@ -25,6 +25,11 @@ frames accumulate (without accumulation every frame is the same: no variance to 
 A guided filter no longer fades after ``filter_frames`` (its blur shrinks with the noise, and
 the averaging goes on); the test watches luminance only, so neighbours of equal luminance and
 different colour stay averaged — a hue blur at coloured shadow edges that does not shrink.
+
+Many small differences within the noise can still add up to a bias (a sun's terminator, a
+penumbra's curvature): the guide therefore also sums each frame's filter share (filtered less raw
+radiance) per pixel, and ``master.filter_selection`` takes back from the running mean whatever of
+it the frames show to be bias.
 """
 from __future__ import annotations
 

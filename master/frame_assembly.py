@@ -162,14 +162,16 @@ class FrameAssembler:
         ``filter_guide`` 0 or without a filter (window 1). A guided irradiance filter does not
         fade (its blur shrinks with the noise of the luminance it watches, and it keeps
         averaging) unless ``filter_frames`` is 0 (no filter); the split lobes, never guided,
-        still do.
+        fade only without ``filter_select`` (with it the running mean takes back whatever share
+        of either filter is measurably biased: ``master.filter_selection``).
         """
         p = params if isinstance(params, dict) else _asdict(params)
         window = resolve_window(int(p["filter_window"]), self.n)
         if not p.get("accumulate", True) or float(p.get("filter_guide", 0.0)) <= 0 or window <= 1:
             guide = None  # every frame the same (nothing to learn), or nothing it would guide
         fade = filter_weight(p, index)
-        w = (1.0 if guide is not None and fade > 0 else fade, fade)
+        kept = guide is not None and fade > 0
+        w = (1.0 if kept else fade, 1.0 if kept and float(p.get("filter_select", 0.0)) > 0 else fade)
         if self._buffers is None:
             return self._planes().image(self._tiles, window, w, p, guide)
         b = self.buffers

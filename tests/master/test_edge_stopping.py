@@ -175,16 +175,18 @@ def test_on_the_cornell_box_the_guided_accumulation_is_closer_to_the_reference()
     assert err[2.0] < 0.8 * err[0.0]
 
 
-def test_a_guided_irradiance_filter_does_not_fade_and_the_lobes_still_do():
+@pytest.mark.parametrize("select", [0.0, 1.5])
+def test_a_guided_irradiance_filter_does_not_fade_and_the_lobes_only_without_the_selection(select):
     """Past ``filter_frames`` an unguided filter has faded to the raw irradiance (its blur would
     be a bias forever); a guided one keeps averaging (its blur shrinks with the noise). The split
-    lobes, which no guide watches, fade either way."""
+    lobes, which no guide watches, fade without ``filter_select``; with it they keep averaging too
+    (the running mean takes back their measured bias: master/filter_selection.py)."""
     import copy
 
     from tests.master.test_frame_assembly import _lobe_reference
 
     w, h, n = 24, 12, 3
-    params = params_to_dict(make_params(interleave=n, consistent=True, filter_frames=4))
+    params = params_to_dict(make_params(interleave=n, consistent=True, filter_frames=4, filter_select=select))
     guide = EdgeStoppingGuide().track("view")
     frames = list(_step_frames(MIN_FRAMES + 3, seed=5))
 
@@ -200,7 +202,7 @@ def test_a_guided_irradiance_filter_does_not_fade_and_the_lobes_still_do():
     rng = np.random.default_rng(6)
     lobes = [np.where(rng.random((len(b), 1)) < 0.5, rng.random((len(b), 3)), -1.0).astype(np.float32)
              for _, b in frames[-1]]
-    late, fade = 40, 4 / 41  # far past the fade
+    late, fade = 40, (4 / 41 if select == 0 else 1.0)  # far past the fade
     lobed = assembled(frames[-1], lobes)
     bufs = lobed.buffers
     before = copy.deepcopy(guide)
