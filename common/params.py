@@ -141,9 +141,10 @@ PARAMS: tuple[Param, ...] = (
           "(0: off)", "accumulate", 0.0, 100.0),
     Param("filter_select", float, 1.5,
           "with --filter-guide, each pixel of the running mean keeps the discontinuity buffer's share only "
-          "as far as that share's bias, estimated from the frames (the mean of filtered minus raw radiance, "
-          "less this many times its variance, over the filter's window), is small beside the noise the "
-          "filter removes; where it is not, the pixel leans to its raw mean (0: off)",
+          "as far as that share's bias, estimated from the frames (the mean of filtered minus raw radiance "
+          "squared, less this many times its variance (more over the first frames), over the filter's "
+          "window), is small beside the noise the filter removes; where it is not, the pixel leans to its "
+          "raw mean (0: off)",
           "accumulate", 0.0, 100.0),
     Param("seed", int, 0, "seed of the first frame's Sobol scrambling", "accumulate", 0, 2**31 - 1, viewer=False),
 )

@@ -314,9 +314,11 @@ class Broker:
     def render_sequence(self, params=None, frames: int = 1, camera=None, width: int | None = None,
                         height: int | None = None,
                         on_frame: Callable[[int, np.ndarray], object] | None = None,
-                        timeout: float | None = None) -> np.ndarray:
+                        timeout: float | None = None,
+                        on_plain_mean: Callable[[int, np.ndarray], object] | None = None) -> np.ndarray:
         """Same contract as ``master.inprocess.render_local`` (same specs, tiles, filter and
-        accumulation), rendered by the workers with ``pipeline`` frames in flight."""
+        accumulation, ``on_frame`` and ``on_plain_mean``), rendered by the workers with ``pipeline``
+        frames in flight."""
         pdict = params_dict(params)
         frames = max(1, int(frames))
         acc = Accumulator()
@@ -331,6 +333,8 @@ class Broker:
             res = futures.popleft().result(timeout)
             key = accumulation_key(res.spec)
             acc.add(res.image(guide.track(key)), key)
+            if on_plain_mean is not None:
+                on_plain_mean(i, acc.mean())
             image = acc.mean(guide)
             if on_frame is not None:
                 on_frame(i, image)

@@ -229,14 +229,14 @@ def cmd_render(args: argparse.Namespace) -> int:
     tracker = ErrorTracker()
 
     def on_frame(i, img):
-        err = tracker.add(i, img)
+        err = tracker.error  # of the plain mean (on_plain_mean): the blended one cannot be taken apart
         if progress:
             progress.update(i + 1, err)
         if args.until_error is not None and err is not None and err <= args.until_error:
             raise Converged(img, i + 1, err)
 
     try:
-        image = _render_frames(args, scene, params, on_frame)
+        image = _render_frames(args, scene, params, on_frame, tracker.add)
     except Converged as c:
         image = c.image
         args.frames = c.frames
@@ -268,7 +268,8 @@ class Converged(Exception):
 
 
 class ErrorTracker:
-    """Live error estimate from the running means the renderers report (issue 11).
+    """Live error estimate from the plain running means the renderers report (issue 11;
+    ``on_plain_mean``: without the filter selection's blend, whose weights change frame by frame).
 
     Frame i is recovered from consecutive means, (i+1)·m_i − i·m_{i−1}, and fed to an
     Accumulator, whose even/odd halves estimate the relMSE of the mean without a reference."""
@@ -289,13 +290,14 @@ class ErrorTracker:
         return self.error
 
 
-def _render_frames(args, scene, params, on_frame):
+def _render_frames(args, scene, params, on_frame, on_plain_mean):
     if args.workers == 0:
         from igi.master.frame_assembly import DEFAULT_TASK_PIXELS
         from igi.master.inprocess import render_local
 
         image = render_local(scene, params, frames=args.frames, width=args.width, height=args.height,
-                             on_frame=on_frame, task_pixels=args.task_pixels or DEFAULT_TASK_PIXELS)
+                             on_frame=on_frame, task_pixels=args.task_pixels or DEFAULT_TASK_PIXELS,
+                             on_plain_mean=on_plain_mean)
     else:
         from igi.master.broker import FrameCancelled
         from igi.master.local_workers import local_cluster
@@ -304,7 +306,8 @@ def _render_frames(args, scene, params, on_frame):
                            task_pixels=args.task_pixels) as cluster:
             try:
                 image = cluster.broker.render_sequence(params, frames=args.frames, width=args.width,
-                                                       height=args.height, on_frame=on_frame)
+                                                       height=args.height, on_frame=on_frame,
+                                                       on_plain_mean=on_plain_mean)
             except FrameCancelled:
                 if cluster.all_exited.is_set():
                     raise RenderError("every local worker exited before the render finished") from None

@@ -76,9 +76,11 @@ class EdgeStoppingGuide:
         self._s1: np.ndarray | None = None
         self._s2: np.ndarray | None = None
         self._read: tuple | None = None  # (k, count, gm, gt): the guide of `count` frames
-        self._share: np.ndarray | None = None  # the filter's share, (H, W, 3) float64 sums
-        self._share2: np.ndarray | None = None  # and of its luminance squared (H, W)
+        self._share: np.ndarray | None = None  # the filter's share, (planes, 3, cells) float64 sums
+        self._share2: np.ndarray | None = None  # and of its luminance squared (planes, cells)
         self._select: tuple = (0.0, 0)  # (c, window reach) the shares are weighed with
+        self._shared = 0  # frames that added shares since the last reset
+        self._sharing = False  # the frame being learnt adds shares
         self._scratch: np.ndarray | None = None  # the weighing's planes, kept: fresh ones cost page faults
         self._spare: tuple | None = None  # (gm, gt): buffers the next pass may write
 
@@ -93,6 +95,7 @@ class EdgeStoppingGuide:
         """Forget the frames (the sums are zeroed in place: a moving view resets every frame)."""
         self.count = 0
         self._read = None
+        self._shared, self._sharing, self._select = 0, False, (0.0, 0)
         if self._s1 is not None:
             self._s1.fill(0.0)
             self._s2.fill(0.0)
@@ -111,6 +114,7 @@ class EdgeStoppingGuide:
             self.count = 0
             self._read = self._spare = None
             self._share = self._share2 = None
+            self._shared, self._sharing, self._select = 0, False, (0.0, 0)
         return self._s1, self._s2
 
     def shares(self, c: float, reach: int) -> tuple[np.ndarray, np.ndarray]:
@@ -123,14 +127,17 @@ class EdgeStoppingGuide:
             self._share = np.zeros((planes, 3, cells))
             self._share2 = np.zeros((planes, cells))
         self._select = (float(c), int(reach))
+        self._sharing = True
         return self._share, self._share2
 
     def shares_learnt(self) -> tuple | None:
-        """(share sums, luminance squares, layout, frames, c, reach, scratch planes for a shape) for
-        ``master.filter_selection.select``, None when no frame added shares since the last reset."""
-        if self._share is None or self.count == 0:
+        """(share sums, luminance squares, layout, frames that added shares, c, reach, scratch planes
+        for a shape, the frames' (H, W)) for ``master.filter_selection.select``; None when no frame
+        added shares since the last reset."""
+        if self._share is None or self._shared == 0 or self._select[0] <= 0:
             return None
-        return self._share, self._share2, self.layout, self.count, self._select[0], self._select[1], self._planes
+        return (self._share, self._share2, self.layout, self._shared, self._select[0], self._select[1], self._planes,
+                self._shape)
 
     def _planes(self, shape: tuple[int, int]) -> np.ndarray:
         """Scratch planes (4, H, W) float32 for ``master.filter_selection``, kept between frames."""
@@ -168,6 +175,8 @@ class EdgeStoppingGuide:
         """One more frame was added to the sums; ``written``: the :meth:`next_planes` buffers its
         pass filled with the guide of all frames so far (``k`` standard errors), or None."""
         self.count += 1
+        self._shared += self._sharing
+        self._sharing = False
         if written is None:
             return
         if self._read is not None:

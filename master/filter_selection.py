@@ -47,17 +47,15 @@ MIN_FRAMES = 3  # frames before a pixel is weighed: a variance of two degrees of
 def select(mean: np.ndarray, shares: tuple | None) -> np.ndarray:
     """The running ``mean`` (H, W, 3) float32 with each pixel's filter share blended as above;
     ``shares``: (share sums, luminance squares, their layout, frames, c, window reach, scratch
-    planes for a shape) from
+    planes for a shape, the frames' (H, W)) from
     ``EdgeStoppingGuide.shares_learnt`` (sums in the frame planes' layout, ``master.frame_assembly``),
     or None (then ``mean`` itself)."""
     if shares is None:
         return mean
-    sh, sh2, layout, count, c, reach, scratch = shares
+    sh, sh2, layout, count, c, reach, scratch, shape = shares
     n, pad, sw = layout[:3]
-    H, W = mean.shape[:2]
-    fits = sh.shape[0] == n * n and -(-W // n) + 2 * pad <= sw and (-(-H // n) + 2 * pad) * sw <= sh.shape[2]
-    if count < MIN_FRAMES or c <= 0 or not fits:
+    if count < MIN_FRAMES or c <= 0 or tuple(shape) != mean.shape[:2]:
         return mean
     out = np.empty(mean.shape, np.float32)
-    select_kernel(mean, sh, sh2, n, pad, sw, float(count), float(c), int(reach), scratch((H, W)), out)
+    select_kernel(mean, sh, sh2, n, pad, sw, float(count), float(c), int(reach), scratch(mean.shape[:2]), out)
     return out

@@ -37,12 +37,16 @@ def render_local(scene: Scene, params=None, frames: int = 1, camera=None,
                  on_frame: Callable[[int, np.ndarray], object] | None = None, *,
                  width: int | None = None, height: int | None = None, renderer=None,
                  task_pixels: int = DEFAULT_TASK_PIXELS, quantize: bool = True,
-                 scene_version: int = 0) -> np.ndarray:
+                 scene_version: int = 0,
+                 on_plain_mean: Callable[[int, np.ndarray], object] | None = None) -> np.ndarray:
     """Render ``frames`` frames in this process and return the image (H, W, 3) float32, linear.
 
     ``params``: a Params, a dict of overrides, or None (defaults). With ``accumulate`` on the
     result is the mean of the frames (seeds params.seed, +1, …); off, the last frame (all
-    frames are then identical). ``on_frame(i, image_so_far)`` is called after each frame.
+    frames are then identical). ``on_frame(i, image_so_far)`` is called after each frame;
+    ``on_plain_mean(i, mean)`` before it with the plain running mean, without the filter
+    selection's blend (``master.filter_selection``), for estimators that take the mean apart
+    frame by frame (the CLI's noise estimate).
     ``renderer`` reuses an existing ``worker.renderer.Renderer`` for ``scene``.
     """
     reuse_freed_blocks()  # this process is master and worker: tile buffers stay in the heap
@@ -69,6 +73,8 @@ def render_local(scene: Scene, params=None, frames: int = 1, camera=None,
         key = accumulation_key(spec)
         frame_img = asm.image(pdict, i if params.accumulate else 0, guide.track(key))
         acc.add(frame_img, key)
+        if on_plain_mean is not None:
+            on_plain_mean(i, acc.mean())
         image = acc.mean(guide)
         if on_frame is not None:
             on_frame(i, image)

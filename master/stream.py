@@ -216,9 +216,10 @@ class Stream:
         if gen != self.gen:
             return
         count = self._acc.add(img, key)
+        image = self._acc.mean(self._guide)  # before the lock: readers need not wait for the blend
         with self._latest_cond:
             self._seq += 1
-            sf = StreamFrame(seq=self._seq, image=self._acc.mean(self._guide), frame_image=img, accumulated=count,
+            sf = StreamFrame(seq=self._seq, image=image, frame_image=img, accumulated=count,
                              spec=res.spec, relative_error=self._acc.relative_error(),
                              time=time.monotonic(), generation=gen, view_time=self._gen_time)
             self._latest = sf

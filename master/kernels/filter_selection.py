@@ -11,6 +11,7 @@ from numba import njit
 from igi.common.lights import LUMINANCE_WEIGHTS
 
 _LR, _LG, _LB = LUMINANCE_WEIGHTS
+_BIG = 1e37  # the scratch planes' bound (float32): a box's row or column sum of up to 15 stays finite
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -85,15 +86,16 @@ def select(mean, sh, sh2, n, pad, SW, count, c, reach, scratch, out) -> None:
             for sx in range(sw):
                 lum = (_LR * s0[sx] + _LG * s1[sx] + _LB * s2[sx]) * inv
                 var = max(q[sx] * inv - lum * lum, 0.0) * dof
-                vr[sx] = var
-                er[sx] = lum * lum - ce * var
+                vr[sx] = min(var, _BIG)  # float32 planes: an absurd firefly must not become inf
+                er[sx] = max(min(lum * lum - ce * var, _BIG), -_BIG)
     box_mean(e, reach, tmp, b2)
     box_mean(v, reach, tmp, e)
     for y in range(H):
         br, er, vr = b2[y], e[y], v[y]
         for x in range(W):
             b = max(br[x], np.float32(0.0))
-            vr[x] = min(b / max(b + er[x], np.float32(1e-30)), np.float32(1.0))  # branch-free: b = 0 gives 0
+            a = min(b / max(b + er[x], np.float32(1e-30)), np.float32(1.0))  # branch-free: b = 0 gives 0
+            vr[x] = a if a >= np.float32(0.0) else np.float32(0.0)  # NaN: 0
     box_mean(v, 1, tmp, b2)
     for y in range(H):
         k0 = (y % n) * n

@@ -31,7 +31,7 @@ def _shares(sh: np.ndarray, sh2: np.ndarray, count: int, c: float, reach: int) -
     """Image-order sums (H, W, 3), (H, W) as ``shares_learnt`` gives them for a frame in image order."""
     H, W = sh2.shape
     return (np.ascontiguousarray(sh.reshape(H * W, 3).T[None]), sh2.reshape(1, H * W), image_layout((H, W)),
-            count, c, reach, lambda shape: np.empty((4,) + shape, np.float32))
+            count, c, reach, lambda shape: np.empty((4,) + shape, np.float32), (H, W))
 
 
 def _image_order(guide: EdgeStoppingGuide, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -134,6 +134,58 @@ def test_the_filter_pass_sums_each_pixels_filtered_less_raw_radiance(path):
     np.testing.assert_allclose(sh, np.sum(shares, 0), atol=1e-5)
     np.testing.assert_allclose(sh2, np.sum([(s @ LUM) ** 2 for s in shares], 0), rtol=1e-4, atol=1e-8)
     assert np.abs(sh).max() > 0.1  # the step and the lobes: the filter did move pixels
+
+
+def test_the_blend_reads_interleaved_planes_as_their_image_order():
+    """Sums a guide learnt in the planes' layout of a 3×3 interleave (wire frames, bordered
+    planes) blend exactly as the same sums in image order."""
+    w, h, n = 25, 13, 3
+    params = params_to_dict(make_params(interleave=n))
+    guide, acc = EdgeStoppingGuide().track("view"), Accumulator()
+    for i, frame in enumerate(_step_frames(MIN_FRAMES + 4, seed=11, w=w, h=h, n=n)):
+        asm = FrameAssembler(w, h, n)
+        for t, b in frame:
+            asm.add_wire(t, encode(b))
+        acc.add(asm.image(params, i, guide))
+    shares = guide.shares_learnt()
+    assert shares[2][0] == n  # the planes' layout, not image order
+    sh, sh2 = _image_order(guide, (h, w))
+    count, c, reach = shares[3:6]
+    mean = acc.mean()
+    got = acc.mean(guide)
+    np.testing.assert_allclose(got, _select_reference(mean, sh, sh2, count, c, reach), rtol=1e-5, atol=1e-6)
+    assert np.abs(got - mean).max() > 1e-3  # the step's edge: the blend moved pixels
+
+
+def test_a_view_without_the_selection_after_one_with_it_reports_no_shares():
+    w, h, n = 24, 12, 3
+    guide = EdgeStoppingGuide()
+    for key, c in (("first", 1.5), ("second", 0.0)):
+        guide.track(key)
+        params = params_to_dict(make_params(interleave=n, filter_select=c))
+        for i, frame in enumerate(_step_frames(MIN_FRAMES, seed=12, w=w, h=h, n=n)):
+            asm = FrameAssembler(w, h, n)
+            for t, b in frame:
+                asm.add(t, b)
+            asm.image(params, i, guide)
+        assert (guide.shares_learnt() is None) == (c == 0.0)
+
+
+def test_the_plain_mean_callback_gets_the_mean_without_the_blend():
+    """The CLI's noise estimate takes the running mean apart frame by frame: it must get the plain
+    mean (``on_plain_mean``), which the blend's changing weights would break — the same images the
+    selection turned off gives."""
+    from igi.master.inprocess import render_local
+    from tests.support.scenes_synthetic import furnace_box
+
+    scene = furnace_box(0.5, 1.0, 20, 16)
+    plain, blended, off = [], [], []
+    render_local(scene, {"filter_select": 1.5}, 6, on_frame=lambda i, m: blended.append(m.copy()),
+                 on_plain_mean=lambda i, m: plain.append(m.copy()))
+    render_local(scene, {"filter_select": 0.0}, 6, on_frame=lambda i, m: off.append(m.copy()))
+    assert len(plain) == len(off) == 6
+    for a, b in zip(plain, off):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_the_shares_start_over_with_the_view_and_a_new_shape():
