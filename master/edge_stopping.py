@@ -95,7 +95,7 @@ class EdgeStoppingGuide:
         """Forget the frames (the sums are zeroed in place: a moving view resets every frame)."""
         self.count = 0
         self._read = None
-        self._shared, self._sharing, self._select = 0, False, (0.0, 0)
+        self._shared, self._sharing = 0, False
         if self._s1 is not None:
             self._s1.fill(0.0)
             self._s2.fill(0.0)
@@ -114,7 +114,7 @@ class EdgeStoppingGuide:
             self.count = 0
             self._read = self._spare = None
             self._share = self._share2 = None
-            self._shared, self._sharing, self._select = 0, False, (0.0, 0)
+            self._shared, self._sharing = 0, False
         return self._s1, self._s2
 
     def shares(self, c: float, reach: int) -> tuple[np.ndarray, np.ndarray]:
@@ -134,7 +134,7 @@ class EdgeStoppingGuide:
         """(share sums, luminance squares, layout, frames that added shares, c, reach, scratch planes
         for a shape, the frames' (H, W)) for ``master.filter_selection.select``; None when no frame
         added shares since the last reset."""
-        if self._share is None or self._shared == 0 or self._select[0] <= 0:
+        if self._shared == 0:  # shares() since the last reset (it allocates them, with c > 0)
             return None
         return (self._share, self._share2, self.layout, self._shared, self._select[0], self._select[1], self._planes,
                 self._shape)
