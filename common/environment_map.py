@@ -17,6 +17,10 @@ from .luminance import luminance
 from .scene import CONSTANT, Emitter, Scene, SceneError
 
 _EMPTY = None  # the "no map" tuple, made once
+# A map's radiance above this × its mean is its peak (a sun), which caustic photons carry through
+# mirror/glass (worker.caustics); a chain from a surface that found it would be a firefly of that
+# radiance over the chain's pdf. A sky's gradient and clouds (a few × the mean) stay with the chains.
+SKY_PEAK = 16.0
 
 
 class EnvironmentMap:
@@ -55,9 +59,25 @@ class EnvironmentMap:
         self.env = (tex, np.ascontiguousarray(to_local), np.ascontiguousarray(R), row_cdf, col_cdf,
                     np.ascontiguousarray(density), sin_rows)
         self.shape = (H, W)
+        self.image, self.rotation = img, R
         # the solid-angle mean radiance of the map (what a constant sky of the same power emits)
         weights = solid_rows(H)
         self.mean = (img.mean(axis=1) * weights[:, None]).sum(axis=0) / weights.sum()
+
+    def peak_split(self, ratio: float) -> tuple[EnvironmentMap, EnvironmentMap | None]:
+        """The map as base + peak (texel by texel, so every lookup, bilinear included, sums to
+        this map's): the base keeps each texel's radiance up to ``ratio`` × the map's mean
+        luminance (its colour kept), the peak the rest — a sun, carried by caustic photons where
+        mirror/glass chains would find it as fireflies (worker.caustics). Peak None: no texel
+        above the bound (the base is then this map)."""
+        lum = luminance(self.image)
+        bound = ratio * float(luminance(self.mean))
+        over = lum > bound
+        if not over.any() or not bound > 0:
+            return self, None
+        keep = np.where(over, bound / np.where(over, lum, 1.0), 1.0)
+        base = self.image * keep[..., None]
+        return EnvironmentMap(base, self.rotation), EnvironmentMap(self.image - base, self.rotation)
 
     def radiance(self, d: np.ndarray) -> np.ndarray:
         """Radiance (N, 3) arriving from unit world directions ``d`` (N, 3)."""

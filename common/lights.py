@@ -11,7 +11,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .environment_map import environment_map, no_map
+from .environment_map import SKY_PEAK, EnvironmentMap, environment_map, no_map
 from .geometry import Geometry, rows3
 from .kernels import bounding_spheres, shading_frame
 from .luminance import LUMINANCE_WEIGHTS, luminance  # noqa: F401 - re-exported: the callers' name for them
@@ -151,6 +151,19 @@ class LightSampler:
         self.env_map = environment_map(scene)
         self.env_tables = self.env_map.env if self.env_map is not None else no_map()
         self.env_index = next((i for i, e in enumerate(scene.emitters) if e.kind == CONSTANT), -1)
+
+    def sky_parts(self, ratio: float = SKY_PEAK) -> tuple[tuple, EnvironmentMap | None]:
+        """The map's kernels' tables without its peak (radiance above ``ratio`` × its mean: a sun),
+        and that peak as a map of its own (EnvironmentMap.peak_split), once per ratio; no map or
+        no peak: (env_tables, None)."""
+        cache = self.__dict__.setdefault("_sky_parts", {})
+        if ratio not in cache:
+            if self.env_map is None:
+                cache[ratio] = (self.env_tables, None)
+            else:
+                base, peak = self.env_map.peak_split(ratio)
+                cache[ratio] = (base.env, peak)
+        return cache[ratio]
 
     def emitter_spheres(self) -> tuple[np.ndarray, np.ndarray]:
         """Bounding spheres of the area emitters (centres, radii), computed once."""

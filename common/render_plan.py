@@ -66,7 +66,8 @@ def frame_plan(scene_changed: bool, params_changed: bool, camera_changed: bool,
 
 
 def _emitters_reach_specular(scene: Scene, geom, lights: LightSampler, rays_per_target: int = 64) -> bool:
-    """Is any mirror/glass object visible from some local emitter? (a few probe rays)."""
+    """Is any mirror/glass object lit by some emitter — seen from a local emitter, or met first by
+    a sun's parallel rays (a directional light, an environment map's peak)? (a few probe rays)"""
     centres, radii = specular_targets(scene, geom)
     if len(radii) == 0:
         return False
@@ -89,9 +90,27 @@ def _emitters_reach_specular(scene: Scene, geom, lights: LightSampler, rays_per_
             hits = geom.intersect(o, d)
             if np.isin(hits.mesh[hits.valid], list(spec_meshes)).any():
                 return True
-        elif e.kind in (DIRECTIONAL, CONSTANT):
-            continue  # distant light: photons are not shot from it (documented limitation)
+        elif e.kind == DIRECTIONAL and lights.powers[ei] > 0:
+            if _sun_reaches(geom, lights, spec_meshes, centres, radii, e.direction[None, :], rng, rays_per_target):
+                return True
+        elif e.kind == CONSTANT and e.image is not None and lights.sky_parts()[1] is not None:
+            sky = lights.sky_parts()[1].sample(rng.random((rays_per_target, 2)))[0]  # the map's peak (a sun)
+            if _sun_reaches(geom, lights, spec_meshes, centres, radii, -sky, rng, 1):
+                return True
     return False
+
+
+def _sun_reaches(geom, lights: LightSampler, spec_meshes: set, centres: np.ndarray, radii: np.ndarray,
+                 d: np.ndarray, rng: np.random.Generator, per_direction: int) -> bool:
+    """Do parallel rays along any of ``d`` (travel directions) from outside the scene toward
+    points in the targets first meet a mirror/glass mesh?"""
+    d = np.repeat(d / np.linalg.norm(d, axis=1, keepdims=True), per_direction * len(radii), axis=0)
+    tgt = np.tile(np.repeat(centres, per_direction, axis=0), (len(d) // (per_direction * len(radii)), 1))
+    tgt = tgt + rng.normal(size=(len(d), 3)) * np.tile(np.repeat(radii, per_direction), len(d) // (
+        per_direction * len(radii)))[:, None] * 0.3
+    back = np.einsum("ij,ij->i", tgt - lights.center, d) + 1.01 * lights.radius
+    hits = geom.intersect(tgt - d * np.maximum(back, 0)[:, None], d)
+    return bool(np.isin(hits.mesh[hits.valid], list(spec_meshes)).any())
 
 
 def analyze(scene: Scene, geom, lights: LightSampler) -> RenderPlan:
@@ -107,10 +126,10 @@ def analyze(scene: Scene, geom, lights: LightSampler) -> RenderPlan:
         reasons["caustics"] = "no specular surface: no caustic photons, no hash grid"
     elif not _emitters_reach_specular(scene, geom, lights):
         caustics = False
-        reasons["caustics"] = "no local emitter sees a mirror/glass object: no caustic path to sample"
+        reasons["caustics"] = "no emitter (nor sun) reaches a mirror/glass object: no caustic path to sample"
     else:
         caustics = True
-        reasons["caustics"] = "local emitters reach mirror/glass objects"
+        reasons["caustics"] = "emitters reach mirror/glass objects"
     glossy = bool(used & set(GLOSSY_KINDS))
     reasons["glossy_vpl_eval"] = ("glossy surfaces: full BSDF toward each VPL" if glossy
                                   else "all non-specular surfaces Lambertian: scalar VPL gather only")

@@ -6,6 +6,14 @@ sphere subtends, and the photon is weighted by the mixture pdf over all cones th
 its direction (overlapping targets are counted once; Jarosz 2002 §3). So the estimate of
 every caustic path that starts inside some cone is unbiased. Photons follow mirror/glass
 bounces and are stored at the first non-specular hit after at least one specular bounce.
+
+Distant lights shoot too (a sun focused by glass, seen in a mirror, through a window pane):
+a directional light, and the peak of an environment map — its texels brighter than SKY_PEAK ×
+the map's mean (common.environment_map), direction drawn from that peak. Their photons are parallel rays through a point
+drawn on the disk a target's sphere casts across the light's direction, weighted by the mixture
+of all targets' disks; they start outside the scene, so whatever shades a target shades them.
+The mirror/glass chains that find the sky from a surface (worker.indirect_caustics) then see the
+map without that peak: each path is counted once.
 """
 from __future__ import annotations
 
@@ -17,9 +25,9 @@ import numpy as np
 
 from igi.common import bsdf
 from igi.common.geometry import Geometry
-from igi.common.lights import LightSampler, luminance, spot_falloff, uniform_sphere
+from igi.common.lights import LightSampler, frame_from, luminance, spot_falloff, uniform_sphere
 from igi.common.params import PHOTON_BOOST_MAX, boosted_photon_bound
-from igi.common.scene import AREA, NULL, POINT, SPECULAR_KINDS, SPOT, Scene, kind_in
+from igi.common.scene import AREA, CONSTANT, DIRECTIONAL, NULL, POINT, SPECULAR_KINDS, SPOT, Scene, kind_in
 from igi.common.sobol_stream import SobolStream, stream_seed
 from igi.common.specular import specular_targets
 
@@ -28,7 +36,7 @@ from .kernels import light_paths, photon_aim, photon_estimate
 from .light_paths import continue_paths, roulette_numbers, set_key
 
 PHOTON_STREAM = "caustic photons"
-EMIT_DIMS = 5  # 2 position, 1 target, 2 direction in the cone
+EMIT_DIMS = 5  # 2 position (distant: the map's direction), 1 target, 2 direction in the cone (distant: on the disk)
 BOUNCE_DIMS = 3
 QUASI_BOUNCES = 2  # bounces with Sobol numbers; past them each number costs what it is used for
 
@@ -68,9 +76,26 @@ PILOT_PHOTONS = 2000  # caustic_share: photons a light at least (a share within 
 
 
 def shooting_lights(scene: Scene, lights: LightSampler) -> list[int]:
-    """The emitters caustic photons leave: area, point and spot lights with power (none from
-    distant lights: docs/design-notes.md)."""
-    return [ei for ei, e in enumerate(scene.emitters) if e.kind in (AREA, POINT, SPOT) and lights.powers[ei] > 0]
+    """The emitters caustic photons leave: area, point, spot and directional lights with power,
+    and an environment map with a peak (common.environment_map.SKY_PEAK; a constant sky has none)."""
+    return [ei for ei, e in enumerate(scene.emitters)
+            if (e.kind in (AREA, POINT, SPOT, DIRECTIONAL) and lights.powers[ei] > 0)
+            or (e.kind == CONSTANT and e.image is not None and sky_peak(lights) is not None)]
+
+
+def sky_peak(lights: LightSampler):
+    """The environment map's peak that photons carry (common.environment_map.EnvironmentMap), or None."""
+    return lights.sky_parts()[1]
+
+
+def shooting_powers(scene: Scene, lights: LightSampler, shooting: Sequence[int]) -> np.ndarray:
+    """The shooting lights' powers (luminance) as photons share them: LightSampler.powers, and
+    for a map the power of its peak only, as a directional light's, through the scene's disk."""
+    p = np.array(lights.powers[list(shooting)], np.float64)
+    for i, ei in enumerate(shooting):
+        if scene.emitters[ei].kind == CONSTANT:
+            p[i] = np.pi * lights.radius ** 2 * 4 * np.pi * float(luminance(sky_peak(lights).mean))
+    return p
 
 
 def caustic_share(scene: Scene, geom: Geometry, lights: LightSampler, photons_per_light: int, max_bounces: int,
@@ -80,12 +105,65 @@ def caustic_share(scene: Scene, geom: Geometry, lights: LightSampler, photons_pe
     every worker finds the same share (as every worker builds the same VPL sets: given the
     same ray answers). 0 without specular surfaces or shooting lights."""
     shooting = shooting_lights(scene, lights)
-    total = float(lights.powers[shooting].sum()) if shooting else 0.0
+    total = float(shooting_powers(scene, lights, shooting).sum()) if shooting else 0.0
     if photons_per_light <= 0 or total <= 0:
         return 0.0
     pilot = build_photon_set(scene, geom, lights, 0, 0, max(photons_per_light, PILOT_PHOTONS),
                              default_radius(geom.diagonal, -1.0), max_bounces, targets=targets)
     return float(luminance(pilot.power.sum(axis=0))) / total if len(pilot) else 0.0
+
+
+VIEW_SHARE_RADIUS = 0.02  # the view share's gather radius (of the diagonal): 4x the default, a smooth sum
+VIEW_SHARE_POINTS = 1024  # camera points the view share sums over
+
+
+def distant_lights(scene: Scene, lights: LightSampler) -> list[int]:
+    """The shooting lights that are distant: directional lights and a map's peak."""
+    return [ei for ei in shooting_lights(scene, lights) if scene.emitters[ei].kind in (DIRECTIONAL, CONSTANT)]
+
+
+def distant_view_share(scene: Scene, geom: Geometry, lights: LightSampler, points, photons_per_light: int,
+                       max_bounces: int, targets: tuple | None = None) -> float:
+    """The share of the distant lights' light on the view's surfaces that arrives as caustics:
+    over camera end points ``points`` (worker.shading.EndPoints, the view's camera pool), the
+    irradiance of a pilot photon set of the distant lights only (seed 0, block 0) over it plus
+    their direct irradiance (a shadow ray each; a map's peak: one direction drawn per point).
+    A sun's flux through the scene's disk mostly lands outside what the camera sees (a room's
+    roof and outer walls), so :func:`caustic_share`'s flux ratio is no measure of a room lit by
+    a sun through its window panes — where that light is all caustic, and its photons are the
+    image. 0 without distant shooting lights or points (deterministic: every worker agrees)."""
+    distant = distant_lights(scene, lights)
+    if not distant or len(points) == 0 or photons_per_light <= 0:
+        return 0.0
+    radius = VIEW_SHARE_RADIUS * geom.diagonal
+    pilot = build_photon_sets(scene, geom, lights, 0, [0], max(photons_per_light, PILOT_PHOTONS), radius,
+                              max_bounces, targets=targets, only=distant)[0]
+    side = np.where(points.wi[:, 2] >= 0, 1.0, -1.0)[:, None]
+    n = points.ns * side  # the normal on the side the eye sees
+    caustic = 0.0
+    if pilot.grid is not None:
+        pi, qi = pilot.grid.query(points.position)
+        facing = np.einsum("ij,ij->i", pilot.direction[pi], n[qi]) > 0
+        caustic = float(luminance(pilot.power[pi[facing]]).sum()) / (np.pi * radius * radius)
+    direct = 0.0
+    u = np.random.default_rng(0).random((len(points), 2))
+    for ei in distant:
+        e = scene.emitters[ei]
+        if e.kind == DIRECTIONAL:
+            to_sun = np.broadcast_to(-e.direction / np.linalg.norm(e.direction), n.shape)
+            irradiance = np.full(len(points), float(luminance(e.irradiance)))
+        else:
+            to_sun, p = sky_peak(lights).sample(u)
+            irradiance = luminance(sky_peak(lights).radiance(to_sun)) / np.where(p > 0, p, np.inf)
+        cos = np.einsum("ij,ij->i", n, to_sun)
+        lit = np.flatnonzero(cos > 0)
+        if len(lit) == 0:
+            continue
+        o = geom.offset(points.position[lit], points.ng[lit] * side[lit], to_sun[lit])
+        seen = ~geom.occluded(o, np.ascontiguousarray(to_sun[lit]), np.full(len(lit), np.inf))
+        direct += float((irradiance[lit] * cos[lit] * seen).sum())
+    total = caustic + direct
+    return caustic / total if total > 0 else 0.0
 
 
 def boosted_photons(photons_per_light: int, share: float, reference: float) -> int:
@@ -130,11 +208,13 @@ def build_photon_set(scene: Scene, geom: Geometry, lights: LightSampler, seed: i
 
 def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: int, ks: Sequence[int],
                       photons_per_light: int, radius: float | Sequence[float], max_bounces: int,
-                      aim: bool = True, targets: tuple | None = None) -> list[PhotonSet]:
+                      aim: bool = True, targets: tuple | None = None,
+                      only: Sequence[int] | None = None) -> list[PhotonSet]:
     """:func:`build_photon_set` of every block k of ``ks``, each as it is alone (every photon
     depends on its own stream row only), emitted and traced together: one Embree batch per
     bounce for all the sets. ``radius``: one for all sets, or one per set (the query radius
-    shrinks along an accumulation: sets of several frames in one batch)."""
+    shrinks along an accumulation: sets of several frames in one batch). ``only``: the shooting
+    lights (emitter indices) to shoot from, None: all of them."""
     radii_of = np.broadcast_to(np.asarray(radius, np.float64), (len(ks),))
     centres, radii = targets if targets is not None else specular_targets(scene, geom)
     if photons_per_light <= 0 or len(radii) == 0 or not lights.has_light:
@@ -147,9 +227,11 @@ def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: 
     # so all lights are emitted in one pass (same values as light by light). Set k's rows are
     # chunk k of the frame's stream: a frame's sets together are one Sobol prefix.
     shooting = shooting_lights(scene, lights)
+    if only is not None:
+        shooting = [ei for ei in shooting if ei in set(only)]
     if not shooting:
         return [_empty(float(r)) for r in radii_of]
-    counts = photon_counts(lights.powers[shooting], photons_per_light)
+    counts = photon_counts(shooting_powers(scene, lights, shooting), photons_per_light)
     per_set = int(counts.sum())
     u = np.concatenate([stream.padded(k, per_set, per_set, dims) for k in ks])
     base = stream_seed(seed, PHOTON_STREAM, "bounces")
@@ -167,7 +249,7 @@ def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: 
     rows_of = [np.nonzero(light == i)[0] for i in range(len(shooting))]
     for i, ei in enumerate(shooting):
         e = scene.emitters[ei]
-        if e.kind != AREA:
+        if e.kind in (POINT, SPOT):
             pos[rows_of[i]] = e.position
             nrm[rows_of[i]] = e.direction / np.linalg.norm(e.direction)
     if aim:  # direction, pdf, area emitters' flux and offset origins in one pass
@@ -198,6 +280,8 @@ def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: 
         elif e.kind == SPOT:
             fall = spot_falloff(np.einsum("ij,ij->i", d[sel], nrm[sel]), e.cutoff_angle, e.beam_width)
             flux[sel] = e.intensity[None, :] * (fall / pdf[sel])[:, None]
+        elif e.kind in (DIRECTIONAL, CONSTANT):
+            d[sel], o[sel], flux[sel] = _distant_emission(e, lights, u[sel], centres, radii, aim)
     flux /= counts[light][:, None]
     # All sets' and lights' photons in one trace (one Embree batch per bounce), then put back
     # per set in light order: the same photons, in the same order, as tracing light by light.
@@ -219,6 +303,37 @@ def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: 
         pos_s, pw, di, nr, dp = (a[s0:s1] for a in ordered)
         out.append(PhotonSet(pos_s, pw, di, nr, dp, r, HashGrid(pos_s, r), per_set))
     return out
+
+
+def _distant_emission(e, lights: LightSampler, u: np.ndarray, centres: np.ndarray, radii: np.ndarray,
+                      aim: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(direction, origin, flux) of a distant light's photons for their numbers ``u`` (n, EMIT_DIMS):
+    travelling along the directional light, or from the map's peak (drawn from it by u[:, 0:2],
+    radiance over pdf); aimed at the targets' shadow disks (kernels.photon_aim.distant_emission)
+    or, unaimed, uniform on the scene's disk as light walks start (LightSampler.emit_rays); flux
+    is irradiance over the point's area pdf (not yet divided by the light's photon count)."""
+    n = len(u)
+    if e.kind == DIRECTIONAL:
+        d = np.broadcast_to(e.direction / np.linalg.norm(e.direction), (n, 3)).copy()
+        irradiance = np.broadcast_to(np.asarray(e.irradiance, np.float64), (n, 3))
+    else:
+        peak = sky_peak(lights)
+        sky, p = peak.sample(u[:, 0:2])
+        d = -sky
+        irradiance = peak.radiance(sky) / np.where(p > 0, p, np.inf)[:, None]
+    if aim:
+        o, area_pdf = np.empty((n, 3)), np.empty(n)
+        photon_aim.distant_emission(d, np.ascontiguousarray(u, np.float64), np.ascontiguousarray(centres, np.float64),
+                                    np.ascontiguousarray(radii, np.float64), np.asarray(lights.center, np.float64),
+                                    float(lights.radius), o, area_pdf)
+    else:
+        rr = lights.radius * np.sqrt(u[:, 3])
+        phi = 2 * np.pi * u[:, 4]
+        s, t = frame_from(d)
+        o = (lights.center - d * lights.radius * 1.01 + s * (rr * np.cos(phi))[:, None]
+             + t * (rr * np.sin(phi))[:, None])
+        area_pdf = np.full(n, 1.0 / (np.pi * lights.radius ** 2))
+    return d, o, irradiance / np.where(area_pdf > 0, area_pdf, np.inf)[:, None]
 
 
 def _trace_photons(scene, geom, o, d, flux, u, max_bounces, keys, per_set):

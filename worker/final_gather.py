@@ -243,7 +243,8 @@ def final_gather(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoi
                  force_general: bool = False, lobe_lights: int = 0,
                  stage: Callable[[str], AbstractContextManager] = lambda _name: nullcontext(),
                  lensed: Arrivals | None = None, specular_depth: int = 0,
-                 targets: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+                 targets: tuple[np.ndarray, np.ndarray] | None = None,
+                 sky_map: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The light at the end points ``end``, split as (albedo, irradiance) as gather_vpls splits
     it: the VPL set's (gather_vpls; ``force_general``, ``lobe_lights``, ``shadow_roulette`` as
     there), BSDF-direct light along their traced continuation ``rays`` (trace_bsdf_rays), the
@@ -254,8 +255,9 @@ def final_gather(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoi
     VPLs stand for it too), for a point of compensation level > 0 the compensation of its own
     clamp (its near points, recursively: :func:`find_levels`) and, for the ends of the end
     points' mirror/glass chains (``lensed``), given the mirror/glass ``targets`` and a positive
-    ``specular_depth``, what reaches y through a chain of its own (:func:`lensed_levels`); y's
-    emission is not included. The end points and every level's y are shaded in one batch.
+    ``specular_depth``, what reaches y through a chain of its own (:func:`lensed_levels`, seeing
+    the sky of ``sky_map``: worker.indirect_caustics.lensed_arrivals); y's emission is not
+    included. The end points and every level's y are shaded in one batch.
     ``stage``: a context manager per named step (Renderer's stage timer)."""
     with stage("final gather points"):
         batches, skies = [], []
@@ -267,7 +269,7 @@ def final_gather(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoi
         if lensed is not None and len(lensed):
             chains = targets is not None and len(targets[1]) > 0 and specular_depth > 0
             more, skies = lensed_levels(scene, geom, lights, lensed, base, vpls, clamp_d2, max_depth, rng, lobe_alpha,
-                                        specular_depth, targets if chains else None)
+                                        specular_depth, targets if chains else None, sky_map)
             batches += more
         points, ray_sets = end, [(rays, 0)]
         if batches:
@@ -294,7 +296,7 @@ def final_gather(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoi
 
 def lensed_levels(scene: Scene, geom: Geometry, lights: LightSampler, lensed: Arrivals, base: int, vpls: VPLSet,
                   clamp_d2: float, max_depth: int, rng: np.random.Generator, lobe_alpha: float, specular_depth: int,
-                  targets: tuple[np.ndarray, np.ndarray] | None
+                  targets: tuple[np.ndarray, np.ndarray] | None, sky_map: tuple | None = None
                   ) -> tuple[list[tuple[Levels, int]], list[tuple[int, np.ndarray]]]:
     """Chains of chains. The end of an end point's mirror/glass chain, y, whose own BSDF ray
     meets a mirror or glass surface follows that chain too (worker.indirect_caustics.
@@ -319,7 +321,8 @@ def lensed_levels(scene: Scene, geom: Geometry, lights: LightSampler, lensed: Ar
         batches.append((found, base))
         if last:
             break
-        sky, ends = lensed_arrivals(scene, geom, lights, found.y, found.rays, max_depth, specular_depth, rng)
+        sky, ends = lensed_arrivals(scene, geom, lights, found.y, found.rays, max_depth, specular_depth, rng,
+                                    sky_map)
         if np.any(sky):
             skies.append((base, sky))
         if ends is None:

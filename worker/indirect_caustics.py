@@ -21,6 +21,7 @@ import numpy as np
 
 from igi.common import bsdf
 from igi.common.geometry import Geometry
+from igi.common.kernels import environment_map as env_kernels
 from igi.common.lights import LightSampler
 from igi.common.scene import SPECULAR_KINDS, Scene, kind_in
 
@@ -30,13 +31,15 @@ from .shading import BSDFRays, EndPoints, delta_bounce
 
 
 def lensed_arrivals(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints, rays: BSDFRays,
-                    max_depth: int, specular_depth: int,
-                    rng: np.random.Generator) -> tuple[np.ndarray, Arrivals | None]:
+                    max_depth: int, specular_depth: int, rng: np.random.Generator,
+                    sky_map: tuple | None = None) -> tuple[np.ndarray, Arrivals | None]:
     """The end points' mirror/glass chains followed: ((E, 3) the radiance of the environment
     seen through them, toward the end points; the chains' ends y, each to be gathered for its
     end point with the chain's throughput: worker.final_gather, with the caustic photons there,
     so a caustic seen through the chain is included — L S+ D S+ D E: the bright focus under a
-    glass ball imaged by the ball onto the ceiling). None: no chain ends on a surface."""
+    glass ball imaged by the ball onto the ceiling). None: no chain ends on a surface. ``sky_map``:
+    the map's kernels' tables the chains see (None: LightSampler.env_tables; the map less its peak
+    where caustic photons carry the peak: worker.caustics)."""
     e = len(end)
     out = np.zeros((e, 3))
     hits = rays.hits
@@ -57,9 +60,10 @@ def lensed_arrivals(scene: Scene, geom: Geometry, lights: LightSampler, end: End
     seg = end.segments[rows].astype(np.int64) + 1  # segments once the ray reached the surface
     env = lights.environment()
     chain = (rows, thr, d, pos, ns, ng, mat_i, uv, seg)
-    ends = _compiled_chains(scene, geom, *chain, specular_depth, max_depth, rng, env, lights.env_tables, out)
+    sky_map = lights.env_tables if sky_map is None else sky_map
+    ends = _compiled_chains(scene, geom, *chain, specular_depth, max_depth, rng, env, sky_map, out)
     if ends is None:
-        ends = _numpy_chains(scene, geom, kinds, *chain, specular_depth, max_depth, rng, lights, out)
+        ends = _numpy_chains(scene, geom, kinds, *chain, specular_depth, max_depth, rng, lights, sky_map, out)
     if not ends:
         return out, None
     # each row's chain ends once (here or as a miss above): its rows are unique
@@ -95,7 +99,7 @@ def _compiled_chains(scene, geom, rows, thr, d, pos, ns, ng, mat_i, _uv, seg, sp
 
 
 def _numpy_chains(scene, geom, kinds, rows, thr, d, pos, ns, ng, mat_i, uv, seg, specular_depth, max_depth, rng,
-                  lights, out) -> list[tuple]:
+                  lights, sky_map, out) -> list[tuple]:
     """The chains of :func:`lensed_arrivals` followed bounce by bounce in numpy (where
     :func:`_compiled_chains` cannot): the sky along misses added to ``out``, the chain ends
     listed per bounce (rows, throughput, segments, direction, position, ns, ng, material, uv, t)."""
@@ -109,7 +113,7 @@ def _numpy_chains(scene, geom, kinds, rows, thr, d, pos, ns, ng, mat_i, uv, seg,
         h = geom.intersect(origin, d)
         miss = np.nonzero(~h.valid)[0]
         if len(miss) and np.any(lights.environment() > 0):
-            np.add.at(out, rows[miss], thr[miss] * lights.environment_radiance(d[miss]))
+            np.add.at(out, rows[miss], thr[miss] * _sky_radiance(lights, sky_map, d[miss]))
         hit = np.nonzero(h.valid)[0]
         spec = kind_in(kinds[h.material[hit]], SPECULAR_KINDS)
         y = hit[~spec]
@@ -122,3 +126,12 @@ def _numpy_chains(scene, geom, kinds, rows, thr, d, pos, ns, ng, mat_i, uv, seg,
         if len(rows) == 0:
             break
     return ends
+
+
+def _sky_radiance(lights: LightSampler, sky_map: tuple, d: np.ndarray) -> np.ndarray:
+    """The radiance a chain sees leaving along ``d``: the constant sky, or the map of ``sky_map``."""
+    if sky_map is lights.env_tables or lights.env_map is None:
+        return lights.environment_radiance(d)
+    out = np.empty((len(d), 3))
+    env_kernels.radiance_many(sky_map, np.ascontiguousarray(d, np.float64), out)
+    return out

@@ -27,7 +27,8 @@ from igi.common.scene import DIFFUSE, GLOSSY_KINDS, PLASTIC, ROUGHPLASTIC_DIFFUS
 from igi.common.sobol_stream import rng as make_rng
 from igi.common.specular import specular_targets
 
-from .caustics import PhotonSet, boosted_photons, build_photon_sets, caustic_share, default_radius
+from .caustics import (VIEW_SHARE_POINTS, PhotonSet, boosted_photons, build_photon_sets, caustic_share, default_radius,
+                       distant_lights, distant_view_share)
 from .final_gather import add_sky, compensation_enabled, final_gather, near_arrivals
 from .indirect_caustics import lensed_arrivals
 from .shading import LightMIS, lobe_light_count, trace_bsdf_rays, trace_eye
@@ -171,6 +172,8 @@ class Renderer:
         # choice; the most recent views only (a drag visits a new view every frame).
         self._views: OrderedDict[tuple, object] = OrderedDict()
         self._caustic_shares: dict[tuple, float] = {}  # per (photons, chain length): photon_count
+        # suns whose photons' count follows their light on the view (caustics.distant_view_share)
+        self._distant_photons = len(self._specular_targets[1]) > 0 and bool(distant_lights(scene, self.lights))
         self.importance_notes = ""
         self.portal_notes = ""
         self.emitter_notes = ""
@@ -294,10 +297,12 @@ class Renderer:
         return self._frame_sets.get((config, seed, index), k, params.interleave ** 2, self._timed(build),
                                     later_frames(seed, index, params, config))
 
-    def photon_count(self, params: Params) -> int:
+    def photon_count(self, params: Params, view: View | None = None) -> int:
         """Caustic photons per light per set: --photons, boosted where the scene's caustics carry
         more than --photon-share of the lights' flux (worker.caustics.boosted_photons; the
-        share from a pilot set, once per scene and chain length) — not on a moving view's frames."""
+        share from a pilot set, once per scene and chain length) or, for distant lights, of their
+        light on the ``view`` (caustics.distant_view_share, once per view) — not on a moving
+        view's frames."""
         if params.photon_share <= 0 or params.photons <= 0 or params.moving_camera:
             return params.photons  # (a moving view's frame is shown once: its frame rate counts)
         key = (params.photons, params.specular_depth)
@@ -307,15 +312,33 @@ class Renderer:
                 share = caustic_share(self.scene, self.geom, self.lights, params.photons, params.specular_depth,
                                       self._specular_targets)
             self._caustic_shares[key] = share
+        if view is not None and self._distant_photons:
+            vkey = ("photon share", self.scene_version, view.key, params.photons, params.specular_depth,
+                    params.max_depth)
+            with self._set_time():
+                on_view, _ = self._per_view(vkey, lambda: distant_view_share(
+                    self.scene, self.geom, self.lights, self.camera_pool(params, view).first(VIEW_SHARE_POINTS),
+                    params.photons, params.specular_depth, self._specular_targets))
+            share = max(share, on_view)
         return boosted_photons(params.photons, share, params.photon_share)
 
-    def photon_set(self, seed: int, k: int, params: Params, index: int = 0) -> PhotonSet:
+    def shoots_photons(self, params: Params) -> bool:
+        """Are caustic photons shot (else every photon set is empty)? Caustic paths have >= 3
+        segments (eye -> diffuse -> specular -> light, as Mitsuba counts)."""
+        return (self.plan is None or self.plan.caustics) and not 0 <= params.max_depth < 3 and params.photons > 0
+
+    def chain_sky(self, params: Params) -> tuple:
+        """The sky the mirror/glass chains from surfaces see (worker.indirect_caustics): the map less
+        its peak where the peak's caustic photons are shot (worker.caustics), else the whole map."""
+        base, peak = self.lights.sky_parts()
+        return base if peak is not None and self.shoots_photons(params) else self.lights.env_tables
+
+    def photon_set(self, seed: int, k: int, params: Params, index: int = 0, view: View | None = None) -> PhotonSet:
         radius = default_radius(self.geom.diagonal, params.photon_radius)
-        # Caustic paths have >= 3 segments (eye -> diffuse -> specular -> light, as Mitsuba counts).
-        if (self.plan is not None and not self.plan.caustics) or 0 <= params.max_depth < 3:
+        if not self.shoots_photons(params):
             return PhotonSet(*(np.zeros((0, 3)),) * 4, np.zeros(0, np.int32), radius * radius_scale(index, params),
                              None)
-        photons = self.photon_count(params)
+        photons = self.photon_count(params, view)
         config = ("photons", self.scene_version, params.interleave, photons, params.photon_radius,
                   params.consistent, params.ppm_alpha, params.specular_depth)
 
@@ -415,7 +438,8 @@ class Renderer:
                                    np.sqrt(clamp_d2) if compensate else 0.0,
                                    self._specular_targets if lensed else None)
         with self._stage("photon set"):
-            photons = self.photon_set(spec.seed, tile.k, params, index)
+            photons = self.photon_set(spec.seed, tile.k, params, index, view)
+        chain_sky = self.chain_sky(params)
         near, sky, ends = None, None, None
         if compensate and compensation_enabled(vpls, clamp_d2):
             # Accumulating: give back what the clamp took (its near points, found by the rays).
@@ -423,12 +447,12 @@ class Renderer:
         if lensed:
             with self._stage("lensed chains"):
                 sky, ends = lensed_arrivals(self.scene, self.geom, self.lights, end, rays, params.max_depth,
-                                            params.specular_depth, rng)
+                                            params.specular_depth, rng, chain_sky)
         albedo, irr = final_gather(self.scene, self.geom, self.lights, end, rays, near, vpls,
                                    clamp_d2, params.max_depth, rng, lobe_alpha, photons, params.shadow_roulette,
                                    force_general=self.plan is None, lobe_lights=lobe_lights, stage=self._stage,
                                    lensed=ends, specular_depth=params.specular_depth,
-                                   targets=self._specular_targets if lensed else None)
+                                   targets=self._specular_targets if lensed else None, sky_map=chain_sky)
         if sky is not None:
             add_sky(irr, albedo, sky)
         refl = np.zeros((p, 3))

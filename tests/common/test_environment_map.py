@@ -223,3 +223,29 @@ def test_a_radiance_hdr_map_loads_as_its_exr_twin(tmp_path):
                             sky))
     a, b = hdr.emitters[0].image, exr.emitters[0].image  # one exponent a pixel: a step of 1/256 of its brightest
     assert np.all(np.abs(a - b) <= b.max(axis=2, keepdims=True) / 128)
+
+
+def test_peak_split_sums_to_the_map_and_bounds_the_base():
+    """A map splits texel by texel into base + peak: every lookup (bilinear between texels) of
+    the two sums to the map's, the base's texels stay at or below the bound (ratio × the map's
+    mean luminance, their colour kept) and the peak holds only the texels above it."""
+    from igi.common.luminance import luminance
+
+    g = np.random.default_rng(3)
+    img = 0.5 + g.random((32, 64, 3))
+    img[10:12, 20:22] = [4000.0, 3000.0, 2000.0]  # a sun
+    img[20, 40] = [2000.0, 1.0, 1.0]  # a bright red texel, above the bound (~170) by its red alone
+    full = EnvironmentMap(img)
+    base, peak = full.peak_split(16.0)
+    bound = 16.0 * luminance(full.mean)
+    assert luminance(base.image).max() <= bound * (1 + 1e-12)
+    over = luminance(img) > bound
+    assert over.sum() == 5 and np.all(peak.image[~over] == 0) and np.all(peak.image[over] > 0)
+    red = base.image[20, 40]
+    assert red / red.sum() == pytest.approx(img[20, 40] / img[20, 40].sum())  # colour kept
+    d = _uniform_sphere(g, 5000)
+    # (the maps keep float32 texels: the sum rounds in their last bits)
+    assert base.radiance(d) + peak.radiance(d) == pytest.approx(full.radiance(d), rel=1e-6, abs=1e-9)
+    # a map without texels above the bound has no peak, and its base is itself
+    calm_base, calm_peak = EnvironmentMap(0.5 + g.random((16, 32, 3))).peak_split(16.0)
+    assert calm_peak is None and calm_base.image.max() < 2

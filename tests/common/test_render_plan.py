@@ -10,7 +10,8 @@ from igi.common.lights import LightSampler
 from igi.common.loader import load_scene
 from igi.common.params import make_params, params_to_dict
 from igi.common.render_plan import analyze, frame_plan
-from igi.common.scene import AREA, DIFFUSE, Camera, Emitter, Material, Mesh, Scene, Texture
+from igi.common.scene import (AREA, CONSTANT, DIELECTRIC, DIFFUSE, DIRECTIONAL, Camera, Emitter, Material, Mesh, Scene,
+                              Texture)
 from tests.support.paths import SHARED
 from tests.support.scenes_synthetic import box_faces, quad
 from igi.worker.renderer import Renderer
@@ -40,9 +41,36 @@ def tiny_light_room() -> Scene:
 def test_caustics_only_where_emitters_reach_mirror_or_glass():
     assert plan_of("cornell-box-sphere").caustics
     assert not plan_of("cornell-box").caustics  # no specular surface at all
-    # Glass and mirrors, but lit only by the sky (a distant light): no local caustic source.
+    # Glass and mirrors, but lit only by a constant sky: no light source a caustic can focus.
     gw = plan_of("grey-white-room")
     assert gw.specular_chains and not gw.caustics
+
+
+def _glass_box_under(emitter: Emitter, closed: bool) -> Scene:
+    """A glass cube on a floor, under ``emitter``; ``closed``: inside a diffuse room as well."""
+    mats = [Material("white", DIFFUSE, diffuse=Texture.constant(0.7)), Material("glass", DIELECTRIC, int_ior=1.5)]
+    meshes = [Mesh(f"glass{i}", v * 0.5 + 1.75, f, 1) for i, (v, f) in enumerate(box_faces(1.0, inward=False))]
+    v, f = quad([-5, 0, -5], [0, 0, 10], [10, 0, 0])  # normal +y
+    meshes.append(Mesh("floor", v, f, 0))
+    if closed:
+        meshes += [Mesh(f"wall{i}", v, f, 0) for i, (v, f) in enumerate(box_faces(4.0))]
+    cam = Camera(look_at([2, 2, 3.9], [2, 2, 0], [0, 1, 0]), fov=60, width=16, height=16)
+    return Scene(meshes, mats, [emitter], cam)
+
+
+def test_caustics_where_a_sun_meets_mirror_or_glass_first():
+    """A directional light or an environment map's sun (its peak) focused by glass plans caustic
+    photons; the same sun outside a closed room, or a sky without a peak, does not."""
+    sun = Emitter(DIRECTIONAL, irradiance=np.ones(3), direction=np.array([0.3, -1.0, 0.2]))
+    sky = np.full((32, 64, 3), 0.3)
+    sky[4:6, 10:12] = 5000.0
+    for emitter, closed, expected in [(sun, False, True), (sun, True, False),
+                                      (Emitter(CONSTANT, radiance=np.ones(3), image=sky), False, True),
+                                      (Emitter(CONSTANT, radiance=np.ones(3), image=np.full((32, 64, 3), 0.3)),
+                                       False, False)]:
+        scene = _glass_box_under(emitter, closed)
+        geom = Geometry(scene)
+        assert analyze(scene, geom, LightSampler(scene, geom)).caustics == expected, (emitter.kind, closed)
 
 
 def test_specular_chains_only_with_mirror_or_glass():

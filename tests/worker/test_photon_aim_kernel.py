@@ -96,3 +96,52 @@ def test_aimed_emission_equals_the_numpy_emission(seed, targets):
         np.testing.assert_array_equal(got, w, err_msg=name)
     assert np.any(flux[area] == 0) and np.any(flux[area] > 0)  # back-facing and lit: not vacuous
     np.testing.assert_array_equal(o[~area], pos[~area])
+
+
+def _distant(d, u, centres, radii, center=np.zeros(3), radius=10.0):
+    n = len(d)
+    o, pdf = np.empty((n, 3)), np.empty(n)
+    photon_aim.distant_emission(np.ascontiguousarray(d), np.ascontiguousarray(u), centres, radii, center, radius,
+                                o, pdf)
+    return o, pdf
+
+
+def test_a_suns_photons_start_upstream_on_the_shadow_disk_of_their_target():
+    """Each photon of a distant light crosses the disk its chosen target's sphere casts across
+    the light's direction, and starts outside the scene's bounding sphere, upstream."""
+    centres = np.array([[0.0, 1.0, 0.0], [2.0, 0.5, -1.0]])
+    radii = np.array([0.5, 0.25])
+    g = np.random.default_rng(2)
+    n = 20_000
+    d = np.tile(g.normal(size=3), (n, 1))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    u = g.random((n, 5))
+    o, pdf = _distant(d, u, centres, radii)
+    t = np.minimum((u[:, 2] * 2).astype(int), 1)
+    rel = o - centres[t]
+    across = rel - np.einsum("ij,ij->i", rel, d)[:, None] * d
+    assert np.all(np.linalg.norm(across, axis=1) <= radii[t] * (1 + 1e-9))
+    assert np.all(np.linalg.norm(o, axis=1) >= 10.0)  # outside the bounding sphere (centre 0, radius 10)
+    assert np.all(np.einsum("ij,ij->i", o - centres[t], d) < 0)  # upstream of the target
+    assert np.all(pdf > 0) and np.all(np.isfinite(pdf))
+
+
+def test_the_shadow_disk_mixture_is_an_area_density_in_the_plane_across_the_light():
+    """The mixture's integral over the plane across the light is 1 (Monte Carlo, uniform points
+    on a square that holds every disk), overlapping and nested disks included."""
+    centres = np.array([[0.0, 0.0, 0.0], [0.4, 0.1, 3.0], [-1.0, 0.5, -2.0], [-1.0, 0.4, 5.0]])
+    radii = np.array([0.8, 0.5, 0.3, 0.1])
+    d = np.array([0.0, 0.0, 1.0])  # along z: the plane across it is (x, y)
+    g = np.random.default_rng(5)
+    n = 400_000
+    side = 4.0
+    p = np.zeros((n, 3))
+    p[:, :2] = (g.random((n, 2)) - 0.5) * side
+    o, drawn = _distant(np.tile(d, (n, 1)), g.random((n, 5)), centres, radii)
+    assert np.all(drawn > 0)
+    # E over drawn points of 1/pdf is the union's area; uniform points on the square measure it too
+    inside = np.zeros(n, bool)
+    for c, r in zip(centres, radii):
+        inside |= np.hypot(p[:, 0] - c[0], p[:, 1] - c[1]) <= r
+    union = side * side * inside.mean()
+    assert np.mean(1.0 / drawn) == pytest.approx(union, rel=0.01)

@@ -83,3 +83,50 @@ def aimed_emission(pos, nrm, u, centres, radii, emitter, area, radiance, total, 
             for c in range(3):
                 out_flux[n, c] = 0.0
             out_o[n, 0], out_o[n, 1], out_o[n, 2] = px, py, pz
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _disk_mixture_pdf(px, py, pz, dx, dy, dz, centres, radii):
+    """Area pdf, in the plane across unit d, of a point drawn as :func:`distant_emission` draws
+    it: the mixture of the targets' shadow disks (each the disk its sphere casts along d)."""
+    targets = radii.shape[0]
+    acc = 0.0
+    for t in range(targets):
+        x = px - centres[t, 0]
+        y = py - centres[t, 1]
+        z = pz - centres[t, 2]
+        a = x * dx + y * dy + z * dz  # off the plane through the centre: measured across d only
+        x -= a * dx
+        y -= a * dy
+        z -= a * dz
+        r = radii[t]
+        if x * x + y * y + z * z <= r * r:
+            acc += 1.0 / (np.pi * max(r * r, _TINY))
+    return acc / targets
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def distant_emission(d, u, centres, radii, center, radius, out_o, out_pdf) -> None:
+    """Photon n of a distant light (a sun: parallel rays along unit ``d[n]``) aimed at the
+    targets: a point uniform on the shadow disk of target min(⌊u[n, 2]·T⌋, T - 1) — its centre
+    and radius, in the plane across d[n] — at radius r·√u[n, 3] and angle 2π·u[n, 4]; its area
+    pdf under the mixture of all targets' disks (every disk that holds it counts: a ray that
+    meets a sphere crosses its disk); the origin moved back along -d[n] out of the scene's
+    bounding sphere (``center``, ``radius``), so the ray meets whatever shades the target."""
+    targets = radii.shape[0]
+    two_pi = 2 * np.pi
+    for n in range(d.shape[0]):
+        dx, dy, dz = d[n, 0], d[n, 1], d[n, 2]
+        t = min(int(u[n, 2] * targets), targets - 1)
+        sx, sy, sz, tx, ty, tz = shading_frame.basis(dx, dy, dz)
+        rho = radii[t] * math.sqrt(u[n, 3])
+        phi = two_pi * u[n, 4]
+        a, b = rho * math.cos(phi), rho * math.sin(phi)
+        px = centres[t, 0] + a * sx + b * tx
+        py = centres[t, 1] + a * sy + b * ty
+        pz = centres[t, 2] + a * sz + b * tz
+        out_pdf[n] = _disk_mixture_pdf(px, py, pz, dx, dy, dz, centres, radii)
+        # back to the plane that touches the bounding sphere upstream (a little beyond it)
+        back = (px - center[0]) * dx + (py - center[1]) * dy + (pz - center[2]) * dz + 1.01 * radius
+        back = max(back, 0.0)
+        out_o[n, 0], out_o[n, 1], out_o[n, 2] = px - back * dx, py - back * dy, pz - back * dz
