@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.ndimage import binary_erosion
+from scipy.ndimage import binary_erosion, uniform_filter
 
 from igi.common.camera import look_at
 from igi.common.geometry import Geometry
@@ -336,9 +336,10 @@ def _relmse(img: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> float:
 def test_an_environment_maps_sun_focused_by_a_glass_ball_matches_the_path_tracer():
     """glass_ball.xml: a glass ball on the ground under an environment map with a small sun
     (Mitsuba's path tracer, 16,384 spp, the reference). The sun's caustic is photon-mapped from the
-    map's peak, and the surfaces' mirror/glass chains see the map without it: 16 frames are within
-    ~1% of the reference where the path tracer sees no glass first; without photons the chains
-    find the sun as fireflies (≥ 3× the error)."""
+    map's peak, and the surfaces' mirror/glass chains see the map without it: after 16 frames the
+    relMSE is ~0.004 where the camera sees no glass first (the ball's glint is a firefly to both
+    renderers), the shadow's mean within 8% (3% measured); without photons the chains find the sun
+    as fireflies (0.1, and the shadow +37%)."""
     img, ref, seen = _sun_render("glass_ball", {})
     off, _, _ = _sun_render("glass_ball", {"photons": 0})
     err, err_off = _relmse(img, ref, seen), _relmse(off, ref, seen)
@@ -347,18 +348,27 @@ def test_an_environment_maps_sun_focused_by_a_glass_ball_matches_the_path_tracer
     shadow = np.zeros_like(seen)
     shadow[35:42, 0:26] = True  # the ball's shadow on the ground, the caustic in it
     shadow &= seen
-    assert img[shadow].mean(axis=0) == pytest.approx(ref[shadow].mean(axis=0), rel=0.05)
+    assert img[shadow].mean(axis=0) == pytest.approx(ref[shadow].mean(axis=0), rel=0.08)  # without photons: +37%
 
 
-def test_a_directional_sun_through_a_window_pane_lights_the_room_as_the_light_tracer_does():
+def test_a_directional_sun_through_a_window_pane_lights_the_room_as_the_reference_does():
     """pane.xml: the window room with a thin glass pane in its window, a directional sun and a
-    constant sky (Mitsuba's light tracer, 16,384 spp: a path tracer cannot see a directional light
-    through glass). The sun's patch on the floor comes only from photons; without them the room
-    lacks the sun and the light it throws around (~30% of the image's mean)."""
+    constant sky (reference: the sun by Mitsuba's light tracer — its path tracer cannot see a
+    directional light through glass — plus the sky by its path tracer). The sun's patch on the
+    floor comes only from photons: within 10% of the reference inside it after 16 frames (its
+    edges are blurred by the photon radius and the filter), the room's mean within 8%; without
+    photons the patch is dark and the room lacks the light it throws around."""
+    from igi.common.luminance import luminance
+
     img, ref, seen = _sun_render("pane", {})
     off, _, _ = _sun_render("pane", {"photons": 0})
-    assert img[seen].mean(axis=0) == pytest.approx(ref[seen].mean(axis=0), rel=0.05)
-    assert np.all(off[seen].mean(axis=0) < 0.8 * ref[seen].mean(axis=0))
-    patch = seen & (ref.mean(axis=2) > 0.8 * np.percentile(ref[seen].mean(axis=1), 99))
-    assert patch.sum() > 20
-    assert img[patch].mean(axis=0) == pytest.approx(ref[patch].mean(axis=0), rel=0.08)
+    patch = seen & binary_erosion(uniform_filter(luminance(ref), 3) > 0.2, iterations=2)
+    assert patch.sum() > 50
+
+    def ratio(x: np.ndarray, where: np.ndarray) -> float:
+        return float(luminance(x[where].mean(axis=0)) / luminance(ref[where].mean(axis=0)))
+
+    assert ratio(img, patch) == pytest.approx(1.0, abs=0.1)
+    assert ratio(off, patch) < 0.2
+    assert ratio(img, seen) == pytest.approx(1.0, abs=0.08)
+    assert ratio(off, seen) < 0.75

@@ -7,7 +7,7 @@ numba compiles a kernel on its first call, or loads it from its on-disk cache (`
 ``__pycache__`` beside the module); either way the first call of each kernel in a process
 costs up to seconds. :func:`warm_up` pays that before the node connects, so it does not land
 inside the first frame a user waits for: it renders a tiny built-in scene (every pass on:
-diffuse, glossy and mirror surfaces, an area and a spot light, caustic photons) through the
+diffuse, glossy and mirror surfaces, an area, a spot and a directional light, caustic photons) through the
 real ``Renderer`` (and once more with a diffuse floor, for the gather's fused Lambertian
 path), so the kernels are loaded for exactly the argument types the product passes, then
 encodes and decodes a tile (common.codec) and finally calls any public kernel of
@@ -55,8 +55,8 @@ def _tiny_scene(floor: int = 1):
     """An open box with a mirror, an area light and a spot; ``floor``: the floor's material
     (1 glossy, 0 diffuse: no glossy VPL, so the gather takes its fused Lambertian path)."""
     from igi.common.camera import look_at
-    from igi.common.scene import (AREA, CONDUCTOR, DIFFUSE, ROUGHCONDUCTOR, SPOT, Camera, Emitter, Material, Mesh,
-                              Scene, Texture)
+    from igi.common.scene import (AREA, CONDUCTOR, DIFFUSE, DIRECTIONAL, ROUGHCONDUCTOR, SPOT, Camera, Emitter, Material,
+                                  Mesh, Scene, Texture)
 
     def quad(c, e1, e2):
         c, e1, e2 = (np.asarray(a, float) for a in (c, e1, e2))
@@ -79,7 +79,9 @@ def _tiny_scene(floor: int = 1):
     meshes.append(Mesh("light", lv, lf, 3, emitter=0))
     emitters = [Emitter(AREA, radiance=np.full(3, 10.0), mesh=len(meshes) - 1),
                 Emitter(SPOT, intensity=np.full(3, 5.0), position=np.array([1.0, 1.8, 1.5]),
-                        direction=np.array([0.0, -1.0, -0.5]), cutoff_angle=30.0, beam_width=20.0)]
+                        direction=np.array([0.0, -1.0, -0.5]), cutoff_angle=30.0, beam_width=20.0),
+                # a sun through the open front onto the mirror: distant lights' photons
+                Emitter(DIRECTIONAL, irradiance=np.full(3, 2.0), direction=np.array([0.1, -0.4, -1.0]))]
     cam = Camera(look_at([1.0, 1.0, 3.5], [1.0, 0.9, 0.0], [0, 1, 0]), fov=60, width=12, height=9)
     return Scene(meshes, mats, emitters, cam, source="warm-up")
 
