@@ -670,7 +670,7 @@ def _accumulating_set_cost(scene, params, cam, fov: float, w: int, h: int) -> fl
         spec = sequence_spec(i, i, cam, fov, w, h, pdict)
         p = make_params(**spec.params)
         renderer.vpl_set(spec.seed, k, p, roulette=consistent_frame(p, i), view=view, index=i)
-        renderer.photon_set(spec.seed, k, p, index=i)
+        renderer.photon_set(spec.seed, k, p, index=i, view=view)
     return (time.process_time() - c0) / ACCUMULATED_FRAMES
 
 

@@ -59,7 +59,7 @@ class EnvironmentMap:
         self.env = (tex, np.ascontiguousarray(to_local), np.ascontiguousarray(R), row_cdf, col_cdf,
                     np.ascontiguousarray(density), sin_rows)
         self.shape = (H, W)
-        self.image, self.rotation = img, R
+        self.rotation = R
         # the solid-angle mean radiance of the map (what a constant sky of the same power emits)
         weights = solid_rows(H)
         self.mean = (img.mean(axis=1) * weights[:, None]).sum(axis=0) / weights.sum()
@@ -70,14 +70,23 @@ class EnvironmentMap:
         luminance (its colour kept), the peak the rest — a sun, carried by caustic photons where
         mirror/glass chains would find it as fireflies (worker.caustics). Peak None: no texel
         above the bound (the base is then this map)."""
-        lum = luminance(self.image)
+        image = np.asarray(self.image, np.float64)
+        lum = luminance(image)
         bound = ratio * float(luminance(self.mean))
         over = lum > bound
+        # The pole rows stay in the base: the sampling density vanishes on them (sin θ = 0) while
+        # their bilinear radiance does not, so a peak there would be drawn with unbounded weights.
+        over[[0, -1]] = False
         if not over.any() or not bound > 0:
             return self, None
         keep = np.where(over, bound / np.where(over, lum, 1.0), 1.0)
-        base = self.image * keep[..., None]
-        return EnvironmentMap(base, self.rotation), EnvironmentMap(self.image - base, self.rotation)
+        base = image * keep[..., None]
+        return EnvironmentMap(base, self.rotation), EnvironmentMap(image - base, self.rotation)
+
+    @property
+    def image(self) -> np.ndarray:
+        """The map's texels (H, W, 3) float32, as its lookups read them (a view of its table)."""
+        return self.env[0][:, :-1]
 
     def radiance(self, d: np.ndarray) -> np.ndarray:
         """Radiance (N, 3) arriving from unit world directions ``d`` (N, 3)."""

@@ -104,10 +104,9 @@ def _sun_reaches(geom, lights: LightSampler, spec_meshes: set, centres: np.ndarr
                  d: np.ndarray, rng: np.random.Generator, per_direction: int) -> bool:
     """Do parallel rays along any of ``d`` (travel directions) from outside the scene toward
     points in the targets first meet a mirror/glass mesh?"""
-    d = np.repeat(d / np.linalg.norm(d, axis=1, keepdims=True), per_direction * len(radii), axis=0)
-    tgt = np.tile(np.repeat(centres, per_direction, axis=0), (len(d) // (per_direction * len(radii)), 1))
-    tgt = tgt + rng.normal(size=(len(d), 3)) * np.tile(np.repeat(radii, per_direction), len(d) // (
-        per_direction * len(radii)))[:, None] * 0.3
+    shape = (len(d), len(radii), per_direction, 3)  # (directions, targets, rays per pair, xyz)
+    d = np.broadcast_to((d / np.linalg.norm(d, axis=1, keepdims=True))[:, None, None, :], shape).reshape(-1, 3)
+    tgt = (centres[None, :, None, :] + rng.normal(size=shape) * 0.3 * radii[None, :, None, None]).reshape(-1, 3)
     back = np.einsum("ij,ij->i", tgt - lights.center, d) + 1.01 * lights.radius
     hits = geom.intersect(tgt - d * np.maximum(back, 0)[:, None], d)
     return bool(np.isin(hits.mesh[hits.valid], list(spec_meshes)).any())

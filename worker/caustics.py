@@ -29,6 +29,7 @@ from igi.common.lights import LightSampler, frame_from, luminance, spot_falloff,
 from igi.common.params import PHOTON_BOOST_MAX, boosted_photon_bound
 from igi.common.scene import AREA, CONSTANT, DIRECTIONAL, NULL, POINT, SPECULAR_KINDS, SPOT, Scene, kind_in
 from igi.common.sobol_stream import SobolStream, stream_seed
+from igi.common.sobol_stream import rng as make_rng
 from igi.common.specular import specular_targets
 
 from .hash_grid import HashGrid
@@ -146,7 +147,7 @@ def distant_view_share(scene: Scene, geom: Geometry, lights: LightSampler, point
         facing = np.einsum("ij,ij->i", pilot.direction[pi], n[qi]) > 0
         caustic = float(luminance(pilot.power[pi[facing]]).sum()) / (np.pi * radius * radius)
     direct = 0.0
-    u = np.random.default_rng(0).random((len(points), 2))
+    u = make_rng(0, 0, "view share").random((len(points), 2))
     for ei in distant:
         e = scene.emitters[ei]
         if e.kind == DIRECTIONAL:
@@ -252,14 +253,23 @@ def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: 
         if e.kind in (POINT, SPOT):
             pos[rows_of[i]] = e.position
             nrm[rows_of[i]] = e.direction / np.linalg.norm(e.direction)
-    if aim:  # direction, pdf, area emitters' flux and offset origins in one pass
+    if aim:  # direction, pdf, area emitters' flux and offset origins in one pass (local lights' rows)
         c = np.ascontiguousarray
-        d, pdf, flux, o = np.empty((shot, 3)), np.empty(shot), np.empty((shot, 3)), np.empty((shot, 3))
+        d, pdf, flux, o = np.zeros((shot, 3)), np.zeros(shot), np.zeros((shot, 3)), np.zeros((shot, 3))
         is_area = np.zeros(shot, bool)
         is_area[area] = True
-        photon_aim.aimed_emission(pos, nrm, c(u, np.float64), c(centres, np.float64), c(radii, np.float64), em,
-                                  is_area, lights.area_radiance, c(lights.area_total, np.float64),
-                                  *geom.offset_terms(), d, pdf, flux, o)
+        local = np.flatnonzero(np.isin(kind, (AREA, POINT, SPOT)))  # (a distant light's rows: below)
+        if len(local) == shot:
+            photon_aim.aimed_emission(pos, nrm, c(u, np.float64), c(centres, np.float64), c(radii, np.float64), em,
+                                      is_area, lights.area_radiance, c(lights.area_total, np.float64),
+                                      *geom.offset_terms(), d, pdf, flux, o)
+        elif len(local):
+            part = (np.empty((len(local), 3)), np.empty(len(local)), np.empty((len(local), 3)),
+                    np.empty((len(local), 3)))
+            photon_aim.aimed_emission(pos[local], nrm[local], c(u[local], np.float64), c(centres, np.float64),
+                                      c(radii, np.float64), em[local], is_area[local], lights.area_radiance,
+                                      c(lights.area_total, np.float64), *geom.offset_terms(), *part)
+            d[local], pdf[local], flux[local], o[local] = part
     else:
         d = uniform_sphere(u[:, 3:5])
         pdf = np.full(shot, 1 / (4 * np.pi))

@@ -9,8 +9,8 @@ sampled delta component per bounce, to the first non-specular surface y; the lig
 back (the VPL set and the emitter samples at y, with y's own BSDF ray: worker.final_gather,
 which shades them with the compensation's near points) is the sample. Emission at the chain's
 end is left to the caustic photons (L S+ D E); the environment seen through the chain is added
-here (no photons leave distant lights, and shadow rays of the environment samples are blocked
-by the glass).
+here (shadow rays of the environment samples are blocked by the glass) — less an environment
+map's peak (a sun) where caustic photons carry it (worker.caustics, ``sky_map``).
 No other estimator covers these paths, so no MIS weight is needed. The chain's end y follows
 chains of its own the same way (worker.final_gather.lensed_levels: light that crossed glass
 twice between diffuse bounces, as under a water surface).

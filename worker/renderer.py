@@ -172,8 +172,11 @@ class Renderer:
         # choice; the most recent views only (a drag visits a new view every frame).
         self._views: OrderedDict[tuple, object] = OrderedDict()
         self._caustic_shares: dict[tuple, float] = {}  # per (photons, chain length): photon_count
-        # suns whose photons' count follows their light on the view (caustics.distant_view_share)
+        # suns whose photons' count follows their light on the view (caustics.distant_view_share);
+        # a map's split into base and peak (its sun) made once, here, and only with mirror/glass
         self._distant_photons = len(self._specular_targets[1]) > 0 and bool(distant_lights(scene, self.lights))
+        peak = self.lights.sky_parts()[1] if self._distant_photons else None
+        self._sky_base = self.lights.sky_parts()[0] if peak is not None else None
         self.importance_notes = ""
         self.portal_notes = ""
         self.emitter_notes = ""
@@ -314,7 +317,7 @@ class Renderer:
             self._caustic_shares[key] = share
         if view is not None and self._distant_photons:
             vkey = ("photon share", self.scene_version, view.key, params.photons, params.specular_depth,
-                    params.max_depth)
+                    params.max_depth, params.filter_glossy_alpha)  # (and the camera pool's key)
             with self._set_time():
                 on_view, _ = self._per_view(vkey, lambda: distant_view_share(
                     self.scene, self.geom, self.lights, self.camera_pool(params, view).first(VIEW_SHARE_POINTS),
@@ -330,8 +333,9 @@ class Renderer:
     def chain_sky(self, params: Params) -> tuple:
         """The sky the mirror/glass chains from surfaces see (worker.indirect_caustics): the map less
         its peak where the peak's caustic photons are shot (worker.caustics), else the whole map."""
-        base, peak = self.lights.sky_parts()
-        return base if peak is not None and self.shoots_photons(params) else self.lights.env_tables
+        if self._sky_base is not None and self.shoots_photons(params):
+            return self._sky_base
+        return self.lights.env_tables
 
     def photon_set(self, seed: int, k: int, params: Params, index: int = 0, view: View | None = None) -> PhotonSet:
         radius = default_radius(self.geom.diagonal, params.photon_radius)

@@ -372,3 +372,47 @@ def test_a_directional_sun_through_a_window_pane_lights_the_room_as_the_referenc
     assert ratio(off, patch) < 0.2
     assert ratio(img, seen) == pytest.approx(1.0, abs=0.08)
     assert ratio(off, seen) < 0.75
+
+
+def test_a_suns_photons_are_boosted_by_its_caustic_share_of_the_view():
+    """The share that boosts a sun's photons is taken on the view (caustics.distant_view_share):
+    inside the window room all the sun's light comes through the pane — the full boost; a glass
+    ball on a sunlit lawn focuses a small part of the sun's light on the view — none. (Measured
+    by flux through the scene's disk, both shares are small: the sun mostly lights the roof.)"""
+    from igi.common.camera import resolve_camera
+    from igi.common.params import PHOTON_BOOST_MAX, make_params
+    from igi.worker.caustics import distant_view_share
+    from igi.worker.vpl_importance import View
+
+    params = make_params()
+    for name, boosted in (("pane", True), ("glass_ball", False)):
+        scene = load_scene(SUN_DATA / f"{name}.xml")
+        r = Renderer(scene)
+        view = View.of(*resolve_camera(scene))
+        share = distant_view_share(scene, r.geom, r.lights, r.camera_pool(params, view).first(1024), params.photons,
+                                   params.specular_depth, r._specular_targets)
+        assert (share > 0.9) if boosted else (share < params.photon_share), (name, share)
+        assert r.photon_count(params) == params.photons  # the flux share: below --photon-share in both
+        want = int(params.photons * PHOTON_BOOST_MAX) if boosted else params.photons
+        assert r.photon_count(params, view) == want
+
+
+def test_the_numpy_chains_see_the_map_less_its_peak_as_the_compiled_ones():
+    """The surfaces' chains read the sky of ``sky_map`` in their numpy form too: the base's
+    radiance where the peak's photons are shot, the whole map's where not."""
+    from igi.common.params import make_params
+    from igi.worker.indirect_caustics import _sky_radiance
+
+    scene = load_scene(SUN_DATA / "glass_ball.xml")
+    r = Renderer(scene)
+    base, peak = r.lights.sky_parts()
+    assert peak is not None and r.chain_sky(make_params()) is base
+    assert r.chain_sky(make_params(photons=0)) is r.lights.env_tables  # no photons: the whole map
+    g = np.random.default_rng(1)
+    d = g.normal(size=(2000, 3))
+    d = np.concatenate([d / np.linalg.norm(d, axis=1)[:, None], peak.sample(g.random((20, 2)))[0]])  # and the sun
+    whole = r.lights.env_map
+    assert _sky_radiance(r.lights, r.lights.env_tables, d) == pytest.approx(whole.radiance(d))
+    less = _sky_radiance(r.lights, base, d)
+    assert less + peak.radiance(d) == pytest.approx(whole.radiance(d), rel=1e-5)
+    assert less.max() < whole.radiance(d).max() / 10  # the sun is gone

@@ -100,7 +100,7 @@ def _disk_mixture_pdf(px, py, pz, dx, dy, dz, centres, radii):
         y -= a * dy
         z -= a * dz
         r = radii[t]
-        if x * x + y * y + z * z <= r * r:
+        if x * x + y * y + z * z <= r * r * (1.0 + 1e-9):  # (a point drawn on the rim keeps its disk)
             acc += 1.0 / (np.pi * max(r * r, _TINY))
     return acc / targets
 

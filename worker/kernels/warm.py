@@ -52,11 +52,11 @@ def kernel_dispatchers() -> dict[str, object]:
 
 
 def _tiny_scene(floor: int = 1):
-    """An open box with a mirror, an area light and a spot; ``floor``: the floor's material
+    """An open box with a mirror, an area light, a spot and a sun; ``floor``: the floor's material
     (1 glossy, 0 diffuse: no glossy VPL, so the gather takes its fused Lambertian path)."""
     from igi.common.camera import look_at
-    from igi.common.scene import (AREA, CONDUCTOR, DIFFUSE, DIRECTIONAL, ROUGHCONDUCTOR, SPOT, Camera, Emitter, Material,
-                                  Mesh, Scene, Texture)
+    from igi.common.scene import (AREA, CONDUCTOR, DIFFUSE, DIRECTIONAL, ROUGHCONDUCTOR, SPOT, Camera, Emitter,
+                                  Material, Mesh, Scene, Texture)
 
     def quad(c, e1, e2):
         c, e1, e2 = (np.asarray(a, float) for a in (c, e1, e2))
