@@ -95,13 +95,13 @@ class EdgeStoppingGuide:
         """Forget the frames (the sums are zeroed in place: a moving view resets every frame)."""
         self.count = 0
         self._read = None
+        if self._share is not None and (self._shared or self._sharing):  # (a moving view adds none)
+            self._share.fill(0.0)
+            self._share2.fill(0.0)
         self._shared, self._sharing = 0, False
         if self._s1 is not None:
             self._s1.fill(0.0)
             self._s2.fill(0.0)
-        if self._share is not None:
-            self._share.fill(0.0)
-            self._share2.fill(0.0)
 
     def learner(self, shape: tuple[int, int], layout: tuple) -> tuple[np.ndarray, np.ndarray]:
         """The sums ((planes, cells) float64 in ``layout``) a frame of ``shape`` (H, W) adds its

@@ -310,7 +310,7 @@ class _Planes:
             gm, gt = (use_filter and guide.planes(k, (H, W))) or (_NO_GUIDE, _NO_GUIDE)
             wm, wt = guide.next_planes()
             c = float(p.get("filter_select", 0.0))
-            if c > 0:
+            if c > 0 and not p.get("moving_camera", False):  # (a moving view's frame is shown once)
                 sh, sh2 = guide.shares(c, max(lo, hi))
         m = 0.0 if guide is None else guide.count + 1.0
         run_stripes(self.sh, W * n, lambda y0, y1: finish_sub(vals, nrm, depth, SW, n, q, H, W, y0, y1, use_filter,

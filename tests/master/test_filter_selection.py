@@ -171,6 +171,25 @@ def test_a_view_without_the_selection_after_one_with_it_reports_no_shares():
         assert (guide.shares_learnt() is None) == (c == 0.0)
 
 
+def test_a_moving_cameras_frame_adds_no_shares_and_the_frames_after_it_do():
+    """A moving view's frame (shown once: ``moving_camera``) skips the share sums (and a reset
+    with nothing summed leaves them be); the frames that accumulate after it on the same view
+    sum theirs — the blend's mean share is then theirs, of the same expectation."""
+    w, h, n = 24, 12, 3
+    base = params_to_dict(make_params(interleave=n))
+    guide = EdgeStoppingGuide().track("view")
+    for i, frame in enumerate(_step_frames(MIN_FRAMES + 1, seed=13, w=w, h=h, n=n)):
+        asm = FrameAssembler(w, h, n)
+        for t, b in frame:
+            asm.add(t, b)
+        asm.image(dict(base, moving_camera=i == 0), i, guide)
+        if i == 0:
+            assert guide.shares_learnt() is None and guide.count == 1
+    learnt = guide.shares_learnt()
+    assert learnt is not None and learnt[3] == MIN_FRAMES and guide.count == MIN_FRAMES + 1
+    assert learnt[0].any()
+
+
 def test_the_plain_mean_callback_gets_the_mean_without_the_blend():
     """The CLI's noise estimate takes the running mean apart frame by frame: it must get the plain
     mean (``on_plain_mean``), which the blend's changing weights would break — the same images the
