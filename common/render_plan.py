@@ -65,12 +65,13 @@ def frame_plan(scene_changed: bool, params_changed: bool, camera_changed: bool,
     return FramePlan(False, False, "nothing moved, accumulation off")
 
 
-def _emitters_reach_specular(scene: Scene, geom, lights: LightSampler, rays_per_target: int = 64) -> bool:
-    """Is any mirror/glass object lit by some emitter — seen from a local emitter, or met first by
-    a sun's parallel rays (a directional light, an environment map's peak)? (a few probe rays)"""
+def _emitters_reach_specular(scene: Scene, geom, lights: LightSampler, rays_per_target: int = 64) -> str:
+    """Which emitter first lights a mirror/glass object — seen from a local emitter, or met first
+    by a sun's parallel rays (a directional light, an environment map's peak)? Its kind ("" for
+    none; a few probe rays)."""
     centres, radii = specular_targets(scene, geom)
     if len(radii) == 0:
-        return False
+        return ""
     rng = np.random.default_rng(0)
     spec_meshes = {i for i, m in enumerate(scene.meshes) if scene.materials[m.material].kind in SPECULAR_KINDS}
     for ei, e in enumerate(scene.emitters):
@@ -89,15 +90,15 @@ def _emitters_reach_specular(scene: Scene, geom, lights: LightSampler, rays_per_
                 o = geom.offset(o, nrm, d)
             hits = geom.intersect(o, d)
             if np.isin(hits.mesh[hits.valid], list(spec_meshes)).any():
-                return True
+                return f"the {e.kind} light" + (f" '{e.name}'" if e.name else "")
         elif e.kind == DIRECTIONAL and lights.powers[ei] > 0:
             if _sun_reaches(geom, lights, spec_meshes, centres, radii, e.direction[None, :], rng, rays_per_target):
-                return True
+                return "the directional light" + (f" '{e.name}'" if e.name else "")
         elif e.kind == CONSTANT and e.image is not None and lights.sky_parts()[1] is not None:
             sky = lights.sky_parts()[1].sample(rng.random((rays_per_target, 2)))[0]  # the map's peak (a sun)
             if _sun_reaches(geom, lights, spec_meshes, centres, radii, -sky, rng, 1):
-                return True
-    return False
+                return "the environment map's sun"
+    return ""
 
 
 def _sun_reaches(geom, lights: LightSampler, spec_meshes: set, centres: np.ndarray, radii: np.ndarray,
@@ -123,12 +124,12 @@ def analyze(scene: Scene, geom, lights: LightSampler) -> RenderPlan:
     if not has_spec:
         caustics = False
         reasons["caustics"] = "no specular surface: no caustic photons, no hash grid"
-    elif not _emitters_reach_specular(scene, geom, lights):
+    elif not (reached := _emitters_reach_specular(scene, geom, lights)):
         caustics = False
         reasons["caustics"] = "no emitter (nor sun) reaches a mirror/glass object: no caustic path to sample"
     else:
         caustics = True
-        reasons["caustics"] = "emitters reach mirror/glass objects"
+        reasons["caustics"] = f"emitters reach mirror/glass objects (first found: {reached})"
     glossy = bool(used & set(GLOSSY_KINDS))
     reasons["glossy_vpl_eval"] = ("glossy surfaces: full BSDF toward each VPL" if glossy
                                   else "all non-specular surfaces Lambertian: scalar VPL gather only")
