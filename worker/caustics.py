@@ -9,11 +9,11 @@ bounces and are stored at the first non-specular hit after at least one specular
 
 Distant lights shoot too (a sun focused by glass, seen in a mirror, through a window pane):
 a directional light, and the peak of an environment map — its texels brighter than SKY_PEAK ×
-the map's mean (common.environment_map), direction drawn from that peak. Their photons are parallel rays through a point
-drawn on the disk a target's sphere casts across the light's direction, weighted by the mixture
-of all targets' disks; they start outside the scene, so whatever shades a target shades them.
-The mirror/glass chains that find the sky from a surface (worker.indirect_caustics) then see the
-map without that peak: each path is counted once.
+the map's mean (common.environment_map), direction drawn from that peak. Their photons are
+parallel rays through a point drawn on the disk a target's sphere casts across the light's
+direction, weighted by the mixture of all targets' disks; they start outside the scene, so
+whatever shades a target shades them. The mirror/glass chains that find the sky from a surface
+(worker.indirect_caustics) then see the map without that peak: each path is counted once.
 """
 from __future__ import annotations
 
