@@ -15,6 +15,7 @@ DESCRIPTIONS = {
     "cornell-box": "Cornell box with a mirror sphere and a glass sphere under an area light",
     "window-room": "closed room lit through a window by sun and sky (mostly indirect light)",
     "outdoor-sky": "a ball and a cube on a ground plane under an HDR environment map with a sun",
+    "window-pane": "the window room behind a glass pane: the sun's patch is a caustic (photons from the sun)",
 }
 
 

@@ -163,11 +163,11 @@ def test_scenes_lists_the_bundled_scenes():
     r = igi("scenes")
     assert r.returncode == 0, r.stderr
     rows = {line.split()[0]: line.split(None, 1)[1:] for line in r.stdout.splitlines() if line.strip()}
-    assert {"cornell-box", "window-room", "outdoor-sky"} <= set(rows)
+    assert {"cornell-box", "window-room", "outdoor-sky", "window-pane"} <= set(rows)
     assert all(rows.values())  # each with its description
 
 
-@pytest.mark.parametrize("name", ["cornell-box", "window-room", "outdoor-sky"])
+@pytest.mark.parametrize("name", ["cornell-box", "window-room", "outdoor-sky", "window-pane"])
 def test_bundled_scene_renders_by_name(tmp_path, name):
     from igi.common.image_io import read_image
 
