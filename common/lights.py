@@ -361,17 +361,22 @@ class LightSampler:
                 else:
                     dirs = -uniform_sphere(u[sel, 3:5])
                     scale = e.radiance * 4 * np.pi
-                # Origin on a disk of the bounding sphere's radius, facing the scene.
-                rr = self.radius * np.sqrt(u[sel, 1])
-                phi = 2 * np.pi * u[sel, 2]
-                s, t = frame_from(dirs)
-                o[sel] = (self.center - dirs * self.radius * 1.01
-                          + s * (rr * np.cos(phi))[:, None] + t * (rr * np.sin(phi))[:, None])
+                o[sel] = self.disk_origins(dirs, u[sel, 1:3])
                 d[sel] = dirs
                 nrm[sel] = dirs
                 flux[sel] = scale * np.pi * self.radius ** 2
         flux /= pmf[:, None]
         return EmittedRays(o, d, flux, em.astype(np.int32), nrm)
+
+    def disk_origins(self, d: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Origins (N, 3) of parallel rays along unit ``d`` (N, 3) from a distant light: uniform
+        (by ``u`` (N, 2)) on the disk of the bounding sphere's radius across d, just upstream of
+        the sphere, facing the scene; their area pdf is 1 / (π radius²)."""
+        rr = self.radius * np.sqrt(u[:, 0])
+        phi = 2 * np.pi * u[:, 1]
+        s, t = frame_from(d)
+        return (self.center - d * self.radius * 1.01
+                + s * (rr * np.cos(phi))[:, None] + t * (rr * np.sin(phi))[:, None])
 
     def emitted_radiance(self, emitter: np.ndarray, cos_front: np.ndarray) -> np.ndarray:
         """Radiance seen on area emitters (front side only)."""

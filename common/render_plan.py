@@ -82,18 +82,16 @@ def _emitters_reach_specular(scene: Scene, geom, lights: LightSampler, rays_per_
             else:
                 o = np.broadcast_to(e.position, (rays_per_target * len(radii), 3)).copy()
                 nrm = None
-            tgt = np.repeat(centres, rays_per_target, axis=0) + (
-                rng.normal(size=(len(o), 3)) * np.repeat(radii, rays_per_target)[:, None] * 0.3)
+            tgt = _target_points(centres, radii, (), rays_per_target, rng)
             d = tgt - o
             d /= np.linalg.norm(d, axis=1, keepdims=True)
             if nrm is not None:
                 o = geom.offset(o, nrm, d)
-            hits = geom.intersect(o, d)
-            if np.isin(hits.mesh[hits.valid], list(spec_meshes)).any():
+            if _meets_specular(geom, o, d, spec_meshes):
                 return f"the {e.kind} light" + (f" '{e.name}'" if e.name else "")
         elif e.kind == DIRECTIONAL and lights.powers[ei] > 0:
             if _sun_reaches(geom, lights, spec_meshes, centres, radii, e.direction[None, :], rng, rays_per_target):
-                return "the directional light" + (f" '{e.name}'" if e.name else "")
+                return f"the {e.kind} light" + (f" '{e.name}'" if e.name else "")
         elif e.kind == CONSTANT and e.image is not None and lights.sky_parts()[1] is not None:
             sky = lights.sky_parts()[1].sample(rng.random((rays_per_target, 2)))[0]  # the map's peak (a sun)
             if _sun_reaches(geom, lights, spec_meshes, centres, radii, -sky, rng, 1):
@@ -107,9 +105,22 @@ def _sun_reaches(geom, lights: LightSampler, spec_meshes: set, centres: np.ndarr
     points in the targets first meet a mirror/glass mesh?"""
     shape = (len(d), len(radii), per_direction, 3)  # (directions, targets, rays per pair, xyz)
     d = np.broadcast_to((d / np.linalg.norm(d, axis=1, keepdims=True))[:, None, None, :], shape).reshape(-1, 3)
-    tgt = (centres[None, :, None, :] + rng.normal(size=shape) * 0.3 * radii[None, :, None, None]).reshape(-1, 3)
+    tgt = _target_points(centres, radii, (shape[0],), per_direction, rng)
     back = np.einsum("ij,ij->i", tgt - lights.center, d) + 1.01 * lights.radius
-    hits = geom.intersect(tgt - d * np.maximum(back, 0)[:, None], d)
+    return _meets_specular(geom, tgt - d * np.maximum(back, 0)[:, None], d, spec_meshes)
+
+
+def _target_points(centres: np.ndarray, radii: np.ndarray, lead: tuple, per_target: int,
+                   rng: np.random.Generator) -> np.ndarray:
+    """(prod(lead) × targets × per_target, 3) probe points scattered about the targets' centres
+    (normal, 0.3 × each radius), target by target within each leading index."""
+    noise = rng.normal(size=(*lead, len(radii), per_target, 3))
+    return (centres[:, None, :] + noise * radii[:, None, None] * 0.3).reshape(-1, 3)
+
+
+def _meets_specular(geom, o: np.ndarray, d: np.ndarray, spec_meshes: set) -> bool:
+    """Does any ray (o, d) first meet one of the mirror/glass meshes ``spec_meshes``?"""
+    hits = geom.intersect(o, d)
     return bool(np.isin(hits.mesh[hits.valid], list(spec_meshes)).any())
 
 

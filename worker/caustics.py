@@ -25,7 +25,7 @@ import numpy as np
 
 from igi.common import bsdf
 from igi.common.geometry import Geometry
-from igi.common.lights import LightSampler, frame_from, luminance, spot_falloff, uniform_sphere
+from igi.common.lights import LightSampler, luminance, spot_falloff, uniform_sphere
 from igi.common.params import PHOTON_BOOST_MAX, boosted_photon_bound
 from igi.common.scene import AREA, CONSTANT, DIRECTIONAL, NULL, POINT, SPECULAR_KINDS, SPOT, Scene, kind_in
 from igi.common.sobol_stream import SobolStream, stream_seed
@@ -229,7 +229,8 @@ def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: 
     # chunk k of the frame's stream: a frame's sets together are one Sobol prefix.
     shooting = shooting_lights(scene, lights)
     if only is not None:
-        shooting = [ei for ei in shooting if ei in set(only)]
+        keep = set(only)
+        shooting = [ei for ei in shooting if ei in keep]
     if not shooting:
         return [_empty(float(r)) for r in radii_of]
     counts = photon_counts(shooting_powers(scene, lights, shooting), photons_per_light)
@@ -259,17 +260,15 @@ def build_photon_sets(scene: Scene, geom: Geometry, lights: LightSampler, seed: 
         is_area = np.zeros(shot, bool)
         is_area[area] = True
         local = np.flatnonzero(np.isin(kind, (AREA, POINT, SPOT)))  # (a distant light's rows: below)
-        if len(local) == shot:
-            photon_aim.aimed_emission(pos, nrm, c(u, np.float64), c(centres, np.float64), c(radii, np.float64), em,
-                                      is_area, lights.area_radiance, c(lights.area_total, np.float64),
-                                      *geom.offset_terms(), d, pdf, flux, o)
-        elif len(local):
-            part = (np.empty((len(local), 3)), np.empty(len(local)), np.empty((len(local), 3)),
-                    np.empty((len(local), 3)))
-            photon_aim.aimed_emission(pos[local], nrm[local], c(u[local], np.float64), c(centres, np.float64),
-                                      c(radii, np.float64), em[local], is_area[local], lights.area_radiance,
-                                      c(lights.area_total, np.float64), *geom.offset_terms(), *part)
-            d[local], pdf[local], flux[local], o[local] = part
+        whole = len(local) == shot
+        rows = slice(None) if whole else local  # (all local: views, written in place)
+        out = (d, pdf, flux, o) if whole else tuple(np.empty_like(a[local]) for a in (d, pdf, flux, o))
+        if len(local):
+            photon_aim.aimed_emission(pos[rows], nrm[rows], c(u[rows], np.float64), c(centres, np.float64),
+                                      c(radii, np.float64), em[rows], is_area[rows], lights.area_radiance,
+                                      c(lights.area_total, np.float64), *geom.offset_terms(), *out)
+            if not whole:
+                d[local], pdf[local], flux[local], o[local] = out
     else:
         d = uniform_sphere(u[:, 3:5])
         pdf = np.full(shot, 1 / (4 * np.pi))
@@ -337,11 +336,7 @@ def _distant_emission(e, lights: LightSampler, u: np.ndarray, centres: np.ndarra
                                     np.ascontiguousarray(radii, np.float64), np.asarray(lights.center, np.float64),
                                     float(lights.radius), o, area_pdf)
     else:
-        rr = lights.radius * np.sqrt(u[:, 3])
-        phi = 2 * np.pi * u[:, 4]
-        s, t = frame_from(d)
-        o = (lights.center - d * lights.radius * 1.01 + s * (rr * np.cos(phi))[:, None]
-             + t * (rr * np.sin(phi))[:, None])
+        o = lights.disk_origins(d, u[:, 3:5])
         area_pdf = np.full(n, 1.0 / (np.pi * lights.radius ** 2))
     return d, o, irradiance / np.where(area_pdf > 0, area_pdf, np.inf)[:, None]
 
