@@ -6,6 +6,7 @@ process."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -56,12 +57,32 @@ def test_the_broker_starts_the_warm_up_as_it_starts(monkeypatch):
         b.stop()
 
 
+EXIT_DURING_WARM_UP = """
+import atexit, sys
+seen = []
+atexit.register(lambda: print("warm-up alive at exit:", seen[0].is_alive()))  # runs after warm's own handler
+from igi.master.kernels.warm import warm_up_master_in_background
+seen.append(warm_up_master_in_background())
+sys.exit(0)  # at once: the warm-up has only begun
+"""
+
+
+def test_a_process_exiting_during_the_warm_up_waits_for_it_to_stop(tmp_path):
+    # LLVM's destructors running under a compiling thread aborted a one-frame igi render (CI, stop 62): the exit
+    # handler must stop the warm-up before the interpreter goes. A cold cache makes its first step long.
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", EXIT_DURING_WARM_UP], capture_output=True, text=True, env=env,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert "warm-up alive at exit: False" in out.stdout
+
+
 def test_a_failing_master_warm_up_is_logged_not_raised(monkeypatch, caplog):
     import logging
 
     from igi.master.kernels import warm
 
-    def boom():
+    def boom(stop=None):
         raise RuntimeError("no kernels today")
 
     monkeypatch.setattr(warm, "warm_up_master", boom)
@@ -82,7 +103,7 @@ def test_the_warm_up_runs_once_per_process(monkeypatch):
     from igi.master.kernels import warm
 
     calls = []
-    monkeypatch.setattr(warm, "warm_up_master", lambda: calls.append(1) or 0.0)
+    monkeypatch.setattr(warm, "warm_up_master", lambda stop=None: calls.append(1) or 0.0)
     monkeypatch.setattr(warm, "_started", None)
     first = warm.warm_up_master_in_background()
     first.join(10)
