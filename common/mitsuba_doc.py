@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .luminance import EQUAL_ENERGY_SRGB
 from .scene import SceneError, Texture
 
 PROPERTY_TAGS = {"float", "integer", "boolean", "string", "rgb", "spectrum", "point", "vector", "transform"}
@@ -257,6 +258,17 @@ class Props:
                              "using the texture's mean colour")
             return t.mean().astype(np.float64)
         return np.asarray(t.rgb, dtype=np.float64)
+
+    def emitted(self, name: str, default) -> np.ndarray:
+        """An emitter's colour (radiance, intensity, irradiance). Mitsuba 3's RGB variants read a
+        ``<spectrum>`` there as light of that spectrum: a uniform one is the equal-energy illuminant,
+        pink beside sRGB's white (a reflectance's uniform spectrum stays grey); ``<rgb>`` and
+        ``<float>`` are taken as given."""
+        c = self.rgb(name, default)
+        n = self.named.get(name)
+        if n is not None and self.loader.deref(n).tag == "spectrum":
+            c = c * EQUAL_ENERGY_SRGB
+        return c
 
     def finish(self, ignore: tuple[str, ...] = ()) -> None:
         """Warn about parameters nobody read (after checking that their values are well-formed,

@@ -22,13 +22,13 @@ def load_emitter(loader, node: Node) -> None:
             pos = p.vec3("position")
         else:
             pos = p.transform("to_world")[:3, 3].copy()
-        e = Emitter(kind=POINT, intensity=p.rgb("intensity", 1.0), position=pos, name=name)
+        e = Emitter(kind=POINT, intensity=p.emitted("intensity", 1.0), position=pos, name=name)
     elif kind == "spot":
         M = p.transform("to_world")
         cutoff = p.float("cutoff_angle", 20.0)
         beam = p.float("beam_width", cutoff * 0.75)
         d = M[:3, :3] @ np.array([0.0, 0.0, 1.0])
-        e = Emitter(kind=SPOT, intensity=p.rgb("intensity", 1.0), position=M[:3, 3].copy(),
+        e = Emitter(kind=SPOT, intensity=p.emitted("intensity", 1.0), position=M[:3, 3].copy(),
                     direction=d / np.linalg.norm(d), cutoff_angle=float(cutoff), beam_width=float(beam),
                     name=name)
     elif kind == "directional":
@@ -39,9 +39,9 @@ def load_emitter(loader, node: Node) -> None:
         nd = np.linalg.norm(d)
         if not nd > 0:
             raise loader.error(node, "directional emitter needs a non-zero direction")
-        e = Emitter(kind=DIRECTIONAL, irradiance=p.rgb("irradiance", 1.0), direction=d / nd, name=name)
+        e = Emitter(kind=DIRECTIONAL, irradiance=p.emitted("irradiance", 1.0), direction=d / nd, name=name)
     elif kind == "constant":
-        e = Emitter(kind=CONSTANT, radiance=p.rgb("radiance", 1.0), name=name)
+        e = Emitter(kind=CONSTANT, radiance=p.emitted("radiance", 1.0), name=name)
     elif kind == "envmap":
         fn = p.string("filename")
         scale = p.float("scale", 1.0)

@@ -101,7 +101,7 @@ def load_shape(loader, node: Node) -> None:
         if ep.type != "area":
             loader.warn(emitter_node, f"emitter '{ep.type}' attached to a shape is not supported", "ignored")
         else:
-            e = Emitter(kind=AREA, radiance=ep.rgb("radiance", 1.0), mesh=len(loader.meshes) - 1,
+            e = Emitter(kind=AREA, radiance=ep.emitted("radiance", 1.0), mesh=len(loader.meshes) - 1,
                         name=emitter_node.attrib.get("id", name))
             ep.finish()
             loader.emitters.append(e)

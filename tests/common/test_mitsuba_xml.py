@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from igi.common.loader import load_scene
+from igi.common.luminance import luminance
 from igi.common.mitsuba_xml import load_mitsuba
 from igi.common.scene import (AREA, CONDUCTOR, CONSTANT, DIELECTRIC, DIFFUSE, DIRECTIONAL, PLASTIC, POINT,
                           ROUGHCONDUCTOR, ROUGHPLASTIC, SPOT, THINDIELECTRIC, SceneError)
@@ -274,6 +275,45 @@ def test_emitters_sensor_and_integrator(tmp_path):
     assert directional.kind == DIRECTIONAL and np.allclose(directional.direction, [0, -1, 0])
     assert const.kind == CONSTANT and np.allclose(const.radiance, [0.1, 0.2, 0.3])
     assert area.kind == AREA and area.mesh == 0 and s.meshes[0].emitter == 4
+
+
+SPECTRAL_EMITTERS = """
+    <emitter type="point"><point name="position" value="1 2 3"/><spectrum name="intensity" value="4"/></emitter>
+    <emitter type="directional"><vector name="direction" value="0 -1 0"/><spectrum name="irradiance" value="2"/>
+    </emitter>
+    <emitter type="constant"><spectrum name="radiance" value="400:0.5, 700:0.5"/></emitter>
+    <shape type="rectangle"><emitter type="area"><spectrum name="radiance" value="10"/></emitter>
+        <bsdf type="diffuse"><spectrum name="reflectance" value="0.5"/></bsdf></shape>
+    <shape type="rectangle"><emitter type="area"><rgb name="radiance" value="10"/></emitter></shape>
+"""
+
+
+def test_an_emitters_uniform_spectrum_is_the_equal_energy_illuminant_and_a_reflectances_stays_grey(tmp_path):
+    # Mitsuba 3 (RGB variants) renders <spectrum value="v"/> on any emitter as v x (1.2048, 0.9483, 0.9089), light
+    # of unit luminance per v and pink beside sRGB's white; a kitchen lit so rendered 20% redder than igi had it
+    s = load_mitsuba(scene_file(tmp_path, SPECTRAL_EMITTERS))
+    point, sun, sky, area, area_rgb = s.emitters
+    e = np.array([1.204794, 0.948291, 0.908916])  # XYZ (1, 1, 1) -> linear sRGB
+    assert np.allclose(point.intensity, 4 * e, rtol=1e-5) and np.allclose(sun.irradiance, 2 * e, rtol=1e-5)
+    assert np.allclose(area.radiance, 10 * e, rtol=1e-5)
+    assert np.allclose(sky.radiance, 0.5 * e, rtol=1e-5)  # a flat sampled spectrum: the same light
+    assert np.allclose(area_rgb.radiance, 10)  # <rgb> as given
+    assert abs(luminance(area.radiance) - 10) < 1e-4  # unit luminance per v: E's Y is 1
+    assert np.allclose(s.materials[s.meshes[0].material].diffuse.rgb, 0.5)  # a reflectance's: grey
+
+
+def test_spectral_emitters_match_mitsuba_3(tmp_path):
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("scalar_rgb")
+    body = """
+        <integrator type="path"><integer name="max_depth" value="2"/></integrator>
+        <sensor type="perspective"><float name="fov" value="10"/>
+            <transform name="to_world"><lookat origin="0,0,5" target="0,0,0" up="0,1,0"/></transform>
+            <film type="hdrfilm"><integer name="width" value="4"/><integer name="height" value="4"/></film></sensor>
+        <shape type="rectangle"><emitter type="area"><spectrum name="radiance" value="3"/></emitter></shape>"""
+    p = scene_file(tmp_path, body)
+    seen = np.array(mi.render(mi.load_file(str(p)), spp=4))[2, 2, :3]  # the emitter itself, seen head-on
+    assert np.allclose(load_mitsuba(p).emitters[0].radiance, seen, rtol=1e-4)
 
 
 def test_focal_length_and_default_camera(tmp_path):
