@@ -163,7 +163,8 @@ def serve_with_rogue(scene: str = "cornell-box", width: int = W, height: int = H
 
     Returns {frames_before, frames_after, median_interval_s (before), longest_gap_s (after the
     rogue's HELLO, counting from its start to the first frame and from the last frame to the end
-    of the window), bound_s = max(2, 5 x median), rogue (its report), serve_log}."""
+    of the window), bound_s = max(2, 5 x median), rogue (its report), requeued_from_rogue (the serve log's
+    lines re-queuing tasks the rogue held), serve_log}."""
     import msgpack
     import zmq
 
@@ -231,7 +232,9 @@ def serve_with_rogue(scene: str = "cornell-box", width: int = W, height: int = H
     longest = float(max(np.diff(marks)))
     return {"frames_before": len(before), "frames_after": len(after), "median_interval_s": median,
             "longest_gap_s": longest, "bound_s": max(2.0, 5.0 * median) if median == median else 2.0,
-            "rogue": got, "serve_alive": alive, "state_after": state, "serve_log": serve_log[-(200_000 if verbose else 4000):]}
+            "rogue": got, "serve_alive": alive, "state_after": state,
+            "requeued_from_rogue": sum(1 for ln in serve_log.splitlines() if "re-queued" in ln and "rogue" in ln),
+            "serve_log": serve_log[-(200_000 if verbose else 4000):]}
 
 
 def _api_state(port: int) -> dict:
