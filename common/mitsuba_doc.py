@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .luminance import EQUAL_ENERGY_SRGB
 from .scene import SceneError, Texture
 
 PROPERTY_TAGS = {"float", "integer", "boolean", "string", "rgb", "spectrum", "point", "vector", "transform"}
@@ -260,15 +259,14 @@ class Props:
         return np.asarray(t.rgb, dtype=np.float64)
 
     def emitted(self, name: str, default) -> np.ndarray:
-        """An emitter's colour (radiance, intensity, irradiance). Mitsuba 3's RGB variants read a
-        ``<spectrum>`` there as light of that spectrum: a uniform one is the equal-energy illuminant,
-        pink beside sRGB's white (a reflectance's uniform spectrum stays grey); ``<rgb>`` and
-        ``<float>`` are taken as given."""
-        c = self.rgb(name, default)
+        """An emitter's colour (radiance, intensity, irradiance): a ``<spectrum>`` there is light of
+        that spectrum, as Mitsuba 3's RGB variants read it (:mod:`common.cie`: a uniform one is the
+        equal-energy illuminant, pink beside sRGB's white); ``<rgb>`` and ``<float>`` as given."""
         n = self.named.get(name)
         if n is not None and self.loader.deref(n).tag == "spectrum":
-            c = c * EQUAL_ENERGY_SRGB
-        return c
+            self.used.add(name)
+            return self.loader.color(self.loader.deref(n), emitted=True)
+        return self.rgb(name, default)
 
     def finish(self, ignore: tuple[str, ...] = ()) -> None:
         """Warn about parameters nobody read (after checking that their values are well-formed,

@@ -51,7 +51,8 @@ import numpy as np
 
 from . import transform as tf
 from .mitsuba_bsdfs import CONDUCTORS, load_texture
-from .mitsuba_doc import IOR_TABLE, OBJECT_TAGS, Node, parse_xml_file
+from .cie import EQUAL_ENERGY_SRGB, spectrum_to_linear_srgb
+from .mitsuba_doc import IOR_TABLE, OBJECT_TAGS, Node, fmt_rgb, parse_xml_file
 from .mitsuba_emitters import load_emitter
 from .mitsuba_sensors import default_camera, load_integrator, load_sensor
 from .mitsuba_shapes import load_shape
@@ -246,8 +247,9 @@ class _Loader:
             raise self.error(node, f"{node.describe()} is not finite")
         return m
 
-    def color(self, node: Node) -> np.ndarray:
-        """<rgb>, <spectrum>, <float> -> (3,) float64."""
+    def color(self, node: Node, emitted: bool = False) -> np.ndarray:
+        """<rgb>, <spectrum>, <float> -> (3,) float64. ``emitted``: an emitter's radiance, intensity
+        or irradiance, whose spectra are light (:mod:`common.cie`) where a reflectance's are under D65."""
         if node.tag in ("float", "integer"):
             v = self.numbers(node, node.attrib.get("value", ""))
             if len(v) != 1:
@@ -264,27 +266,57 @@ class _Loader:
             return np.array(v, dtype=np.float64)
         if node.tag == "spectrum":
             if "filename" in node.attrib:
-                self.warn(node, f"spectrum file '{node.attrib['filename']}' is not supported", "using 0.5")
-                return np.full(3, 0.5)
+                return self._sampled(node, *self._spectrum_file(node), emitted)
             s = node.attrib.get("value")
             if s is None:
                 raise self.error(node, f"{node.describe()} needs a 'value' attribute")
             if ":" in s:
-                vals = []
+                wl, vals = [], []
                 for pair in s.replace(",", " ").split():
                     try:
-                        _, val = pair.split(":")
+                        w, val = pair.split(":")
+                        wl.append(float(w))
                         vals.append(float(val))
                     except ValueError:
                         raise self.error(node, f"{node.describe()} value '{s}' is not a list of "
                                                "wavelength:value pairs") from None
-                self.warn(node, "sampled <spectrum> is not supported", "using the mean of its values (gray)")
-                return np.full(3, float(np.mean(vals)) if vals else 0.0)
+                return self._sampled(node, wl, vals, emitted)
             v = self.numbers(node, s)
             if len(v) != 1:
                 raise self.error(node, f"{node.describe()} value '{s}' must be a single number")
-            return np.full(3, v[0])
+            return v[0] * (EQUAL_ENERGY_SRGB if emitted else np.ones(3))
         raise self.error(node, f"{node.describe()}: expected a colour (<rgb>, <spectrum>, <float>) or a texture")
+
+    def _spectrum_file(self, node: Node) -> tuple[list[float], list[float]]:
+        """A ``.spd`` file's "wavelength value" lines (``#`` comments)."""
+        path = self.resolve(node.attrib["filename"], node)
+        wl, vals = [], []
+        try:
+            lines = path.read_text().splitlines()
+        except OSError as e:
+            raise self.error(node, f"spectrum file '{node.attrib['filename']}': {e.strerror}") from None
+        for i, line in enumerate(lines, 1):
+            line = line.split("#")[0].strip()
+            if not line:
+                continue
+            try:
+                w, val = map(float, line.split())
+            except ValueError:
+                raise self.error(node, f"spectrum file '{node.attrib['filename']}' line {i}: "
+                                       f"'{line}' is not 'wavelength value'") from None
+            wl.append(w)
+            vals.append(val)
+        return wl, vals
+
+    def _sampled(self, node: Node, wl: list[float], vals: list[float], emitted: bool) -> np.ndarray:
+        if len(wl) < 2 or any(b <= a for a, b in zip(wl, wl[1:])):
+            raise self.error(node, f"{node.describe()} needs two or more wavelengths in increasing order")
+        if not np.all(np.isfinite(vals)) or not np.all(np.isfinite(wl)):
+            raise self.error(node, f"{node.describe()} is not finite")
+        rgb, clamped = spectrum_to_linear_srgb(wl, vals, emitted)
+        if clamped:
+            self.warn(node, "spectrum outside the sRGB gamut", f"clamped to {fmt_rgb(rgb)} (as Mitsuba 3 does)")
+        return rgb
 
     def texture(self, node: Node) -> Texture:
         """A colour element or a ``<texture>`` (or a ``<ref>`` to one) -> :class:`Texture`."""
