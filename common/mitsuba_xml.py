@@ -18,9 +18,9 @@ the element, its ``file:line`` and the fallback):
   an ``hdrfilm`` (``width``, ``height``); ``<integrator>``'s ``max_depth``;
 - ``<default>`` + ``$name`` substitution (the ``defaults`` argument wins), ``<ref>``, ids,
   ``<alias>``, ``<path>``, ``<include>``; values ``float``, ``integer``, ``boolean``, ``string``,
-  ``rgb``, ``spectrum`` (a single value: grey in a reflectance, the equal-energy illuminant in an
-  emitter's radiance, intensity or irradiance, as Mitsuba 3's RGB variants read it), ``point``,
-  ``vector``, ``transform``;
+  ``rgb``, ``spectrum`` (a single value, ``wavelength:value`` pairs or an ``.spd`` file, converted to
+  linear sRGB as Mitsuba 3's RGB variants do, :mod:`common.cie`: reflectances under D65, emitters'
+  radiance, intensity and irradiance as light), ``point``, ``vector``, ``transform``;
 - scenes in Mitsuba 0.x syntax (``version`` < 2) get camelCase parameter names upgraded.
 
 Geometry follows Mitsuba 3 exactly where it is observable (checked against Mitsuba 3.9.1):
