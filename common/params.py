@@ -105,10 +105,12 @@ PARAMS: tuple[Param, ...] = (
           "glossy surfaces at least this rough are filtered like irradiance; smoother ones are split at "
           "the first hit: diffuse layer filtered, glossy lobe traced by one sampled ray",
           "filter", 0.0, 10.0),
-    Param("filter_lobe_alpha", float, 0.1,
+    Param("filter_lobe_alpha", float, 0.02,
           "a split plastic's glossy lobe at least this rough is filtered: the discontinuity buffer "
           "averages the lobe's one sampled ray with those of its neighbours that have one, beside the "
-          "irradiance, and adds the result; smoother lobes (sharper reflections) stay unfiltered",
+          "irradiance, and adds the result, so its light samples (shared by an interleave set) do not "
+          "print as dots of the set's lights; smoother lobes (mirror-like reflections) stay unfiltered "
+          "(0.1 until stop 63: Veach's MIS plates of α 0.02 / 0.05 showed the dots, 0.02 has 43% less error)",
           "filter", 0.0, 10.0),
     # Eye paths
     Param("max_depth", int, -1, "path segments as in Mitsuba (-1 unlimited, 2 = direct only)", "path", -1, 64),
