@@ -11,10 +11,11 @@ colours it has in Mitsuba.
   emitter.
 
 Data: CIE 015:2004 (1931 standard observer and illuminant D65 at 5 nm, linearly interpolated),
-normalized as Mitsuba 3 does (checked against Mitsuba 3.9.1's own conversion to 1e-6)."""
+normalized as Mitsuba 3 does (within 1e-5 of Mitsuba 3.9.1's own conversion)."""
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 CIE_MIN, CIE_MAX = 360.0, 830.0
 WAVELENGTHS = np.arange(CIE_MIN, CIE_MAX + 1.0, 5.0)  # the tables' 95 wavelengths (nm)
@@ -87,9 +88,10 @@ D65 = np.array([
 ])
 
 
-def spectrum_to_linear_srgb(wavelengths, values, emitted: bool) -> tuple[np.ndarray, bool]:
-    """A sampled spectrum (ascending wavelengths in nm, values) -> (linear sRGB, whether it was
-    clamped into gamut). ``emitted``: an emitter's light (no illuminant, unbounded) rather than a
+def spectrum_to_linear_srgb(wavelengths: ArrayLike, values: ArrayLike, emitted: bool) -> tuple[np.ndarray, bool]:
+    """A sampled spectrum -> (linear sRGB, whether it was clamped into gamut). ``wavelengths``
+    (nm) must be strictly increasing, two or more, and with ``values`` finite (the scene loader
+    checks them). ``emitted``: an emitter's light (no illuminant, unbounded) rather than a
     reflectance (under D65, bounded by 1)."""
     wl = np.asarray(wavelengths, np.float64)
     v = np.asarray(values, np.float64)

@@ -291,8 +291,8 @@ class _Loader:
         """A ``.spd`` file's "wavelength value" lines (``#`` comments)."""
         path = self.resolve(node.attrib["filename"], node)
         wl, vals = [], []
-        try:
-            lines = path.read_text().splitlines()
+        try:  # (a Latin-1 degree sign in a comment must not fail the scene)
+            lines = path.read_bytes().decode("utf-8", errors="replace").splitlines()
         except OSError as e:
             raise self.error(node, f"spectrum file '{node.attrib['filename']}': {e.strerror}") from None
         for i, line in enumerate(lines, 1):

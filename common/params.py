@@ -109,8 +109,7 @@ PARAMS: tuple[Param, ...] = (
           "a split plastic's glossy lobe at least this rough is filtered: the discontinuity buffer "
           "averages the lobe's one sampled ray with those of its neighbours that have one, beside the "
           "irradiance, and adds the result, so its light samples (shared by an interleave set) do not "
-          "print as dots of the set's lights; smoother lobes (mirror-like reflections) stay unfiltered "
-          "(0.1 until stop 63: Veach's MIS plates of α 0.02 / 0.05 showed the dots, 0.02 has 43% less error)",
+          "print as dots of the set's lights; smoother lobes (mirror-like reflections) stay unfiltered",
           "filter", 0.0, 10.0),
     # Eye paths
     Param("max_depth", int, -1, "path segments as in Mitsuba (-1 unlimited, 2 = direct only)", "path", -1, 64),

@@ -77,7 +77,7 @@ def warm_up_master(stop: threading.Event | None = None) -> float:
 _started: threading.Thread | None = None  # once per process: the kernels stay loaded
 _lock = threading.Lock()
 _stop = threading.Event()
-_EXIT_WAIT_S = 120.0  # one kernel's cold compile on a loaded 2-core machine, with room
+_EXIT_WAIT_S = 120.0  # one step's cold compiles (the first frame's filter and compose) on a loaded 2-core box
 
 
 def _stop_at_exit() -> None:
@@ -86,6 +86,8 @@ def _stop_at_exit() -> None:
     _stop.set()
     if _started is not None:
         _started.join(_EXIT_WAIT_S)
+        if _started.is_alive():
+            log.warning("master warm-up still compiling after %.0f s at exit", _EXIT_WAIT_S)
 
 
 atexit.register(_stop_at_exit)

@@ -6,7 +6,6 @@ process."""
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 
@@ -58,23 +57,32 @@ def test_the_broker_starts_the_warm_up_as_it_starts(monkeypatch):
 
 
 EXIT_DURING_WARM_UP = """
-import atexit, sys
-seen = []
-atexit.register(lambda: print("warm-up alive at exit:", seen[0].is_alive()))  # runs after warm's own handler
+import atexit, sys, threading, time
+seen, tiles, inside = [], [], threading.Event()
+from igi.master.frame_assembly import FrameAssembler
+add_wire = FrameAssembler.add_wire
+
+def slow_add_wire(self, *args, **kw):  # the warm-up's first step, held while the process exits
+    tiles.append(1)
+    inside.set()
+    time.sleep(1.0)
+    return add_wire(self, *args, **kw)
+
+FrameAssembler.add_wire = slow_add_wire
+atexit.register(lambda: print("alive", seen[0].is_alive(), "tiles", len(tiles)))  # runs after warm's own handler
 from igi.master.kernels.warm import warm_up_master_in_background
 seen.append(warm_up_master_in_background())
-sys.exit(0)  # at once: the warm-up has only begun
+inside.wait(120)
+sys.exit(0)  # in the middle of the warm-up's first step
 """
 
 
-def test_a_process_exiting_during_the_warm_up_waits_for_it_to_stop(tmp_path):
+def test_a_process_exiting_during_the_warm_up_stops_it_at_its_next_step_and_waits(tmp_path):
     # LLVM's destructors running under a compiling thread aborted a one-frame igi render (CI, stop 62): the exit
-    # handler must stop the warm-up before the interpreter goes. A cold cache makes its first step long.
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
-    out = subprocess.run([sys.executable, "-c", EXIT_DURING_WARM_UP], capture_output=True, text=True, env=env,
-                         timeout=300)
+    # handler asks the warm-up to stop and waits for it. It stops after the step it is in: one of the 25 tiles.
+    out = subprocess.run([sys.executable, "-c", EXIT_DURING_WARM_UP], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
-    assert "warm-up alive at exit: False" in out.stdout
+    assert "alive False tiles 1" in out.stdout, out.stdout
 
 
 def test_a_failing_master_warm_up_is_logged_not_raised(monkeypatch, caplog):
