@@ -105,7 +105,7 @@ PARAMS: tuple[Param, ...] = (
           "glossy surfaces at least this rough are filtered like irradiance; smoother ones are split at "
           "the first hit: diffuse layer filtered, glossy lobe traced by one sampled ray",
           "filter", 0.0, 10.0),
-    Param("filter_lobe_alpha", float, 0.02,
+    Param("filter_lobe_alpha", float, 0.04,
           "a split plastic's glossy lobe at least this rough is filtered: the discontinuity buffer "
           "averages the lobe's one sampled ray with those of its neighbours that have one, beside the "
           "irradiance, and adds the result, so its light samples (shared by an interleave set) do not "
