@@ -287,7 +287,7 @@ class Props:
         elif tag == "boolean":
             self.bool(name)
         elif tag in ("rgb", "spectrum"):
-            self.loader.color(n)
+            self.loader.color(n, emitted=self.node.tag == "emitter")  # (an emitter's light has no gamut bound)
         elif tag in ("point", "vector"):
             self.loader.xyz(n)
         elif tag == "transform":
