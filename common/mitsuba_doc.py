@@ -263,9 +263,10 @@ class Props:
         that spectrum, as Mitsuba 3's RGB variants read it (:mod:`common.cie`: a uniform one is the
         equal-energy illuminant, pink beside sRGB's white); ``<rgb>`` and ``<float>`` as given."""
         n = self.named.get(name)
-        if n is not None and self.loader.deref(n).tag == "spectrum":
+        spectrum = None if n is None else self.loader.deref(n)
+        if spectrum is not None and spectrum.tag == "spectrum":
             self.used.add(name)
-            return self.loader.color(self.loader.deref(n), emitted=True)
+            return self.loader.color(spectrum, emitted=True)
         return self.rgb(name, default)
 
     def finish(self, ignore: tuple[str, ...] = ()) -> None:

@@ -318,6 +318,11 @@ def test_bad_spectra_name_the_element(tmp_path):
                                  f'<spectrum name="reflectance" value="{value}"/></bsdf></shape>')
         with pytest.raises(SceneError, match=what):
             load_mitsuba(p)
+    p = scene_file(tmp_path, '<shape type="rectangle"><bsdf type="diffuse">'
+                             '<spectrum name="reflectance" filename="bad.spd"/></bsdf></shape>',
+                   files={"bad.spd": "400 0.5\n500 x\n"})
+    with pytest.raises(SceneError, match=r"spectrum file 'bad.spd' line 2: '500 x' is not 'wavelength value'"):
+        load_mitsuba(p)
 
 
 def test_spectra_match_mitsuba_3s_own_conversion(tmp_path):
