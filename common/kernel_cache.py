@@ -64,11 +64,16 @@ def imported_kernel_modules(name: str, source: str, modules: dict[str, str]) -> 
     return found
 
 
+def _source(path: str) -> bytes:
+    with open(path, "rb") as f:
+        return f.read()
+
+
 def source_hashes(root: str) -> dict[str, tuple[str, str]]:
     """Module -> (its source path, sha1 over its source and those of every kernel module it
     imports, transitively)."""
     modules = kernel_modules(root)
-    text = {m: open(p, "rb").read() for m, p in modules.items()}
+    text = {m: _source(p) for m, p in modules.items()}
     deps = {m: imported_kernel_modules(m, text[m].decode("utf-8"), modules) for m in modules}
     out = {}
     for m in modules:

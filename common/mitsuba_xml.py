@@ -58,6 +58,7 @@ from .mitsuba_sensors import default_camera, load_integrator, load_sensor
 from .mitsuba_shapes import load_shape
 from .scene import AREA, CONSTANT, Camera, Emitter, Material, Mesh, Scene, SceneError, Texture
 from .scene_root import SceneRoot
+from .scene_warnings import SceneWarnings
 
 log = logging.getLogger("igi.scene")
 
@@ -82,7 +83,7 @@ class _Loader:
         self.ids: dict[str, Node] = {}
         self.aliases: dict[str, str] = {}
         self.search: list[Path] = [self.base]
-        self.warnings: list[str] = []
+        self.warnings = SceneWarnings(log)
         self.meshes: list[Mesh] = []
         self.materials: list[Material] = []
         self.emitters: list[Emitter] = []
@@ -99,9 +100,7 @@ class _Loader:
 
     def warn(self, node: Node | None, what: str, fallback: str) -> None:
         where = f" at {node.where}" if node is not None else ""
-        msg = f"{what}{where}, {fallback}"
-        log.warning(msg)
-        self.warnings.append(msg)
+        self.warnings.add(f"{what}{where}, {fallback}")
 
     # -- document preprocessing ----------------------------------------------------------------
     def load_root(self) -> Node:
@@ -363,8 +362,9 @@ class _Loader:
         if self.camera is None:
             self.camera = default_camera(self)
             self.warn(root, "no <sensor>", "using Mitsuba's default camera (45 deg, looking along +z at the scene)")
+        self.warnings.summarize()
         return Scene(meshes=self.meshes, materials=self.materials, emitters=self.emitters, camera=self.camera,
-                     source=self.display, warnings=self.warnings, max_depth=self.max_depth)
+                     source=self.display, warnings=list(self.warnings), max_depth=self.max_depth)
 
 
 def load_mitsuba(path: str | Path, defaults: dict[str, str] | None = None,

@@ -40,6 +40,7 @@ import numpy as np
 from .scene import (AREA, CONDUCTOR, DIELECTRIC, DIFFUSE, ROUGHPLASTIC, Camera, Emitter, Material, Mesh,
                     Scene, SceneError, Texture)
 from .scene_root import SceneRoot
+from .scene_warnings import SceneWarnings
 
 log = logging.getLogger("igi.scene")
 
@@ -119,6 +120,9 @@ def remove_degenerate(name: str, vertices, faces, warnings: list[str] | None):
 
 
 def _warn(warnings: list[str] | None, msg: str) -> None:
+    if isinstance(warnings, SceneWarnings):
+        warnings.add(msg)  # (logs the first few of a kind)
+        return
     log.warning(msg)
     if warnings is not None:
         warnings.append(msg)
@@ -680,7 +684,7 @@ def load_obj_scene(path, root: str | Path | None = None) -> Scene:
 
 
 def _load_obj_scene(path: Path, display: str, root: SceneRoot) -> Scene:
-    warnings: list[str] = []
+    warnings = SceneWarnings(log)
     data = parse_obj(path, display, need_groups=True)
     if data.short_faces:
         _warn(warnings, f"{display}: ignored {data.short_faces} face(s) with fewer than 3 corners")
@@ -738,5 +742,6 @@ def _load_obj_scene(path: Path, display: str, root: SceneRoot) -> Scene:
     hi = np.max([m.vertices[m.faces.ravel()].max(axis=0) for m in meshes], axis=0)
     if not emitters:
         _warn(warnings, f"{display}: no emitter (no material with Ke > 0)")
+    warnings.summarize()
     return Scene(meshes=meshes, materials=materials, emitters=emitters, camera=default_obj_camera(lo, hi),
-                 source=display, warnings=warnings)
+                 source=display, warnings=list(warnings))
