@@ -276,9 +276,12 @@ def final_gather(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoi
             points = EndPoints.concat([end, *(b.y for b, _ in batches)])
             ray_sets += [(b.rays, start) for b, start in batches]  # a batch's rays light its rows start on
     with stage("VPL gather"):
+        # the eye's end points share a roulette per pixel; the points beyond them go alone
+        pixel = np.full(len(points), -1, np.int64)
+        pixel[:len(end)] = end.pixel
         albedo, irr = gather_vpls(geom, points, vpls, clamp_d2, max_depth, force_general=force_general,
                                   lobe_alpha=lobe_alpha, shadow_roulette=shadow_roulette,
-                                  seed=int(rng.integers(1 << 62)), lobe_lights=lobe_lights)
+                                  seed=int(rng.integers(1 << 62)), lobe_lights=lobe_lights, pixel=pixel)
     with stage("BSDF direct"):
         if lights.has_light:
             mis = LightMIS(vpls.direct_count, vpls.env_guide, vpls.emitter_pmf)

@@ -482,7 +482,7 @@ def _lobe_light_set(vpls: VPLSet, count: int) -> VPLSet:
 def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
                 max_depth: int, force_general: bool = False,
                 lobe_alpha: float = 0.0, shadow_roulette: float = 0.0,
-                seed: int = 0, lobe_lights: int = 0) -> tuple[np.ndarray, np.ndarray]:
+                seed: int = 0, lobe_lights: int = 0, pixel: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Light from the VPL set at each end point, split as (albedo, irradiance).
 
     Radiance toward the eye = albedo · irradiance. For Lambertian end points the albedo is the
@@ -492,16 +492,19 @@ def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
     least this rough (:func:`regularized_senders`). ``shadow_roulette`` > 0: Russian roulette
     on the shadow rays of small pairs (kernels.vpl_gather.roulette_row), drawn from ``seed``.
     ``lobe_lights``: the emitter samples the direct-only end points take (:func:`lobe_light_count`;
-    0: all of the set's; trace_eye's LightMIS must name the same count).
+    0: all of the set's; trace_eye's LightMIS must name the same count). ``pixel`` (E,): the
+    pixel each end point lights (-1: none of those given): the shadow roulette weighs a pixel's
+    end points together (:func:`_pixel_boost`).
     """
     e = len(end)
     if 0 < lobe_lights < vpls.direct_count and end.direct_only is not None and end.direct_only.any():
         own = np.nonzero(~end.direct_only)[0]
         lobe = np.nonzero(end.direct_only)[0]
         kw = dict(force_general=force_general, lobe_alpha=lobe_alpha, shadow_roulette=shadow_roulette)
-        a1, i1 = gather_vpls(geom, end.subset(own), vpls, clamp_d2, max_depth, seed=seed, **kw)
+        a1, i1 = gather_vpls(geom, end.subset(own), vpls, clamp_d2, max_depth, seed=seed,
+                             pixel=None if pixel is None else pixel[own], **kw)
         a2, i2 = gather_vpls(geom, end.subset(lobe), _lobe_light_set(vpls, lobe_lights), clamp_d2, max_depth,
-                             seed=seed + 1, **kw)
+                             seed=seed + 1, pixel=None if pixel is None else pixel[lobe], **kw)
         albedo, irr = np.empty((e, 3)), np.empty((e, 3))
         albedo[own], irr[own], albedo[lobe], irr[lobe] = a1, i1, a2, i2
         return albedo, irr
@@ -513,8 +516,8 @@ def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
     cols = vpl_columns(vpls, geom, clamp_d2, force_general, lobe_alpha)
     roulette = (float(shadow_roulette), int(seed)) if shadow_roulette > 0 else None
     receivers = _Receivers(end, albedo)
-    if not _gather_packets(geom, end, cols, max_depth, roulette, receivers, irr):
-        _gather_pairs(geom, end, vpls, cols, max_depth, receivers, roulette, irr)
+    if not _gather_packets(geom, end, cols, max_depth, roulette, receivers, irr, pixel):
+        _gather_pairs(geom, end, vpls, cols, max_depth, receivers, roulette, irr, pixel)
     return albedo, irr
 
 
@@ -522,20 +525,22 @@ _NO_ROWS = np.zeros(0, bool)
 
 
 def _gather_pairs(geom: Geometry, end: EndPoints, vpls: VPLSet, cols: "_VPLColumns", max_depth: int,
-                  receivers: "_Receivers", roulette: tuple | None, irr: np.ndarray) -> None:
+                  receivers: "_Receivers", roulette: tuple | None, irr: np.ndarray,
+                  pixel: np.ndarray | None = None) -> None:
     """The gather's irradiance into ``irr`` through pair lists (kernels.vpl_gather steps 1-3
     apart), PAIR_CHUNK pairs at a time: where the shadow rays must pass through
     Geometry.occluded_local (see :func:`_gather_packets`)."""
     e = len(end)
+    boost = _pixel_boost(geom, end, cols, max_depth, receivers, roulette, pixel)
     for sl in _chunks(e, len(vpls)):
         pi, pj, w, blocked, factor, inner = _unoccluded_pairs(geom, end, sl, vpls, cols, max_depth, receivers,
-                                                              roulette)
+                                                              roulette, boost=boost[sl] if len(boost) else boost)
         vg.accumulate(sl.stop - sl.start, pi, pj, w, blocked, cols.color, factor,
                       inner if len(cols.planes) else _NO_ROWS, irr[sl])
 
 
 def _gather_packets(geom: Geometry, end: EndPoints, cols: "_VPLColumns", max_depth: int, roulette: tuple | None,
-                    receivers: "_Receivers", irr: np.ndarray) -> bool:
+                    receivers: "_Receivers", irr: np.ndarray, pixel: np.ndarray | None = None) -> bool:
     """The gather fused with its shadow rays (kernels.vpl_gather.gather_packets) into ``irr``,
     with the per-pair BSDF factors of glossy receivers and senders where there are any; False
     where the shadow BVH is not queried in packets from compiled code (no C API, or a
@@ -552,14 +557,69 @@ def _gather_packets(geom: Geometry, end: EndPoints, cols: "_VPLColumns", max_dep
                    cols.vwi, cols.vnormal)
     n, m = len(x), len(cols.depth)
     lobes = _lobes(row, receivers, slice(0, n), roulette)
+    boost = _pixel_boost(geom, end, cols, max_depth, receivers, roulette, pixel,
+                         (x, ns, ng, side, off, row, tables, row_tab, inv_tavg), lobes)
     geom.counters["occluded_rays"] += vg.gather_packets(
         scene, geom.interior_bvh()[0].handle, x, ns, ng, off, side, row, end.vpl_depth_limit(max_depth), cols.pos,
         cols.normal, cols.directional, cols.min_d2, cols.cos_y_factor, cols.side, cols.spot_cutoff, cols.spot_beam,
         cols.depth, cols.mis, cols.light_pdf, cols.area, cols.direct_count, np.float32(2 * geom.eps), tables, row_tab,
         inv_tavg,
         np.zeros(n, np.int64), np.full(n, m, np.int64), cols.lum, float(roulette[0]) if roulette else 0.0,
-        int(roulette[1]) if roulette else 0, 0, lobes, cols.planes, cols.col_out, cols.color, irr, factors)
+        int(roulette[1]) if roulette else 0, 0, lobes, boost, cols.planes, cols.col_out, cols.color, irr, factors)
     return True
+
+
+# A row's threshold at most this many times its own mean. The guess of a row's share is
+# unshadowed and direct only: where a faint-looking end point carries more of its pixel's light
+# than guessed (its main end point in shadow, or lit indirectly), the variance added to that
+# light stays ≤ fraction · MAX_BOOST / pairs.
+MAX_BOOST = 8.0
+
+
+def _pixel_boost(geom: Geometry, end: EndPoints, cols: "_VPLColumns", max_depth: int, receivers: "_Receivers",
+                 roulette: tuple | None, pixel: np.ndarray | None, rows: tuple | None = None,
+                 lobes: np.ndarray | None = None) -> np.ndarray:
+    """Each row's roulette boost (kernels.vpl_gather.roulette_row): its pixel's guessed light over
+    its own, between 1 and MAX_BOOST — so a pixel's end points are thinned against the pixel's
+    light, as one end point's pairs are against its own. A split surface gives a pixel several
+    end points (a glass's two branches, a plastic's layer, lobe and the lobe ray's next surface:
+    4.6 a pixel on Bitterli's staircase), each gathering every VPL; a faint one (a 4% reflection)
+    keeps ~1/8 of its rays, each kept ray counting 1/p. Unbiased (the boost depends on no draw).
+
+    The guess: the row's unshadowed light from the set's emitter samples, weighed as the roulette
+    weighs them (kernels.vpl_gather.row_totals over those columns only: a few of a set's), times
+    its weight toward the eye (throughput × albedo; a glossy row's guess carries its BSDF) — a dim
+    reflection of a bright window is not taken for a faint end point. Only the rows of pixels with
+    more than one; a row with no direct light guessed keeps its own roulette. No boost
+    (vpl_gather.NO_BOOST) without a roulette or ``pixel``."""
+    if roulette is None or pixel is None or len(pixel) == 0:
+        return vg.NO_BOOST
+    grouped = np.flatnonzero(pixel >= 0)
+    if len(grouped) == 0:
+        return vg.NO_BOOST
+    counts = np.bincount(pixel[grouped])
+    shared = grouped[counts[pixel[grouped]] >= 2]  # a pixel of one row keeps its roulette
+    direct = cols.direct_columns()
+    if len(shared) == 0 or len(direct[0]) == 0:
+        return vg.NO_BOOST
+    n, k = len(end), len(shared)
+    x, ns, ng, side, off, row, tables, row_tab, inv_tavg = rows if rows is not None else _receivers(
+        geom, end, slice(0, n))
+    if lobes is None:
+        lobes = _lobes(row, receivers, slice(0, n), roulette)
+    totals = np.zeros(k)
+    vg.row_totals(x[shared], ns[shared], ng[shared], off[shared], side[shared], row[shared],
+                  end.vpl_depth_limit(max_depth)[shared], *direct[:-1], cols.direct_count, tables, row_tab[shared],
+                  inv_tavg[shared], np.zeros(k, np.int64), np.full(k, len(direct[0]), np.int64), direct[-1],
+                  lobes[shared] if len(lobes) else lobes, totals)
+    glossy = (row[shared] == vg.ROW_GLOSSY)[:, None]
+    light = totals * luminance(end.throughput[shared] * np.where(glossy, 1.0, receivers.albedo[shared]))
+    light = np.where(np.isfinite(light) & (light > 0), light, 0.0)
+    pixel_light = np.bincount(pixel[shared], weights=light, minlength=len(counts))
+    lit = light > 0
+    boost = np.ones(n, np.float32)
+    boost[shared[lit]] = np.clip(pixel_light[pixel[shared[lit]]] / light[lit], 1.0, MAX_BOOST)
+    return boost
 
 
 def _lobes(row: np.ndarray, receivers: "_Receivers", sl: slice, roulette: tuple | None) -> np.ndarray:
@@ -796,17 +856,28 @@ class _VPLColumns:
         self.planes = geom.interior_bvh()[1]
         outside = self.directional | np.any(~(self.pos @ self.planes[:, :3].T + self.planes[:, 3] <= 0), axis=1)
         self.col_out = np.concatenate([[0], np.cumsum(outside)]).astype(np.int64)
+        self._direct = None
+
+    def direct_columns(self) -> tuple:
+        """The emitter samples' columns as kernels.vpl_gather.row_totals takes them (pos …
+        area, then lum), made once per set: what :func:`_pixel_boost` weighs."""
+        if self._direct is None:
+            take = np.flatnonzero(self.depth == 0)
+            self._direct = tuple(np.ascontiguousarray(v[take]) for v in (
+                self.pos, self.normal, self.directional, self.min_d2, self.cos_y_factor, self.side, self.spot_cutoff,
+                self.spot_beam, self.depth, self.mis, self.light_pdf, self.area, self.lum))
+        return self._direct
 
 
 def _unoccluded_pairs(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,
                       max_depth: int, receivers: _Receivers, roulette: tuple | None = None,
-                      col_range: tuple | None = None) -> tuple:
+                      col_range: tuple | None = None, boost: np.ndarray = vg.NO_BOOST) -> tuple:
     """The chunk's live (end point, VPL) pairs after Embree's occlusion test: (row, column,
     scalar weight, blocked, per-pair RGB factor or an empty (0, 3) array, traced on the inner
     BVH (Geometry.interior_bvh)). ``roulette``:
     (fraction, seed) of the shadow rays' Russian roulette, None for none."""
     pi, pj, w, row, pl, o, d, t, inner = _pair_rays(geom, end, sl, vpls, cols, max_depth, col_range, roulette,
-                                                    receivers)
+                                                    receivers, boost)
     blocked = geom.occluded_local(o, d, t, inner) if len(pi) else np.zeros(0, bool)
     factor = _bsdf_factors(sl, cols, row, pi, pj, pl, d, blocked, receivers)
     return pi, pj, w, blocked, factor, inner
@@ -857,7 +928,7 @@ def _receivers(geom: Geometry, end: EndPoints, sl: slice) -> tuple:
 
 def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _VPLColumns,
                max_depth: int, col_range: tuple | None = None, roulette: tuple | None = None,
-               receivers: _Receivers | None = None) -> tuple:
+               receivers: _Receivers | None = None, boost: np.ndarray = vg.NO_BOOST) -> tuple:
     """The chunk's live (end point, VPL) pairs and their shadow rays, untraced: (row, column,
     scalar weight, receiver row kind, light pdf, origins, directions, tfar, whether the ray may
     skip the supporting planes' triangles (Geometry.interior_bvh)) — the rays in the
@@ -887,7 +958,7 @@ def _pair_rays(geom: Geometry, end: EndPoints, sl: slice, vpls: VPLSet, cols: _V
                         cols.light_pdf, cols.area, cols.direct_count, f32(2 * geom.eps),
                         tables, row_tab, inv_tavg, lo, hi, cols.lum,
                         float(roulette[0]) if roulette else 0.0, int(roulette[1]) if roulette else 0, sl.start,
-                        _lobes(row, receivers or _Receivers(end, None), sl, roulette), cols.planes, cols.col_out,
+                        _lobes(row, receivers or _Receivers(end, None), sl, roulette), boost, cols.planes, cols.col_out,
                         pi, pj, w, pl, o, d, t, inner)
     return pi[:k], pj[:k], w[:k], row, pl[:k], o[:k], d[:k], t[:k], inner[:k]
 

@@ -216,11 +216,12 @@ def lobe_guesses_numpy(x, ns, side, lobes, vpos, vnormal, directional, pi, pj, p
     return np.where(a2 > 0, g, one).astype(f32)
 
 
-def shadow_roulette(k, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base, guess=None) -> int:
+def shadow_roulette(k, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base, guess=None, boost=None) -> int:
     """The shadow rays' Russian roulette as a separate pass over the first ``k`` pairs
     (row-major), in place, in plain Python: what worker.kernels.vpl_gather.pair_weights does per
     row while it writes them. ``guess``: each pair's weight is taken times it for the draw and
-    divided by it after (:func:`lobe_guesses_numpy`; None: 1). Returns how many pairs remain."""
+    divided by it after (:func:`lobe_guesses_numpy`; None: 1); ``boost``: each row's threshold
+    times it (None: 1). Returns how many pairs remain."""
     from igi.worker.kernels import vpl_gather as vg
 
     g = np.ones(k, np.float32) if guess is None else guess
@@ -235,7 +236,7 @@ def shadow_roulette(k, pi, pj, w, pl, o, d, t, row, lum, fraction, seed, base, g
         i = int(pi[s])
         eligible = row[i] in (vg.ROW_LAMBERT, vg.ROW_LAYER, vg.ROW_GLOSSY)
         total = float(np.sum(wg[s:e].astype(np.float64) * lum[pj[s:e]]))
-        threshold = fraction * total / (e - s) if eligible else 0.0
+        threshold = fraction * total * (1.0 if boost is None else float(boost[i])) / (e - s) if eligible else 0.0
         t32 = np.float32(threshold)
         c = wg[s:e] * lum[pj[s:e]].astype(np.float32)  # float32, as the kernel compares
         for a in range(s, e):

@@ -239,6 +239,98 @@ def test_roulette_while_writing_the_pairs_equals_the_separate_pass(name):
     np.testing.assert_array_equal(fused[8], by_row[fused[0]])
 
 
+def _guesses(r, end, sl, cols, pi, pj, pl, row, seed):
+    """The roulette's lobe guesses of the listed pairs (None: no glossy row)."""
+    from igi.worker import shading
+
+    x, ns, _ng, side, *_ = shading._receivers(r.geom, end, sl)
+    lobes = shading._lobes(row, shading._Receivers(end, None), sl, (1.0, seed))
+    return (lobe_guesses_numpy(x, ns, side, lobes, cols.pos, cols.normal, cols.directional, pi, pj, pl)
+            if len(lobes) else None), lobes
+
+
+@pytest.mark.parametrize("name", ["cornell-box", "cornell-box-glossy"])
+def test_a_boosted_roulette_while_writing_the_pairs_equals_the_separate_pass(name):
+    """A row's roulette threshold raised by its boost (vpl_gather.roulette_row): pair_weights
+    drops and reweighs the pairs as the plain-Python pass does with that boost, and a boost of
+    1 draws as no boost does."""
+    from igi.worker import shading
+
+    r, end, vpls, cols = _scene_columns(name, 32, 24, 3)
+    sl = slice(5, len(end))
+    plain = shading._pair_rays(r.geom, end, sl, vpls, cols, -1)
+    pi, pj, w, row, pl, o, d, t, _inner = (a.copy() for a in plain)
+    guess, _lobes = _guesses(r, end, sl, cols, pi, pj, pl, row, 11)
+    boost = np.random.default_rng(4).uniform(1.0, 40.0, len(row)).astype(np.float32)
+    k = shadow_roulette(len(pi), pi, pj, w, pl, o, d, t, row, cols.lum, 0.5, 11, sl.start, guess, boost)
+    fused = shading._pair_rays(r.geom, end, sl, vpls, cols, -1, roulette=(0.5, 11), boost=boost)
+    unboosted = shading._pair_rays(r.geom, end, sl, vpls, cols, -1, roulette=(0.5, 11))
+    assert 0 < k < len(unboosted[0]) < len(plain[0])  # the boost dropped more: not vacuous
+    for a, b in zip((pi[:k], pj[:k], w[:k], row, pl[:k], o[:k], d[:k], t[:k]), fused):
+        np.testing.assert_array_equal(a, b)
+    ones = shading._pair_rays(r.geom, end, sl, vpls, cols, -1, roulette=(0.5, 11),
+                              boost=np.ones(len(row), np.float32))
+    for a, b in zip(ones, unboosted):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_pixels_end_points_share_one_roulette_unbiased_with_far_fewer_rays():
+    """A split surface gives a pixel several end points (grey-white-room's smooth plastics: the
+    diffuse layer, the lobe's light samples, the lobe ray's next surface), each gathering every
+    VPL. Weighed together (gather_vpls' ``pixel``), the faint ones are thinned against their
+    pixel's weight: far fewer shadow rays; each end point's light still unbiased over seeds, and
+    the light the pixels show (weighted by throughput × albedo) about as noisy; a pixel of one end
+    point draws as it did alone."""
+    from igi.common import bsdf
+
+    r = Renderer(load_shared("grey-white-room"))
+    end = eye_end_points(r, 24, 18, glossy_split_alpha=0.3)
+    assert np.bincount(end.pixel).max() >= 3  # several end points a pixel: not vacuous
+    vpls = _set(r, 1)
+    c2 = CLAMP * r.geom.diagonal ** 2
+    _, exact = gather_vpls(r.geom, end, vpls, c2, -1)
+    eye = end.throughput * bsdf.albedo(end.sp, end.wi)
+    rays, runs, seen = {}, {}, {}
+    for grouped in (False, True):
+        before = r.geom.counters["occluded_rays"]
+        runs[grouped] = np.array([gather_vpls(r.geom, end, vpls, c2, -1, shadow_roulette=1.0, seed=seed,
+                                              pixel=end.pixel if grouped else None)[1] for seed in range(300)])
+        rays[grouped] = (r.geom.counters["occluded_rays"] - before) / 300
+        seen[grouped] = (runs[grouped] * eye).sum(axis=(1, 2))  # the light toward the eye, all pixels
+    assert rays[True] < 0.8 * rays[False]
+    mean, se = runs[True].mean(axis=0), runs[True].std(axis=0) / np.sqrt(300)
+    z = np.abs(mean - exact) / np.maximum(se, 1e-12 * np.abs(exact).max())
+    assert np.mean(z > 4) < 0.005
+    want = (exact * eye).sum()
+    se_seen = {g: v.std() / np.sqrt(len(v)) for g, v in seen.items()}
+    assert abs(seen[True].mean() - want) < 4 * se_seen[True]
+    assert se_seen[True] < 1.5 * se_seen[False]
+    # one end point a pixel: the same draws as without pixels
+    alone = np.arange(len(end))
+    kw = dict(shadow_roulette=1.0, seed=5)
+    np.testing.assert_array_equal(gather_vpls(r.geom, end, vpls, c2, -1, pixel=alone, **kw)[1],
+                                  gather_vpls(r.geom, end, vpls, c2, -1, **kw)[1])
+
+
+def test_the_packet_gather_equals_the_pair_lists_with_a_pixels_shared_roulette():
+    """With a pixel's end points weighed together, gather_packets and the pair-list path draw
+    the same pairs: the same irradiance bit for bit and the same number of shadow rays."""
+    r = Renderer(load_shared("grey-white-room"))
+    if r.geom.packet_handle() is None:
+        pytest.skip("Embree's C API is not at hand: the gather has only the pair-list path")
+    end = eye_end_points(r, 24, 18, glossy_split_alpha=0.3)
+    vpls = _set(r, 2)
+    c2 = CLAMP * r.geom.diagonal ** 2
+    r.geom.counters["occluded_rays"] = 0
+    i1 = gather_vpls(r.geom, end, vpls, c2, -1, shadow_roulette=1.0, seed=3, pixel=end.pixel)[1]
+    r2 = Renderer(load_shared("grey-white-room"))
+    _pair_list_path(r2.geom)
+    i2 = gather_vpls(r2.geom, end, vpls, c2, -1, shadow_roulette=1.0, seed=3, pixel=end.pixel)[1]
+    assert i1.sum() > 0
+    np.testing.assert_array_equal(i1, i2)
+    assert r.geom.counters["occluded_rays"] == r2.geom.counters["occluded_rays"] > 0
+
+
 def test_glossy_rows_drawn_by_their_lobes_trace_fewer_rays_with_less_roulette_variance(monkeypatch):
     """The shadow roulette guesses a glossy row's pairs by the shape of its lobe
     (vpl_gather.lobe_rows, _lobe_guess), not flat: on modern-hall's rough plastics (GGX α 0.1,

@@ -231,6 +231,7 @@ def _coat_weight(v, cos_x, tables, g, inv_t):
 # (world, unit), its |cos θ| to the shading normal, then common.kernels.bsdf.lobe_shape's six.
 LOBE_FIELDS = 10
 NO_LOBES = np.zeros((0, LOBE_FIELDS), np.float32)  # no glossy row's lobe: the roulette's flat guesses
+NO_BOOST = np.zeros(0, np.float32)  # every row's roulette threshold its own mean (:func:`roulette_row`)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
@@ -323,17 +324,20 @@ _DEPTH_CAP = 1 << 30
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi,
            vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf,
-           area, direct_count, lum, fraction, seed, base, lobes, planes, col_out, sw, spl, so, sin, vx, vy, vz, wx,
-           wy, wz, vd, col_keys, block) -> None:
+           area, direct_count, lum, fraction, seed, base, lobes, boost, totals, planes, col_out, sw, spl, so, sin, vx,
+           vy, vz, wx, wy, wz, vd, col_keys, block) -> None:
     """Weigh the pairs of rows [b0, b0 + nb) (the arguments as :func:`pair_weights` takes
     them): sw[a, b] the weight of row b0 + b with column col_lo + a (_NO_RAY: no pair), spl the
     MIS light pdf of glossy-row pairs, so the row's offset shadow-ray origin, sin whether it
     lies on the inner side of the supporting ``planes`` (:func:`interior_origin`). Every row then
     goes through :func:`roulette_row` (``fraction`` > 0; ``col_keys``: the columns'
     :func:`column_key`), a glossy row's pairs weighed there by its ``lobes`` (:func:`lobe_rows`,
-    :func:`_lobe_guess`; no rows: a flat guess). vx … wz, vd: the columns' positions and
-    normals per coordinate and their depths as int32 (:func:`_columns_soa`; empty: every row weighed pair by pair), for
-    the Lambertian rows' branch-free loops; ``block``: :func:`_staging`'s scratch.
+    :func:`_lobe_guess`; no rows: a flat guess), its threshold raised by ``boost[i]`` (no rows:
+    1). ``fraction`` < 0: the pairs weighed as for a roulette (glossy rows by their lobes), none
+    drawn; ``totals`` (rows: n) gets each row's unshadowed Σ weight · lum of those weights.
+    vx … wz, vd: the columns' positions and normals per coordinate and their depths as int32
+    (:func:`_columns_soa`; empty: every row weighed pair by pair), for the Lambertian rows'
+    branch-free loops; ``block``: :func:`_staging`'s scratch.
 
     Where every row of the block takes the same columns (the gather's rows do), its Lambertian
     rows are weighed and thinned column by column, each column over the block's rows in SIMD
@@ -348,10 +352,13 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
     if uniform:
         _lambert_columns(b0, nb, x, ns, side, row, vmax, tables, row_tab, inv_tavg, max(col_lo[b0], 0),
                          col_hi[b0], directional, min_d2, cos_factor, vside, mis, light_pdf, area, dcount, lum,
-                         fraction, seed, base, lobes, sw, spl, vx, vy, vz, wx, wy, wz, vd, col_keys, block)
+                         fraction, seed, base, lobes, boost, totals, sw, spl, vx, vy, vz, wx, wy, wz, vd, col_keys,
+                         block)
     rb, rpl = block[13], block[14]  # (1, width): one row's weights and light pdfs
     sg = block[18]  # the glossy pairs' roulette guesses (as sw)
-    guess = fraction > 0.0 and lobes.shape[0] > 0
+    guess = fraction != 0.0 and lobes.shape[0] > 0
+    boosted = boost.shape[0] > 0
+    record = totals.shape[0] > 0
     for b in range(nb):
         i = b0 + b
         r = row[i]
@@ -436,8 +443,11 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
                             total += np.float64(v) * lum[j]
                             q += 1
             rb[0, a] = w
+        if record:
+            totals[i] = total
         if q > 0 and fraction > 0.0:
-            roulette_row(rb, 0, width, lo, q, total, lum, fraction, seed, base + i, col_keys)
+            roulette_row(rb, 0, width, lo, q, total, lum, fraction, seed, base + i, col_keys,
+                         boost[i] if boosted else 1.0)
         unguess = guess and r == ROW_GLOSSY
         for a in range(width):
             w = rb[0, a]
@@ -448,8 +458,8 @@ def _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, c
 # (a call of its own: numba inlines no call of more than 30 arguments; no reference counting, as _stage)
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def _lambert_columns(b0, nb, x, ns, side, row, vmax, tables, row_tab, inv_tavg, lo, hi, directional, min_d2,
-                     cos_factor, vside, mis, light_pdf, area, dcount, lum, fraction, seed, base, lobes, sw, spl, vx,
-                     vy, vz, wx, wy, wz, vd, col_keys, block) -> None:
+                     cos_factor, vside, mis, light_pdf, area, dcount, lum, fraction, seed, base, lobes, boost, totals,
+                     sw, spl, vx, vy, vz, wx, wy, wz, vd, col_keys, block) -> None:
     """:func:`_stage`'s rows of a block whose rows all take columns [lo, hi): each column over
     the block's rows (their x, ns, side, depth limit and kind copied out per coordinate,
     ``block``), so the compiler runs the rows in SIMD lanes with no per-row remainder loop — the
@@ -462,7 +472,7 @@ def _lambert_columns(b0, nb, x, ns, side, row, vmax, tables, row_tab, inv_tavg, 
     rx0, rx1, rx2, rn0, rn1, rn2, rs, rl, rk, tot, qq, tt, rkey = block[:13]
     cx, layers = block[15], block[16]  # a column's cos θ_x per row; the block's layer rows
     glossies, sg = block[17], block[18]  # the block's glossy rows (when guessed); their guesses
-    guess = fraction > 0.0 and lobes.shape[0] > 0
+    guess = fraction != 0.0 and lobes.shape[0] > 0
     zero = np.float32(0.0)
     inf32 = np.float32(np.inf)
     n_layers = 0
@@ -526,14 +536,22 @@ def _lambert_columns(b0, nb, x, ns, side, row, vmax, tables, row_tab, inv_tavg, 
             w = sw[a, b]
             tot[b] += np.float64(w) * lj if w >= 0.0 else 0.0
             qq[b] += w >= 0.0
+    for b in range(nb if totals.shape[0] > 0 else 0):
+        totals[b0 + b] = tot[b]
     if not fraction > 0.0:
+        for t in range(n_glossy):  # (weighed only: the guesses out again)
+            b = glossies[t]
+            for a in range(hi - lo):
+                w = sw[a, b]
+                if w >= 0.0:
+                    sw[a, b] = w / sg[a, b]
         return
     no_roulette = np.float32(-np.inf)  # (c < -inf never: the row's pairs stay as they are)
     for b in range(nb):
         tt[b] = no_roulette
         rkey[b] = np.uint32(0)
         if qq[b] > 0:
-            threshold = fraction * tot[b] / qq[b]
+            threshold = fraction * tot[b] * (boost[b0 + b] if boost.shape[0] > 0 else 1.0) / qq[b]
             if threshold > 0.0:
                 tt[b] = np.float32(threshold)
                 rkey[b] = row_key(seed, base + b0 + b)
@@ -606,20 +624,20 @@ def _weigh(b0, nb, weighed, staging) -> None:
     x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi = rows
     (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf, area,
      direct_count) = columns
-    lum, fraction, seed, base, lobes = roulette
+    lum, fraction, seed, base, lobes, boost, totals = roulette
     planes, col_out = cull
     sw, spl, so, sin, vx, vy, vz, wx, wy, wz, vd, col_keys, block = staging
     _stage(b0, nb, x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi, vpos, vnormal,
            directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis, light_pdf, area,
-           direct_count, lum, fraction, seed, base, lobes, planes, col_out, sw, spl, so, sin, vx, vy, vz, wx, wy, wz,
-           vd, col_keys, block)
+           direct_count, lum, fraction, seed, base, lobes, boost, totals, planes, col_out, sw, spl, so, sin, vx, vy,
+           vz, wx, wy, wz, vd, col_keys, block)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def pair_weights(x, ns, ng, off, side, row, vmax,
                  vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam,
                  vdepth, mis, light_pdf, area, direct_count, eps2,
-                 tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base, lobes, planes, col_out,
+                 tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base, lobes, boost, planes, col_out,
                  out_i, out_j, out_w, out_pl, out_o, out_d, out_t, out_in):
     """Fill the live pairs of rows x (n, 3) × VPL columns [col_lo[i], col_hi[i]), row by row
     (row-major); returns how many were written (the out arrays hold at least Σ (col_hi - col_lo)).
@@ -634,7 +652,8 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
     is the caller's, so their MIS weight is applied by the caller. ``fraction`` > 0: each row's
     pairs go through :func:`roulette_row` (``lum``, ``seed``, ``base``) once the row is
     weighed (0: every live pair is kept), glossy rows' pairs weighed by their ``lobes``
-    (float32 (n, LOBE_FIELDS), :func:`lobe_rows`; (0, LOBE_FIELDS): flat guesses). out_in:
+    (float32 (n, LOBE_FIELDS), :func:`lobe_rows`; (0, LOBE_FIELDS): flat guesses), each row's
+    threshold raised by ``boost`` (float32 (n,), worker.shading._pixel_boost; (0,): none). out_in:
     whether the pair's ray may skip the triangles of the supporting ``planes`` (its origin and
     column on their inner side: :func:`interior_origin`, :func:`interior_column`).
     """
@@ -643,7 +662,8 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
     sw, spl, so, sin = staging[0], staging[1], staging[2], staging[3]
     weighed = ((x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi),
                (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis,
-                light_pdf, area, direct_count), (lum, fraction, seed, base, lobes), (planes, col_out))
+                light_pdf, area, direct_count), (lum, fraction, seed, base, lobes, boost, np.zeros(0)),
+               (planes, col_out))
     k = 0
     for b0 in range(0, n, rows_per_block):
         nb = min(rows_per_block, n - b0)
@@ -669,11 +689,30 @@ def pair_weights(x, ns, ng, off, side, row, vmax,
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def row_totals(x, ns, ng, off, side, row, vmax, vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff,
+               spot_beam, vdepth, mis, light_pdf, area, direct_count, tables, row_tab, inv_tavg, col_lo, col_hi, lum,
+               lobes, out) -> None:
+    """out[i] (float64): row i's unshadowed Σ weight · lum[column] over its live pairs, weighed
+    as :func:`roulette_row` weighs them (a glossy row's pairs by its ``lobes``), the arguments as
+    :func:`pair_weights` takes them; no ray made, nothing drawn (worker.shading._pixel_boost)."""
+    n = x.shape[0]
+    m = vpos.shape[0]
+    rows_per_block, staging = _staging(n, col_lo, col_hi, vpos, vnormal, spot_cutoff, vdepth)
+    weighed = ((x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi),
+               (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis,
+                light_pdf, area, direct_count),
+               (lum, -1.0, np.int64(0), np.int64(0), lobes, np.zeros(0, np.float32), out),
+               (np.zeros((0, 4), np.float32), np.zeros(m + 1, np.int64)))
+    for b0 in range(0, n, rows_per_block):
+        _weigh(b0, min(rows_per_block, n - b0), weighed, staging)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
                    vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam,
                    vdepth, mis, light_pdf, area, direct_count, eps2,
-                   tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base, lobes, planes, col_out, color,
-                   out, factors):
+                   tables, row_tab, inv_tavg, col_lo, col_hi, lum, fraction, seed, base, lobes, boost, planes, col_out,
+                   color, out, factors):
     """Steps 1-3 of the module in one pass: :func:`pair_weights`' pairs go LANES at a time straight
     into an Embree packet (``scene``: the shadow BVH's RTCScene handle, see
     common.kernels.ray_packets; ``inner``: the BVH without the triangles of the supporting
@@ -692,7 +731,8 @@ def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
     sw, spl, so, sin = staging[0], staging[1], staging[2], staging[3]
     weighed = ((x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi),
                (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis,
-                light_pdf, area, direct_count), (lum, fraction, seed, base, lobes), (planes, col_out))
+                light_pdf, area, direct_count), (lum, fraction, seed, base, lobes, boost, np.zeros(0)),
+               (planes, col_out))
     # one LANES-ray packet per BVH, side by side: [0] the full scene's, [1] the inner one's
     packets = _two_packets()
     ray, lane_i, lane_j, lane_w, lane_pl, _valid = packets
@@ -930,7 +970,7 @@ def pair_uniform(seed, i, j):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def roulette_row(sw, b, width, lo, q, total, lum, fraction, seed, row_id, col_keys) -> None:
+def roulette_row(sw, b, width, lo, q, total, lum, fraction, seed, row_id, col_keys, boost=1.0) -> None:
     """Russian roulette on the shadow rays of one row's weighed pairs, in place: sw[b, a] the
     weight of its pair with column lo + a (_NO_RAY: none), ``q`` of them live, ``total`` =
     Σ weight · lum[column].
@@ -946,8 +986,10 @@ def roulette_row(sw, b, width, lo, q, total, lum, fraction, seed, row_id, col_ke
     the variance it adds than a flat guess). Pair (row, j) draws
     pair_uniform(seed, row_id, j) (``col_keys``: every column's :func:`column_key`). A row of no
     light (or of negative luminance) has no threshold: every pair is kept as it is. The draw,
-    c and the threshold are float32 (c < threshold and u · threshold >= c compared there)."""
-    threshold = fraction * total / q
+    c and the threshold are float32 (c < threshold and u · threshold >= c compared there).
+    ``boost`` (≥ 1) raises the threshold: a row that carries a small share of its pixel's light
+    is thinned against the pixel's light, not its own (worker.shading._pixel_boost)."""
+    threshold = fraction * total * boost / q
     if not threshold > 0.0:
         return
     # Branch-free and all 32-bit, so the compiler runs it in 8 SIMD lanes (half the weighing's

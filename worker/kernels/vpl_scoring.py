@@ -93,7 +93,9 @@ def scored_draws(x, ns, ng, off, side, row, vmax,
     # vpl_gather.pair_rays)
     weighed = ((x, ns, ng, off, side, row, vmax, tables, row_tab, inv_tavg, col_lo, col_hi),
                (vpos, vnormal, directional, min_d2, cos_factor, vside, spot_cutoff, spot_beam, vdepth, mis,
-                light_pdf, area, direct_count), (lum, 0.0, np.int64(0), np.int64(0), np.zeros((0, vg.LOBE_FIELDS), np.float32)),
+                light_pdf, area, direct_count),
+               (lum, 0.0, np.int64(0), np.int64(0), np.zeros((0, vg.LOBE_FIELDS), np.float32),
+                np.zeros(0, np.float32), np.zeros(0)),
                (np.zeros((0, 4), np.float32), np.zeros(m + 1, np.int64)))
     cr = np.empty(m)
     cg = np.empty(m)

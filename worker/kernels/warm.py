@@ -167,6 +167,7 @@ def _direct_calls() -> dict:
         "igi.worker.kernels.vpl_gather._stage": lambda: _stage_call(vpl_gather),
         "igi.worker.kernels.vpl_gather._lambert_columns": lambda: _lambert_columns_call(vpl_gather),
         "igi.worker.kernels.vpl_gather.pair_weights": lambda: _pair_weights_call(vpl_gather),
+        "igi.worker.kernels.vpl_gather.row_totals": lambda: _row_totals_call(vpl_gather),
         # one bounce alone: what chains of mirrors and glass the numpy loops still follow
         "igi.worker.kernels.specular_chain.delta_bounce": _delta_bounce_call,
         "igi.worker.kernels.photon_query._cell": lambda: photon_query._cell(0.5, 2.0),
@@ -224,9 +225,10 @@ def _stage_call(vpl_gather) -> None:
     a = _empty_args(vpl_scoring.scored_draws)
     staging = np.zeros((1, 0), np.float32)
     vpl_gather._stage(0, 0, *a[0:7], *a[20:25], *a[7:20], a[25], 0.0, 0, 0, vpl_gather.NO_LOBES,
-                      np.zeros((0, 4), np.float32), np.zeros(1, np.int64), staging, staging.copy(),
-                      np.zeros((1, 3), np.float32), np.zeros(1, np.bool_), *(np.zeros(0, np.float32) for _ in range(6)),
-                      np.zeros(0, np.int32), np.zeros(0, np.uint64), _stage_block(1, 0))
+                      np.zeros(0, np.float32), np.zeros(0), np.zeros((0, 4), np.float32), np.zeros(1, np.int64),
+                      staging, staging.copy(), np.zeros((1, 3), np.float32), np.zeros(1, np.bool_),
+                      *(np.zeros(0, np.float32) for _ in range(6)), np.zeros(0, np.int32), np.zeros(0, np.uint64),
+                      _stage_block(1, 0))
 
 
 def _lambert_columns_call(vpl_gather) -> None:
@@ -236,7 +238,8 @@ def _lambert_columns_call(vpl_gather) -> None:
     vpl_gather._lambert_columns(0, 0, np.zeros((0, 3), f32), np.zeros((0, 3), f32), v, np.zeros(0, np.int8),
                                 np.zeros(0, np.int64), np.ones((1, 2)), np.zeros(0, np.int64), np.zeros(0), 0, 0, b,
                                 v, b.copy(), v, b.copy(), v, b.copy(), f32(0.0),
-                                np.zeros(0), 0.0, 0, 0, vpl_gather.NO_LOBES, np.zeros((0, 1), f32),
+                                np.zeros(0), 0.0, 0, 0, vpl_gather.NO_LOBES, np.zeros(0, f32), np.zeros(0),
+                                np.zeros((0, 1), f32),
                                 np.zeros((0, 1), f32),
                                 *(np.zeros(0, f32) for _ in range(6)),
                                 np.zeros(0, np.int32), np.zeros(0, np.uint32), _stage_block(1, 0))
@@ -260,8 +263,16 @@ def _pair_weights_call(vpl_gather) -> None:
     i64, f32 = np.zeros(0, np.int64), np.zeros(0, np.float32)
     f32x3 = np.zeros((0, 3), np.float32)
     vpl_gather.pair_weights(*a[0:20], np.float32(0.0), *a[20:26], 0.0, 0, 0, vpl_gather.NO_LOBES,
-                            np.zeros((0, 4), np.float32), np.zeros(1, np.int64), i64, i64.copy(), f32, f32.copy(),
-                            f32x3, f32x3.copy(), f32.copy(), np.zeros(0, np.bool_))
+                            np.zeros(0, np.float32), np.zeros((0, 4), np.float32), np.zeros(1, np.int64), i64,
+                            i64.copy(), f32, f32.copy(), f32x3, f32x3.copy(), f32.copy(), np.zeros(0, np.bool_))
+
+
+def _row_totals_call(vpl_gather) -> None:
+    """vpl_gather.row_totals on empty inputs of the types shading._pixel_boost passes it."""
+    from igi.worker.kernels import vpl_scoring
+
+    a = _empty_args(vpl_scoring.scored_draws)
+    vpl_gather.row_totals(*a[0:20], *a[20:26], vpl_gather.NO_LOBES, np.zeros(0))
 
 
 def _bsdf_calls() -> dict:
