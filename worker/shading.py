@@ -494,7 +494,8 @@ def gather_vpls(geom: Geometry, end: EndPoints, vpls: VPLSet, clamp_d2: float,
     ``lobe_lights``: the emitter samples the direct-only end points take (:func:`lobe_light_count`;
     0: all of the set's; trace_eye's LightMIS must name the same count). ``pixel`` (E,): the
     pixel each end point lights (-1: none of those given): the shadow roulette weighs a pixel's
-    end points together (:func:`_pixel_boost`).
+    end points together (:func:`_pixel_boost`) — within each of the two gathers when the
+    direct-only points take fewer emitter samples than the set has (then a lobe's point is alone).
     """
     e = len(end)
     if 0 < lobe_lights < vpls.direct_count and end.direct_only is not None and end.direct_only.any():

@@ -977,7 +977,7 @@ def roulette_row(sw, b, width, lo, q, total, lum, fraction, seed, row_id, col_ke
 
     A pair whose unshadowed contribution c = w · lum[j] is below ``fraction`` of the row's mean
     keeps its shadow ray with probability p = c / (fraction · mean) and then counts 1/p
-    (unbiased; the added variance per end point is at most fraction · mean · Σc); a dropped pair
+    (unbiased; the added variance per end point is at most fraction · boost · mean · Σc); a dropped pair
     becomes _NO_RAY. A glossy column's lum[j] is a guess (a Lambertian sender of its albedo), and
     so is a glossy row's w (its emitter factor times its lobe's :func:`_lobe_guess`, divided out
     after the draws: the receiver's BSDF is applied after the ray): their true light, applied
