@@ -15,12 +15,13 @@ import re
 SHOWN = 3  # messages of one kind written in full before the rest are only counted
 
 _NUMBER = re.compile(r"\d+")
+_INSTANCE = re.compile(r"\b(id|name)='[^']*'")  # an element's own name, not its type
 
 
 def kind_of(msg: str) -> str:
     """The message's kind: its text after the first ``": "`` (what a mesh or file name and line
-    lead), numbers as ``#``."""
-    return _NUMBER.sub("#", msg.split(": ", 1)[-1])
+    lead), numbers as ``#`` and elements' ids and names as ``*``."""
+    return _NUMBER.sub("#", _INSTANCE.sub(r"\1='*'", msg.split(": ", 1)[-1]))
 
 
 class SceneWarnings(list):

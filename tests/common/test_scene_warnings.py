@@ -16,6 +16,10 @@ def test_per_mesh_messages_are_one_kind_and_other_messages_are_not():
     b = kind_of("scene.obj (floor lamp): removed 18 degenerate (zero-area) triangle(s)")
     assert a == b
     assert kind_of("Mesh709: dropped 2 triangle(s) with non-finite (NaN/Inf) vertex data") != a
+    # empty shapes with their own ids are one kind; shapes of another type are another
+    empty = [kind_of(f"<shape type='obj' id='{i}'> has no triangles at s.xml:{n}, skipped")
+             for i, n in (("lamp_shade", 12), ("Mesh7", 40))]
+    assert empty[0] == empty[1] != kind_of("<shape type='ply' id='x'> has no triangles at s.xml:3, skipped")
 
 
 def test_a_scene_of_many_flawed_meshes_logs_a_few_lines_and_keeps_every_warning(tmp_path, caplog):

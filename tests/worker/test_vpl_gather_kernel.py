@@ -312,9 +312,15 @@ def test_a_pixels_end_points_share_one_roulette_unbiased_with_far_fewer_rays():
                                   gather_vpls(r.geom, end, vpls, c2, -1, **kw)[1])
 
 
-def test_the_packet_gather_equals_the_pair_lists_with_a_pixels_shared_roulette():
+@pytest.mark.parametrize("chunk", [None, 997])
+def test_the_packet_gather_equals_the_pair_lists_with_a_pixels_shared_roulette(chunk, monkeypatch):
     """With a pixel's end points weighed together, gather_packets and the pair-list path draw
-    the same pairs: the same irradiance bit for bit and the same number of shadow rays."""
+    the same pairs: the same irradiance bit for bit and the same number of shadow rays — also
+    where the pair lists come in many chunks, each taking its rows' boosts."""
+    from igi.worker import shading
+
+    if chunk is not None:
+        monkeypatch.setattr(shading, "PAIR_CHUNK", chunk)
     r = Renderer(load_shared("grey-white-room"))
     if r.geom.packet_handle() is None:
         pytest.skip("Embree's C API is not at hand: the gather has only the pair-list path")
