@@ -538,30 +538,23 @@ def _lambert_columns(b0, nb, x, ns, side, row, vmax, tables, row_tab, inv_tavg, 
             qq[b] += w >= 0.0
     for b in range(nb if totals.shape[0] > 0 else 0):
         totals[b0 + b] = tot[b]
-    if not fraction > 0.0:
-        for t in range(n_glossy):  # (weighed only: the guesses out again)
-            b = glossies[t]
-            for a in range(hi - lo):
-                w = sw[a, b]
-                if w >= 0.0:
-                    sw[a, b] = w / sg[a, b]
-        return
-    no_roulette = np.float32(-np.inf)  # (c < -inf never: the row's pairs stay as they are)
-    for b in range(nb):
-        tt[b] = no_roulette
-        rkey[b] = np.uint32(0)
-        if qq[b] > 0:
-            threshold = fraction * tot[b] * (boost[b0 + b] if boost.shape[0] > 0 else 1.0) / qq[b]
-            if threshold > 0.0:
-                tt[b] = np.float32(threshold)
-                rkey[b] = row_key(seed, base + b0 + b)
-    for a in range(hi - lo):
-        j = lo + a
-        lj32 = np.float32(lum[j])
-        ck = col_keys[j]
+    if fraction > 0.0:  # (< 0: weighed only, nothing drawn)
+        no_roulette = np.float32(-np.inf)  # (c < -inf never: the row's pairs stay as they are)
         for b in range(nb):
-            sw[a, b] = _roulette_pair(sw[a, b], lj32, rkey[b], ck, tt[b])
-    for t in range(n_glossy):  # the guesses out of the kept pairs' weights
+            tt[b] = no_roulette
+            rkey[b] = np.uint32(0)
+            if qq[b] > 0:
+                threshold = fraction * tot[b] * (boost[b0 + b] if boost.shape[0] > 0 else 1.0) / qq[b]
+                if threshold > 0.0:
+                    tt[b] = np.float32(threshold)
+                    rkey[b] = row_key(seed, base + b0 + b)
+        for a in range(hi - lo):
+            j = lo + a
+            lj32 = np.float32(lum[j])
+            ck = col_keys[j]
+            for b in range(nb):
+                sw[a, b] = _roulette_pair(sw[a, b], lj32, rkey[b], ck, tt[b])
+    for t in range(n_glossy):  # the guesses out of the kept pairs' weights (none unless guessed)
         b = glossies[t]
         for a in range(hi - lo):
             w = sw[a, b]
