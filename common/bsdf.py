@@ -352,9 +352,29 @@ def texture_atlas(materials: list) -> tuple:
 
 def split_smooth(kind: np.ndarray, alpha: np.ndarray, glossy_split_alpha: float) -> np.ndarray:
     """(N,) bool: the points split at their hit per BSDF component (paper §4): rough conductors
-    and plastics smoother than ``glossy_split_alpha`` (0: none). Defined once for the eye paths,
-    their kernels' material tables and the filter's choice of end points."""
-    return kind_in(kind, (ROUGHCONDUCTOR, ROUGHPLASTIC)) & (alpha < glossy_split_alpha) & (glossy_split_alpha > 0)
+    and plastics smoother than ``glossy_split_alpha``, and every smooth plastic (its coat a
+    mirror: no VPL can light it, so unsplit it would reflect nothing but emitters, and that
+    through the filter); none where ``glossy_split_alpha`` is 0. Defined once for the eye
+    paths, their kernels' material tables and the filter's choice of end points."""
+    rough = kind_in(kind, (ROUGHCONDUCTOR, ROUGHPLASTIC)) & (alpha < glossy_split_alpha)
+    return (rough | (kind == PLASTIC)) & (glossy_split_alpha > 0)
+
+
+def split_layer(sp: SurfacePoints, layer: np.ndarray) -> SurfacePoints:
+    """``sp`` with the split plastics among the points ``layer`` (bool) reduced to their diffuse
+    layer, the end point of a split (the lobe goes on as a ray): a rough plastic relabelled
+    ROUGHPLASTIC_DIFFUSE, a smooth one with its coat's reflection taken out (specular colour and
+    sampling weight 0: its diffuse term, which holds the coat's transmission, is unchanged, and
+    it never samples the mirror)."""
+    rough = layer & (sp.kind == ROUGHPLASTIC)
+    smooth = layer & (sp.kind == PLASTIC)
+    changes = {}
+    if rough.any():
+        changes["kind"] = np.where(rough, ROUGHPLASTIC_DIFFUSE, sp.kind).astype(sp.kind.dtype)
+    if smooth.any():
+        changes["specular"] = np.where(smooth[:, None], 0.0, sp.specular)
+        changes["spec_weight"] = np.where(smooth, 0.0, sp.sampling_weight())
+    return sp.replaced(**changes) if changes else sp
 
 
 def chain_materials(materials: list, glossy_split_alpha: float = 0.0) -> tuple | None:
@@ -555,9 +575,10 @@ def directional_albedo(sp: SurfacePoints, wi: np.ndarray, samples: int = 256) ->
 
 
 def sample_lobe(sp: SurfacePoints, wi: np.ndarray, u2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Sample only the glossy lobe of rough conductors and rough plastics (the paper's split of
-    an eye path per BSDF component): ``(wo (N, 3), weight (N, 3))`` with weight = lobe value ×
-    cos / lobe pdf; the diffuse layer of a plastic is left to ROUGHPLASTIC_DIFFUSE. Other kinds
+    """Sample only the glossy lobe of rough conductors and plastics (the paper's split of an
+    eye path per BSDF component): ``(wo (N, 3), weight (N, 3))`` with weight = lobe value ×
+    cos / lobe pdf, for a smooth plastic its coat's mirror direction and weight F × specular (a
+    delta: no pdf); the diffuse layer of a plastic is left to :func:`split_layer`. Other kinds
     give weight 0."""
     dt = _dtype(wi)
     n = len(sp)

@@ -24,8 +24,8 @@ from igi.common.geometry import Geometry
 from igi.common.microfacet import lerp_gather
 from igi.common.lights import (VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE, LightSampler, luminance,
                                rays_meet_spheres, to_local, to_world)
-from igi.common.scene import (DIFFUSE, NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE, ROUGHPLASTIC_LOBE,
-                              SPECULAR_KINDS, Scene, kind_in)
+from igi.common.scene import (DIFFUSE, NULL, PLASTIC, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE,
+                              ROUGHPLASTIC_LOBE, SPECULAR_KINDS, Scene, kind_in)
 
 from .kernels import bsdf_direct as kbd
 from .kernels import bsdf_rays as br
@@ -181,10 +181,11 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
     if len(lobe):
         # The glossy lobe: one sampled ray, its radiance unfiltered (the pixel's main end
         # point, if any, is the plastic's diffuse layer).
-        wo, weight, pdf, lobe_end = _sample_lobe(lobe_sp, wi[lobe], rng, light_mis)
+        wo, weight, pdf, lit, lobe_end = _sample_lobe(lobe_sp, wi[lobe], rng, light_mis)
         if lobe_end is not None:
-            ends.append(_lobe_light_points(idx[lobe], pos[lobe], ns[lobe], ng[lobe], wi[lobe], lobe_end,
-                                           np.ones((len(lobe), 3)), 1, t_hit[lobe]))
+            lr = lobe[lit]
+            ends.append(_lobe_light_points(idx[lr], pos[lr], ns[lr], ng[lr], wi[lr], lobe_end,
+                                           np.ones((len(lr), 3)), 1, t_hit[lr]))
         sel = np.nonzero(np.any(weight > 0, axis=1))[0]
         branch(lobe[sel], wo[sel], weight[sel], np.zeros(len(sel), bool), pdf[sel])
     if len(di) and specular_depth > 0 and _allowed(2, max_depth):
@@ -264,24 +265,29 @@ def _compiled_eye(scene, geom, lights, origins, dirs, max_depth, specular_depth,
     sp = bsdf.gather(scene.materials, mat, uv)
     direct_only = None
     if code.any():  # split smooth glossy hits: plastics' diffuse layers, the lobes' light-sample points
-        rp = sp.kind == ROUGHPLASTIC
-        sp = sp.replaced(kind=np.where(rp & (code == ek.LAYER), ROUGHPLASTIC_DIFFUSE,
-                                       np.where(rp & (code == ek.LOBE_LIGHTS), ROUGHPLASTIC_LOBE, sp.kind)
-                                       ).astype(sp.kind.dtype))
         lobe_lights = code == ek.LOBE_LIGHTS
+        sp = bsdf.split_layer(sp, code == ek.LAYER)
+        rp = lobe_lights & (sp.kind == ROUGHPLASTIC)
+        if rp.any():
+            sp = sp.replaced(kind=np.where(rp, ROUGHPLASTIC_LOBE, sp.kind).astype(sp.kind.dtype))
         direct_only = lobe_lights if lobe_lights.any() else None
     end = EndPoints(pix, pos, ns, ng, wi, sp, thr, seg, main, dist, direct_only)
     return EyeResult(end, unf, depth, normal)
 
 
 def _sample_lobe(lobe_sp, wi, rng, light_mis):
-    """One sampled ray of each smooth lobe: ``(wo, weight, pdf for MIS (0: none), the lobe's
-    direct-only end-point BSDFs or None)``."""
+    """One sampled ray of each smooth lobe: ``(wo, weight, pdf for MIS (0: none), the rows that
+    take the set's emitter samples, their lobes' direct-only end-point BSDFs)``, the last None
+    where none do. A smooth plastic's coat is a mirror: no MIS, no light samples."""
     wo, weight = bsdf.sample_lobe(lobe_sp, wi, rng.random((len(wi), 2)))
     if light_mis is None or light_mis.direct_count <= 0:
-        return wo, weight, np.zeros(len(wi)), None
+        return wo, weight, np.zeros(len(wi)), None, None
     lobe_end = bsdf.lobe_only(lobe_sp)
-    return wo, weight, bsdf.pdf(lobe_end, wi, wo), lobe_end
+    pdf = bsdf.pdf(lobe_end, wi, wo)
+    mirror = lobe_sp.kind == PLASTIC
+    pdf[mirror] = 0.0
+    lit = np.flatnonzero(~mirror)
+    return wo, weight, pdf, lit, (lobe_end.subset(lit) if len(lit) else None)
 
 
 def _lobe_light_points(pix, pos, ns, ng, wi, lobe_end, thr, segments: int, dist) -> EndPoints:
@@ -377,10 +383,11 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis
                                                      hits.material, hits.uv, -1, rng, delta_only=False)
         if len(lobe):
             lobe_main = main[lobe] & ~nd_mask[lobe]  # a plastic's layer keeps the pixel's main end point
-            wo_l, weight_l, pdf_l, lobe_end = _sample_lobe(lobe_sp, wi[lobe], rng, light_mis)
+            wo_l, weight_l, pdf_l, lit, lobe_end = _sample_lobe(lobe_sp, wi[lobe], rng, light_mis)
             if lobe_end is not None:
-                out.append(_lobe_light_points(pix[lobe], hpos[lobe], hns[lobe], hng[lobe], wi[lobe], lobe_end,
-                                              thr[lobe], seg, dist[lobe]))
+                lr = lobe[lit]
+                out.append(_lobe_light_points(pix[lr], hpos[lr], hns[lr], hng[lr], wi[lr], lobe_end,
+                                              thr[lr], seg, dist[lr]))
             kl = np.flatnonzero(bsdf.carrying(weight_l))
             src_l = lobe[kl]
             dirs_l = to_world(wo_l[kl], hns[src_l])
@@ -422,8 +429,9 @@ def delta_bounce(materials: list, geom: Geometry, src: np.ndarray, pos: np.ndarr
 
 def _split_smooth(sp, nd_mask: np.ndarray, alpha: float):
     """The per-component split of smooth glossy hits (bsdf.split_smooth: rough conductors and
-    plastics smoother than ``alpha``): ``(sp with the plastics relabelled ROUGHPLASTIC_DIFFUSE, lobe rows,
-    their whole BSDFs for sampling the lobe, end-point mask without the conductors)``."""
+    plastics smoother than ``alpha``, smooth plastics): ``(sp with the plastics reduced to their
+    diffuse layer (bsdf.split_layer), lobe rows, their whole BSDFs for sampling the lobe, end-point
+    mask without the conductors)``."""
     none = np.zeros(0, np.int64)
     if alpha <= 0:
         return sp, none, None, nd_mask
@@ -432,9 +440,7 @@ def _split_smooth(sp, nd_mask: np.ndarray, alpha: float):
         return sp, none, None, nd_mask
     lobe = np.nonzero(smooth)[0]
     lobe_sp = sp.subset(lobe)  # the whole BSDF, for sampling the lobe
-    kind = sp.kind.copy()
-    kind[lobe[kind[lobe] == ROUGHPLASTIC]] = ROUGHPLASTIC_DIFFUSE
-    return sp.replaced(kind=kind), lobe, lobe_sp, nd_mask & ~(smooth & (kind == ROUGHCONDUCTOR))
+    return bsdf.split_layer(sp, smooth), lobe, lobe_sp, nd_mask & ~(smooth & (sp.kind == ROUGHCONDUCTOR))
 
 
 def _end_points_empty() -> EndPoints:

@@ -691,7 +691,8 @@ def sample(P, i: int, wix: float, wiy: float, wiz: float, u1: float, u2a: float,
 @njit(**_KERNEL, inline="always")
 def sample_lobe(P, i: int, wix: float, wiy: float, wiz: float, u2a: float, u2b: float) -> tuple:
     """``(wox, woy, woz, wr, wg, wb)``: a direction from the glossy lobe alone of a rough
-    conductor or rough plastic, weight = lobe value × cos / lobe pdf; other kinds weight 0."""
+    conductor or rough plastic, weight = lobe value × cos / lobe pdf; of a smooth plastic its
+    coat's mirror reflection, weight F × specular (a delta); other kinds weight 0."""
     flip = _flipped(P, i, wiz)
     if flip:
         wiz = -wiz
@@ -701,6 +702,10 @@ def sample_lobe(P, i: int, wix: float, wiy: float, wiz: float, u2a: float, u2b: 
         wox, woy, woz, wr, wg, wb, _p = _sample_rough_conductor(P, i, wix, wiy, wiz, u2a, u2b)
     elif k == ROUGHPLASTIC or k == ROUGHPLASTIC_LOBE:
         wox, woy, woz, wr, wg, wb, _p = _sample_coat_lobe(P, i, wix, wiy, wiz, u2a, u2b)
+    elif k == PLASTIC and wiz > 0.0:
+        f = fresnel_dielectric(wiz, P[5][i])[0]
+        s = P[2]
+        wox, woy, woz, wr, wg, wb = -wix, -wiy, wiz, f * s[i, 0], f * s[i, 1], f * s[i, 2]
     if flip:
         woz = -woz
     return wox, woy, woz, _fin(wr), _fin(wg), _fin(wb)

@@ -488,10 +488,10 @@ def sample(sp: SurfacePoints, wi: np.ndarray, u1: np.ndarray, u2: np.ndarray, mo
 
 
 def sample_lobe(sp: SurfacePoints, wi: np.ndarray, u2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Sample only the glossy lobe of rough conductors and rough plastics (the paper's split of
-    an eye path per BSDF component): ``(wo (N, 3), weight (N, 3))`` with weight = lobe value ×
-    cos / lobe pdf; the diffuse layer of a plastic is left to ROUGHPLASTIC_DIFFUSE. Other kinds
-    give weight 0."""
+    """Sample only the glossy lobe of rough conductors and plastics (the paper's split of an
+    eye path per BSDF component): ``(wo (N, 3), weight (N, 3))`` with weight = lobe value ×
+    cos / lobe pdf, a smooth plastic's the coat's mirror reflection with weight F × specular;
+    the diffuse layer of a plastic is left to ROUGHPLASTIC_DIFFUSE. Other kinds give weight 0."""
     dt = _dtype(wi)
     wi = np.asarray(wi, dt)
     u2 = np.asarray(u2, dt).reshape(-1, 2)
@@ -517,6 +517,11 @@ def sample_lobe(sp: SurfacePoints, wi: np.ndarray, u2: np.ndarray) -> tuple[np.n
             ok &= o[:, 2] > 0
             wo[sel] = o
             weight[sel] = np.where(ok[:, None], _finite(sub.specular * (F * g1o)[:, None]), 0.0)
+        elif k == PLASTIC:
+            ok = w[:, 2] > 0
+            F = fresnel_dielectric(np.where(ok, w[:, 2], 1.0), sub.eta)[0]
+            wo[sel] = np.where(ok[:, None], w * np.array([-1.0, -1.0, 1.0]), wo[sel])
+            weight[sel] = np.where(ok[:, None], sub.specular * F[:, None], 0.0)
     return _flipz(wo, flip), _finite(weight)
 
 

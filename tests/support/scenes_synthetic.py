@@ -54,6 +54,36 @@ def furnace_box(albedo: float, radiance: float, width=32, height=32) -> Scene:
     return Scene(meshes, mats, emitters, cam, source="furnace")
 
 
+def plastic_tile_in_furnace(albedo: float, radiance: float, diffuse: float = 0.0, width=24, height=24,
+                            mirror_side: bool = False) -> Scene:
+    """:func:`furnace_box` with a smooth plastic tile (``diffuse`` reflectance, specular 1, η
+    1.5046) hanging in it: a 0.8 square centred at (1, 1, 0.8), its normal (0, sin 40°, cos 40°)
+    tilted from the camera's axis, so the camera sees it at a range of angles and its coat
+    mirrors the emitting, reflecting walls (radiance Le / (1 - albedo) with unlimited paths, up
+    to the tile's small shadow on them). Material 1 is the tile's, mesh 6 the tile.
+    ``mirror_side``: the wall x = 0 (mesh 2) a dark mirror instead (a conductor, material 2) and
+    the camera's field of view 140°: it sees the tile also in the mirror (chains meet plastic)."""
+    from igi.common.scene import CONDUCTOR, PLASTIC
+
+    scene = furnace_box(albedo, radiance, width, height)
+    scene.materials.append(Material("tile", PLASTIC, diffuse=Texture.constant(diffuse)))
+    if mirror_side:
+        scene.materials.append(Material("mirror", CONDUCTOR, specular=Texture.constant(0.8)))
+        scene.meshes[2].material, scene.meshes[2].emitter = 2, -1
+        del scene.emitters[2]
+        for m in scene.meshes[3:6]:
+            m.emitter -= 1
+        scene.camera.fov = 140.0
+    a = np.radians(40.0)
+    u = np.array([0.8, 0.0, 0.0])
+    v = 0.8 * np.array([0.0, np.cos(a), -np.sin(a)])
+    tv, tf = quad(np.array([1.0, 1.0, 0.8]) - (u + v) / 2, u, v)
+    if np.dot(np.cross(tv[1] - tv[0], tv[2] - tv[0]), [0.0, np.sin(a), np.cos(a)]) < 0:
+        tf = tf[:, ::-1].copy()
+    scene.meshes.append(Mesh("tile", tv, tf, 1))
+    return scene
+
+
 def two_rooms(width=32, height=24) -> Scene:
     """Two diffuse rooms side by side ([0,2] and [2,4] along x, 2 high and deep) joined by a
     narrow door in the wall x = 2; the only light is a ceiling quad in the left room and the

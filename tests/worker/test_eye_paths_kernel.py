@@ -11,16 +11,16 @@ from igi.common.geometry import Geometry
 
 
 def _eye(monkeypatch, compiled: bool, max_depth: int, sky: bool, name: str = "cornell-box-sphere",
-         light_mis=None):
+         light_mis=None, scene=None):
     """worker.shading.trace_eye through ``name`` (96×72; cornell-box-sphere: the light seen in
     the glass ball): its result and the next draw of its generator, traced by
     kernels.eye_paths.trace_eye — first hits, then the chains by specular_chain.eye_chains —
-    (``compiled``) or by the numpy form."""
+    (``compiled``) or by the numpy form; ``scene`` instead of ``name``'s."""
     from igi.common.camera import camera_rays, resolve_camera
     from igi.common.lights import LightSampler
     from igi.worker.shading import trace_eye
 
-    scene = load_shared(name)
+    scene = load_shared(name) if scene is None else scene
     geom = Geometry(scene)
     lights = LightSampler(scene, geom)
     if not compiled:
@@ -97,6 +97,28 @@ def test_split_smooth_glossy_hits_equal_the_numpy_eye_paths(monkeypatch, name, l
     assert (end.direct_only is not None) == (light_samples > 0)
     if light_samples:
         assert end.direct_only.sum() > 100  # the glossy surfaces' lobes took light samples
+
+
+@pytest.mark.parametrize("light_samples", [0, 4])
+def test_smooth_plastics_split_into_layer_and_mirror_ray_equal_the_numpy_eye_paths(monkeypatch, light_samples):
+    """A smooth plastic tile, seen directly and in a mirror beside it:
+    its layer an end point, its coat one mirror ray (no MIS, no light-sample points) — at the
+    first hit and along chains, the compiled eye paths equal the numpy form."""
+    from igi.common.scene import PLASTIC
+    from igi.worker.shading import LightMIS
+    from tests.support.scenes_synthetic import plastic_tile_in_furnace
+
+    scene = plastic_tile_in_furnace(0.5, 1.0, diffuse=0.3, width=96, height=72, mirror_side=True)
+    mis = LightMIS(light_samples) if light_samples else None
+    got = _eye(monkeypatch, True, -1, False, light_mis=mis, scene=scene)
+    monkeypatch.undo()
+    want = _eye(monkeypatch, False, -1, False, light_mis=mis, scene=scene)
+    _same_eye(got, want)
+    end = got[0].end
+    layers = end.sp.kind == PLASTIC
+    assert np.any(layers & (end.segments == 1)) and np.any(layers & (end.segments == 2))  # direct and mirrored
+    np.testing.assert_array_equal(end.sp.specular[layers], 0.0)
+    assert end.direct_only is None  # a mirror takes no light samples
 
 
 def test_a_kernel_out_of_room_hands_the_tile_to_the_numpy_form_with_its_draws_untouched(monkeypatch):

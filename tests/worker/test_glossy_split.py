@@ -108,3 +108,74 @@ def test_a_lobe_taking_fewer_emitter_samples_estimates_the_same_image_with_fewer
     means = {s: f.mean(axis=(0, 3))[lit].mean() for s, f in frames.items()}
     se = np.sqrt(sum(f.mean(axis=-1)[:, lit].mean(axis=1).var() / len(f) for f in frames.values()))
     assert abs(means[4] - means[0]) < 4 * se + 0.01 * means[0], (means, se)
+
+
+def _tile_pixels_and_fresnel(scene):
+    """Pixels whose centre and four neighbours' centres see the furnace's plastic tile (mesh 6),
+    and the coat's Fresnel reflectance along each centre's eye ray."""
+    from igi.common.fresnel import fresnel_dielectric
+
+    cam, tile = scene.camera, scene.meshes[6]
+    w, h = cam.width, cam.height
+    ys, xs = np.mgrid[0:h, 0:w]
+    o, d = camera_rays(cam.to_world, cam.fov_x, w, h, xs.ravel(), ys.ravel())
+    v = tile.vertices
+    n = np.cross(v[1] - v[0], v[2] - v[0])
+    n /= np.linalg.norm(n)
+    t = ((v[0] - o) @ n) / (d @ n)
+    p = o + t[:, None] * d - v[0]
+    e1, e2 = v[1] - v[0], v[3] - v[0]
+    a, b = p @ e1 / (e1 @ e1), p @ e2 / (e2 @ e2)
+    hit = ((a > 0) & (a < 1) & (b > 0) & (b < 1)).reshape(h, w)
+    inner = hit.copy()
+    inner[1:-1, 1:-1] &= hit[:-2, 1:-1] & hit[2:, 1:-1] & hit[1:-1, :-2] & hit[1:-1, 2:]
+    inner[[0, -1], :] = inner[:, [0, -1]] = False
+    f = fresnel_dielectric(-(d @ n), scene.materials[1].int_ior / scene.materials[1].ext_ior)[0]
+    return inner, f.reshape(h, w)
+
+
+def test_a_smooth_plastics_coat_mirrors_the_light_of_lit_surfaces_not_only_of_emitters():
+    # A black-bodied smooth plastic tile in a furnace whose walls emit Le and reflect half:
+    # every wall shines Le / (1 - 1/2) = 2 Le, so the tile shows F(θ) × 2 Le — its coat's mirror
+    # image of the walls. Left whole, the tile's end point could only see the walls' emission
+    # through its BSDF rays (F × Le: half), and that through the filter.
+    from igi.master.inprocess import render_local
+    from tests.support.scenes_synthetic import plastic_tile_in_furnace
+
+    scene = plastic_tile_in_furnace(0.5, 1.0)
+    img = render_local(scene, {"photons": 0}, 12).astype(np.float64).mean(axis=-1)
+    inner, fresnel = _tile_pixels_and_fresnel(scene)
+    assert inner.sum() > 60
+    walls = np.median(img[~inner & (img > 1.0)])
+    assert abs(walls - 2.0) < 0.15, walls  # the furnace's own answer, up to the tile's shadow
+    ratio = img[inner] / (fresnel[inner] * walls)
+    assert abs(np.median(ratio) - 1.0) < 0.08, np.median(ratio)
+    assert np.all(np.abs(ratio - 1.0) < 0.3), (ratio.min(), ratio.max())
+
+
+def test_a_smooth_plastic_splits_into_its_diffuse_layer_and_its_coats_mirror_ray():
+    from igi.common.scene import PLASTIC
+    from tests.support.scenes_synthetic import plastic_tile_in_furnace
+
+    scene = plastic_tile_in_furnace(0.5, 1.0, diffuse=0.6)
+    r = Renderer(scene)
+    inner, _f = _tile_pixels_and_fresnel(scene)
+    tile_pixels = np.flatnonzero(inner.ravel())
+    for alpha in (0.3, 0.0):
+        end = _eye(r, alpha, scene.camera.width, scene.camera.height).end
+        on_tile = np.isin(end.pixel, tile_pixels)
+        first = on_tile & (end.segments == 1)
+        assert set(end.pixel[first]) == set(tile_pixels)
+        assert np.all(end.sp.kind[first] == PLASTIC) and np.all(end.main[first])
+        if alpha > 0:
+            # the layer: no coat (it never samples the mirror); the mirror's hits on the walls:
+            # one more end point per tile pixel, not the pixel's main one, no light-sample points
+            np.testing.assert_array_equal(end.sp.specular[first], 0.0)
+            np.testing.assert_array_equal(end.sp.sampling_weight()[first], 0.0)
+            mirrored = on_tile & (end.segments == 2)
+            assert sorted(end.pixel[mirrored]) == sorted(tile_pixels)
+            assert not np.any(end.main[mirrored])
+            np.testing.assert_array_equal(end.sp.kind[mirrored], 0)  # DIFFUSE walls
+            assert end.direct_only is None or not np.any(end.direct_only[on_tile])
+        else:  # not split: the whole plastic, its coat included
+            assert np.all(end.sp.specular[first] > 0) and not np.any(on_tile & (end.segments > 1))

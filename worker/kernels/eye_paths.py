@@ -19,7 +19,7 @@ from igi.common.kernels import shading_frame
 from igi.common.kernels.hit_surface import offset_point
 from igi.common.kernels.ray_packets import closest_surfaces, hit_buffers
 from igi.common.lights import LUMINANCE_WEIGHTS
-from igi.common.scene import ROUGHCONDUCTOR
+from igi.common.scene import PLASTIC, ROUGHCONDUCTOR
 
 from .environment_bins import guide_pdf
 from .specular_chain import delta_bounce
@@ -66,10 +66,14 @@ def _carries_any(w0, w1, w2) -> bool:
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _sample_lobes(P, P_lobe, with_pdf, row, wi, u, out_wo, out_w, out_pdf) -> None:
     """Each point's sampled lobe ray (kb.sample_lobe) and, ``with_pdf``, its lobe pdf under
-    ``P_lobe`` (the MIS weight against the light samples); ``out_pdf`` stays as given otherwise."""
+    ``P_lobe`` (the MIS weight against the light samples; 0 for a smooth plastic's mirror, a
+    delta no light sample can take); ``out_pdf`` stays as given otherwise."""
     kb.sample_lobe_many(P, row, wi, u, out_wo, out_w)
     if with_pdf:
         kb.eval_many(P_lobe, row, wi, out_wo, np.empty_like(out_wo), out_pdf)
+        for q in range(row.shape[0]):
+            if P[0][row[q]] == PLASTIC:
+                out_pdf[q] = 0.0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -163,6 +167,8 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
         if direct_count > 0:
             for q in range(n_lobe):
                 i = lobe[q]
+                if kind[prow[i]] == PLASTIC:  # a mirror takes no light samples
+                    continue
                 if done >= room:
                     return -1, p
                 _put_end(ends, done, i, i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv, 1.0, 1.0,
@@ -376,7 +382,7 @@ def _chains(P, kind, specular, null_kind, rng, closest, rays, live, specular_dep
             for q in range(n_lobe):
                 i = lobe[q]
                 w0, w1, w2 = l_w[q, 0], l_w[q, 1], l_w[q, 2]
-                if direct_count > 0:
+                if direct_count > 0 and kind[prow[i]] != PLASTIC:  # (a mirror takes no light samples)
                     if done >= room:
                         return -1, traced
                     _put_end(ends, done, pix[i], i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv,
