@@ -9,6 +9,7 @@ import numpy as np
 
 from . import transform as tf
 from .mitsuba_doc import Node, Props, fmt_rgb
+from .mitsuba_principled import load_principled
 from .scene import (CONDUCTOR, DIELECTRIC, DIFFUSE, NULL, PLASTIC, ROUGHCONDUCTOR, ROUGHPLASTIC, THINDIELECTRIC,
                     Material, SceneError, Texture)
 
@@ -178,6 +179,8 @@ def load_bsdf(loader, node: Node, name: str | None = None) -> Material:
                        nonlinear=p.bool("nonlinear", False))
         if kind == "roughplastic":
             _roughness(loader, p, mat, node)
+    elif kind in ("principled", "principledthin"):
+        return load_principled(loader, node, p, name, thin=kind == "principledthin")
     elif kind == "null":
         loader.warn(node, "bsdf 'null' (pass-through) is not supported", "using a black (NULL) material")
         mat = Material(name=name, kind=NULL, diffuse=Texture.constant(0.0))

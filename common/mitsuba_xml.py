@@ -7,7 +7,8 @@ the element, its ``file:line`` and the fallback):
   with ``to_world``, ``face_normals``, ``flip_normals``, ``flip_tex_coords`` (obj), ``center`` and
   ``radius`` (sphere); a nested or referenced BSDF and area emitter;
 - BSDFs ``diffuse``, ``conductor``, ``roughconductor``, ``dielectric``, ``thindielectric``,
-  ``plastic``, ``roughplastic``, ``twosided``; ``null`` maps to the black ``NULL`` kind;
+  ``plastic``, ``roughplastic``, ``twosided``; ``principled`` and ``principledthin`` approximated
+  by the nearest of those (:mod:`common.mitsuba_principled`); ``null`` maps to the black ``NULL`` kind;
   ``roughdielectric`` falls back to ``dielectric``; ``mask``/``bumpmap``/``normalmap``/``blendbsdf``
   fall back to their (first) nested BSDF; textures ``bitmap`` (``filename``, ``filter_type``,
   ``raw``, ``to_uv`` scale/translate); other textures fall back to their mean colour;

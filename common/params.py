@@ -103,7 +103,8 @@ PARAMS: tuple[Param, ...] = (
     Param("normal_threshold", float, 0.9, "minimum normal dot product inside the filter", "filter", -1.0, 1.0),
     Param("filter_glossy_alpha", float, 0.3,
           "glossy surfaces at least this rough are filtered like irradiance; smoother ones are split at "
-          "the first hit: diffuse layer filtered, glossy lobe traced by one sampled ray",
+          "the first hit: diffuse layer filtered, glossy lobe traced by one sampled ray (a smooth plastic's "
+          "coat by its mirror ray; 0: nothing split)",
           "filter", 0.0, 10.0),
     Param("filter_lobe_alpha", float, 0.04,
           "a split plastic's glossy lobe at least this rough is filtered: the discontinuity buffer "

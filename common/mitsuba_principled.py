@@ -1,0 +1,149 @@
+"""Mitsuba's ``principled`` BSDF (Burley 2012, 2015) as one of igi's BSDF kinds.
+
+igi has no Disney BSDF kernel; a principled material — what Blender's exporter writes for every
+surface — becomes the kind nearest to its main lobes, so that its reflectance and its
+highlights keep their size and colour instead of falling back to grey diffuse:
+
+- ``spec_trans`` ≥ ½: a smooth dielectric of its η, transmittance √base_color (as Mitsuba weighs
+  its transmission lobe);
+- else ``metallic`` ≥ ½: a rough conductor of GGX α = roughness², its specular colour base_color
+  under a Fresnel of 1 (Mitsuba's Schlick Fresnel from base_color whitens only at grazing);
+- else a rough plastic: GGX α = roughness² and η, the principled specular lobe's own (a
+  dielectric Fresnel of η on GGX), over a diffuse layer whose reflectance is scaled so that its
+  mean albedo is the principled diffuse lobe's (Burley's Schlick-weighted diffuse and
+  retro-reflection, no coat to pass through); below α 1e-3 a smooth plastic.
+
+Sheen, clearcoat, anisotropy, specular tint and flatness are dropped, a textured roughness,
+metallic or spec_trans taken at its mean, a metallic or spec_trans between 0 and 1 rounded: each
+with a warning naming what was approximated."""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from .mitsuba_doc import Node, Props
+from .scene import DIELECTRIC, PLASTIC, ROUGHCONDUCTOR, ROUGHPLASTIC, THINDIELECTRIC, Material, Texture
+
+# the smallest GGX α Mitsuba's principled lobe takes (calc_dist_params clamps roughness² to it)
+MIN_ALPHA = 1e-3
+_DROPPED = ("sheen", "sheen_tint", "clearcoat", "clearcoat_gloss", "anisotropic", "spec_tint", "flatness", "diff_trans")
+_RATES = ("diffuse_reflectance_sampling_rate", "main_specular_sampling_rate", "clearcoat_sampling_rate")
+
+
+def principled_eta(specular: float) -> float:
+    """Mitsuba's η from ``specular`` (its F0 is 0.08 × specular)."""
+    return 2.0 / (1.0 - math.sqrt(0.08 * specular)) - 1.0
+
+
+def principled_diffuse_albedo(roughness: float, n: int = 48) -> float:
+    """The principled diffuse lobe's albedo per unit base colour, averaged over incidence by
+    cos θ_i: ∫∫ (f_diff + f_retro) cos θ_o / π dω_o 2 cos θ_i dcos θ_i, with Burley's
+    f_diff = (1 - F_i/2)(1 - F_o/2), f_retro = R_r (F_o + F_i + F_o F_i (R_r - 1)),
+    R_r = 2 roughness cos² θ_d, F = (1 - cos)^5 (midpoint quadrature)."""
+    mu = (np.arange(n) + 0.5) / n
+    phi = (np.arange(2 * n) + 0.5) * (np.pi / n)
+    mi, mo, ph = np.meshgrid(mu, mu, phi, indexing="ij")
+    si, so = np.sqrt(1 - mi * mi), np.sqrt(1 - mo * mo)
+    wi = np.stack([si, np.zeros_like(si), mi], -1)
+    wo = np.stack([so * np.cos(ph), so * np.sin(ph), mo], -1)
+    h = wi + wo
+    h /= np.linalg.norm(h, axis=-1, keepdims=True)
+    cos_d = np.sum(h * wo, -1)
+    fi, fo = (1 - mi) ** 5, (1 - mo) ** 5
+    rr = 2.0 * roughness * cos_d ** 2
+    f = (1 - 0.5 * fi) * (1 - 0.5 * fo) + rr * (fo + fi + fo * fi * (rr - 1))
+    per_wi = (f * mo / np.pi).sum(axis=(1, 2)) * (1.0 / n) * (np.pi / n)
+    return float(np.sum(per_wi * 2 * mu) / n)
+
+
+def plastic_layer_albedo(mat: Material) -> float:
+    """The mean albedo (cos θ_i-weighted over incidence) of ``mat``'s diffuse layer per unit of
+    its diffuse reflectance: what its coat lets in and out (common.bsdf)."""
+    from . import bsdf
+
+    unit = dataclasses.replace(mat, diffuse=Texture.constant(1.0))
+    n = 16
+    mu = (np.arange(n) + 0.5) / n
+    sp = bsdf.gather([unit], np.zeros(n, np.int64), None)
+    sp = bsdf.split_layer(sp, np.ones(n, bool))
+    wi = np.stack([np.sqrt(1 - mu * mu), np.zeros(n), mu], -1)
+    a = bsdf.directional_albedo(sp, wi, 1024)[:, 1]
+    return float(np.sum(a * 2 * mu) / n)
+
+
+def _scalar(loader, p: Props, name: str, default: float, approximated: list[str]) -> float:
+    """A float parameter that Mitsuba also takes as a texture: a texture's mean (noted)."""
+    if not p.has(name):
+        return default
+    node = p.named[name]
+    if node.tag == "float":
+        return float(p.float(name))
+    tex = p.texture(name, default)
+    if not tex.is_constant:
+        approximated.append(f"textured {name} as its mean")
+    return float(np.mean(tex.mean()))
+
+
+def load_principled(loader, node: Node, p: Props, name: str, thin: bool = False) -> Material:
+    """The Material standing for the principled BSDF at ``node`` (module docstring);
+    ``principledthin`` (``thin``): its transmission a thin dielectric's."""
+    approximated: list[str] = []
+    base = p.texture("base_color", 0.5)
+    roughness = min(max(_scalar(loader, p, "roughness", 0.5, approximated), 0.0), 1.0)
+    metallic = _scalar(loader, p, "metallic", 0.0, approximated)
+    spec_trans = _scalar(loader, p, "spec_trans", 0.0, approximated)
+    if p.has("eta") and p.has("specular"):
+        raise loader.error(node, "<bsdf type='principled'> takes 'eta' or 'specular', not both")
+    if p.has("eta"):
+        eta = p.ior("eta", 1.5)
+    else:
+        specular = float(p.float("specular", 0.5))
+        if not 0.0 <= specular < 12.5:  # F0 = 0.08 × specular must stay below 1
+            raise loader.error(p.named["specular"], f"principled 'specular' {specular:g} must be in [0, 12.5)")
+        eta = principled_eta(specular)
+    for k in _DROPPED:
+        if p.has(k):
+            v = _scalar(loader, p, k, 0.0, approximated)
+            if v > 0:
+                approximated.append(f"{k} {v:g} dropped")
+    for k in _RATES:
+        p.get(k)
+    alpha = max(roughness * roughness, MIN_ALPHA)
+    if spec_trans >= 0.5:
+        kind = "thin dielectric" if thin else "smooth dielectric"
+        mat = Material(name=name, kind=THINDIELECTRIC if thin else DIELECTRIC, int_ior=max(eta, 1.001), ext_ior=1.0,
+                       specular=Texture.constant(1.0), specular_transmittance=_sqrt(base))
+        if roughness > 0.1:
+            approximated.append(f"rough transmission (roughness {roughness:g}) as smooth")
+    elif metallic >= 0.5:
+        kind = "rough conductor"
+        mat = Material(name=name, kind=ROUGHCONDUCTOR, specular=base, alpha=alpha, distribution="ggx",
+                       eta=np.zeros(3), k=np.zeros(3))
+    else:
+        smooth = alpha <= MIN_ALPHA
+        kind = "smooth plastic" if smooth else "rough plastic"
+        mat = Material(name=name, kind=PLASTIC if smooth else ROUGHPLASTIC, specular=Texture.constant(1.0),
+                       alpha=alpha, distribution="ggx", int_ior=eta, ext_ior=1.0)
+        scale = principled_diffuse_albedo(roughness) / plastic_layer_albedo(mat)
+        mat.diffuse = _scaled(base, scale)
+    mixed = [f"{k} {v:g}" for k, v in (("metallic", metallic), ("spec_trans", spec_trans)) if 0.0 < v < 1.0]
+    if mixed:
+        approximated.append(", ".join(mixed) + " rounded")
+    loader.warn(node, f"bsdf '{p.type}' is approximated", f"as a {kind}"
+                + (f" ({'; '.join(approximated)})" if approximated else ""))
+    p.finish()
+    return mat
+
+
+def _scaled(t: Texture, s: float) -> Texture:
+    if t.is_constant:
+        return dataclasses.replace(t, rgb=t.rgb * s)
+    return dataclasses.replace(t, image=(t.image * np.float32(s)).astype(np.float32))
+
+
+def _sqrt(t: Texture) -> Texture:
+    if t.is_constant:
+        return dataclasses.replace(t, rgb=np.sqrt(np.maximum(t.rgb, 0.0)))
+    return dataclasses.replace(t, image=np.sqrt(np.maximum(t.image, 0.0)).astype(np.float32))
