@@ -207,8 +207,17 @@ class MitsubaPT:
         self.mi = mi
         self.clock = clock
         self.last_cpu_s = 0.0
+        import drjit as dr
+
         t0 = time.perf_counter()
-        self.scene = mi.load_file(str(setup.path))
+        threads = dr.thread_count()
+        # Mitsuba 3.9.1 with one thread waits forever in OpenEXR's reader while loading an
+        # environment map (its EXR read runs in a task of that one thread): load with two.
+        dr.set_thread_count(max(threads, 2))
+        try:
+            self.scene = mi.load_file(str(setup.path))
+        finally:
+            dr.set_thread_count(threads)
         self.load_s = time.perf_counter() - t0
         cam = setup.scene.camera
         self.base_to_world = np.asarray(cam.to_world, np.float64).reshape(4, 4)
