@@ -64,14 +64,7 @@ def load_texture(loader, node: Node) -> Texture:
         wrap = p.string("wrap_mode", "repeat")
         if wrap != "repeat":
             loader.warn(node, f"wrap_mode '{wrap}' is not supported", "using repeat")
-        m = p.transform("to_uv")
-        uv_scale, uv_offset = (1.0, 1.0), (0.0, 0.0)
-        if not tf.is_identity(m):
-            if abs(m[0, 1]) > 1e-12 or abs(m[1, 0]) > 1e-12:
-                loader.warn(p.named["to_uv"], "rotated/sheared to_uv is not supported", "using its diagonal")
-            sx, sy, tx, ty = m[0, 0], m[1, 1], m[0, 3], m[1, 3]
-            # Meshes store v_scene = 1 - v_mitsuba; Mitsuba looks up row (sy v + ty) H.
-            uv_scale, uv_offset = (float(sx), float(sy)), (float(tx), float(1.0 - sy - ty))
+        uv_scale, uv_offset = _to_uv(loader, p)
         ikey = (str(path.resolve()), raw)
         if ikey not in loader.images:
             from .image_io import read_image
@@ -83,11 +76,14 @@ def load_texture(loader, node: Node) -> Texture:
         t = Texture(image=loader.images[ikey], filter=ft, uv_scale=uv_scale, uv_offset=uv_offset, name=fn)
         p.finish(ignore=("format",))
     elif kind == "checkerboard":
+        # Mitsuba's: color0 where (u mod 1 > ½) == (v mod 1 > ½), else color1 — a 2 × 2 bitmap
+        # looked up nearest (rows as Mitsuba's bitmaps: row j covers v in [j/2, (j+1)/2))
         c0 = p.rgb("color0", 0.4)
         c1 = p.rgb("color1", 0.2)
-        p.transform("to_uv")
-        loader.warn(node, "texture 'checkerboard' is not supported", "using the mean of its two colours")
-        t = Texture.constant(0.5 * (c0 + c1))
+        uv_scale, uv_offset = _to_uv(loader, p)
+        image = np.array([[c0, c1], [c1, c0]], np.float32)
+        t = Texture(image=image, filter="nearest", uv_scale=uv_scale, uv_offset=uv_offset, name="checkerboard")
+        p.finish()
     else:
         vals = [loader.color(c) for c in node.children if c.tag in ("rgb", "spectrum", "float")]
         mean = np.mean(vals, axis=0) if vals else np.full(3, 0.5)
@@ -95,6 +91,19 @@ def load_texture(loader, node: Node) -> Texture:
         t = Texture.constant(mean)
     loader.texture_of[key] = t
     return t
+
+
+def _to_uv(loader, p: Props) -> tuple[tuple[float, float], tuple[float, float]]:
+    """A texture's ``to_uv`` as the (uv_scale, uv_offset) of :class:`Texture` (scale and
+    translation; rotation and shear are dropped with a warning)."""
+    m = p.transform("to_uv")
+    if tf.is_identity(m):
+        return (1.0, 1.0), (0.0, 0.0)
+    if abs(m[0, 1]) > 1e-12 or abs(m[1, 0]) > 1e-12:
+        loader.warn(p.named["to_uv"], "rotated/sheared to_uv is not supported", "using its diagonal")
+    sx, sy, tx, ty = m[0, 0], m[1, 1], m[0, 3], m[1, 3]
+    # Meshes store v_scene = 1 - v_mitsuba; Mitsuba looks up row (sy v + ty) H.
+    return (float(sx), float(sy)), (float(tx), float(1.0 - sy - ty))
 
 
 def material_index(loader, node: Node | None) -> int:

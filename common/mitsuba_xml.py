@@ -11,7 +11,7 @@ the element, its ``file:line`` and the fallback):
   by the nearest of those (:mod:`common.mitsuba_principled`); ``null`` maps to the black ``NULL`` kind;
   ``roughdielectric`` falls back to ``dielectric``; ``mask``/``bumpmap``/``normalmap``/``blendbsdf``
   fall back to their (first) nested BSDF; textures ``bitmap`` (``filename``, ``filter_type``,
-  ``raw``, ``to_uv`` scale/translate); other textures fall back to their mean colour;
+  ``raw``, ``to_uv`` scale/translate) and ``checkerboard``; other textures fall back to their mean colour;
 - emitters ``area``, ``point``, ``spot``, ``directional``, ``constant``, ``envmap`` (``filename``:
   OpenEXR or Radiance .hdr, ``scale``, ``to_world``; at most one environment emitter when one is
   a map);

@@ -514,3 +514,22 @@ def test_wrong_root_and_missing_file(tmp_path):
     assert_error(p, 1, "root element must be <scene>")
     with pytest.raises(SceneError, match="not found"):
         load_scene(tmp_path / "missing.xml")
+
+
+def test_checkerboard_is_color0_where_u_and_v_fall_in_the_same_half_as_mitsuba_paints_it(tmp_path):
+    # Mitsuba 3's checkerboard: color0 where (u mod 1 > 1/2) == (v mod 1 > 1/2), after to_uv
+    p = scene_file(tmp_path, """
+        <shape type="rectangle"><bsdf type="diffuse">
+            <texture type="checkerboard" name="reflectance">
+                <rgb name="color0" value="0.9, 0.1, 0.1"/><rgb name="color1" value="0.1, 0.2, 0.8"/>
+                <transform name="to_uv"><scale x="3" y="2"/><translate x="0.1" y="0.2"/></transform>
+            </texture></bsdf></shape>""")
+    s = load_mitsuba(p)
+    tex = s.materials[0].diffuse
+    assert not any("texture" in w or "to_uv" in w for w in s.warnings) and not tex.is_constant
+    rng = np.random.default_rng(3)
+    uv_m = rng.random((2000, 2)) * 4 - 2  # Mitsuba's (u, v), beyond [0, 1] too: it repeats
+    a, b = 3 * uv_m[:, 0] + 0.1, 2 * uv_m[:, 1] + 0.2
+    first = ((a - np.floor(a)) > 0.5) == ((b - np.floor(b)) > 0.5)
+    got = tex.eval(np.stack([uv_m[:, 0], 1.0 - uv_m[:, 1]], -1))  # meshes hold (u, 1 - v)
+    np.testing.assert_allclose(got, np.where(first[:, None], [0.9, 0.1, 0.1], [0.1, 0.2, 0.8]), atol=1e-6)
