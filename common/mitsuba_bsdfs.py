@@ -195,6 +195,13 @@ def load_bsdf(loader, node: Node, name: str | None = None) -> Material:
         mat = Material(name=name, kind=NULL, diffuse=Texture.constant(0.0))
     elif kind in ("mask", "bumpmap", "normalmap", "blendbsdf"):
         inner = _nested_bsdfs(loader, p)
+        if kind == "blendbsdf" and len(inner) > 1:
+            # (1 - weight) × the first + weight × the second: the one weighing more stands for both
+            w = float(np.mean(p.texture("weight", 0.5).mean())) if p.has("weight") else 0.5
+            pick = int(w > 0.5)
+            loader.warn(node, "bsdf 'blendbsdf' is not supported",
+                        f"using its {('first', 'second')[pick]} nested BSDF (weight {w:.3g})")
+            return load_bsdf(loader, inner[pick], name)
         if inner:
             loader.warn(node, f"bsdf '{kind}' is not supported", "using its (first) nested BSDF")
             return load_bsdf(loader, inner[0], name)

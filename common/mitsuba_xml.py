@@ -8,10 +8,11 @@ the element, its ``file:line`` and the fallback):
   ``radius`` (sphere); a nested or referenced BSDF and area emitter;
 - BSDFs ``diffuse``, ``conductor``, ``roughconductor``, ``dielectric``, ``thindielectric``,
   ``plastic``, ``roughplastic``, ``twosided``; ``principled`` and ``principledthin`` approximated
-  by the nearest of those (:mod:`common.mitsuba_principled`); ``null`` maps to the black ``NULL`` kind;
-  ``roughdielectric`` falls back to ``dielectric``; ``mask``/``bumpmap``/``normalmap``/``blendbsdf``
-  fall back to their (first) nested BSDF; textures ``bitmap`` (``filename``, ``filter_type``,
-  ``raw``, ``to_uv`` scale/translate) and ``checkerboard``; other textures fall back to their mean colour;
+  by the nearest of those (:mod:`common.mitsuba_principled`); ``null`` maps to the black ``NULL``
+  kind; ``roughdielectric`` falls back to ``dielectric``; ``mask``/``bumpmap``/``normalmap`` fall
+  back to their nested BSDF, ``blendbsdf`` to the one its ``weight`` favours; textures ``bitmap``
+  (``filename``, ``filter_type``, ``raw``, ``to_uv`` scale/translate) and ``checkerboard``; other
+  textures fall back to their mean colour;
 - emitters ``area``, ``point``, ``spot``, ``directional``, ``constant``, ``envmap`` (``filename``:
   OpenEXR or Radiance .hdr, ``scale``, ``to_world``; at most one environment emitter when one is
   a map);

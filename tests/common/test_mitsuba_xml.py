@@ -533,3 +533,14 @@ def test_checkerboard_is_color0_where_u_and_v_fall_in_the_same_half_as_mitsuba_p
     first = ((a - np.floor(a)) > 0.5) == ((b - np.floor(b)) > 0.5)
     got = tex.eval(np.stack([uv_m[:, 0], 1.0 - uv_m[:, 1]], -1))  # meshes hold (u, 1 - v)
     np.testing.assert_allclose(got, np.where(first[:, None], [0.9, 0.1, 0.1], [0.1, 0.2, 0.8]), atol=1e-6)
+
+
+@pytest.mark.parametrize("weight, kind", [(0.8, CONDUCTOR), (0.2, DIFFUSE)])
+def test_blendbsdf_stands_for_its_heavier_nested_bsdf(tmp_path, weight, kind):
+    p = scene_file(tmp_path, f"""
+        <shape type="cube"><bsdf type="blendbsdf"><float name="weight" value="{weight}"/>
+            <bsdf type="diffuse"/><bsdf type="conductor"/></bsdf></shape>""")
+    s = load_mitsuba(p)
+    assert s.materials[0].kind == kind
+    which = "second" if weight > 0.5 else "first"
+    assert f"using its {which} nested BSDF (weight {weight:g})" in "\n".join(s.warnings)
