@@ -4,18 +4,24 @@ igi has no Disney BSDF kernel; a principled material — what Blender's exporter
 surface — becomes the kind nearest to its main lobes, so that its reflectance and its
 highlights keep their size and colour instead of falling back to grey diffuse:
 
-- ``spec_trans`` ≥ ½: a smooth dielectric of its η, transmittance √base_color (as Mitsuba weighs
-  its transmission lobe);
-- else ``metallic`` ≥ ½: a rough conductor of GGX α = roughness², its specular colour base_color
-  under a Fresnel of 1 (Mitsuba's Schlick Fresnel from base_color whitens only at grazing);
-- else a rough plastic: GGX α = roughness² and η, the principled specular lobe's own (a
+- the heaviest of Mitsuba's lobe weights picks the kind: metallic m, transmission (1 - m) spec_trans,
+  dielectric (1 - m)(1 - spec_trans);
+- transmission: a smooth dielectric of its η, transmittance √base_color (as Mitsuba weighs its
+  transmission lobe);
+- metal: a rough conductor of GGX α = roughness², its specular colour base_color under a Fresnel
+  of 1 (Mitsuba's Schlick Fresnel from base_color whitens only at grazing);
+- dielectric: a rough plastic of GGX α = roughness² and η, the principled specular lobe's own (a
   dielectric Fresnel of η on GGX), over a diffuse layer whose reflectance is scaled so that its
   mean albedo is the principled diffuse lobe's (Burley's Schlick-weighted diffuse and
-  retro-reflection, no coat to pass through); below α 1e-3 a smooth plastic.
+  retro-reflection, no coat to pass through), but never above 1 at any incidence; below α 1e-3 a
+  smooth plastic;
+- ``principledthin`` (a sheet, two-sided): transmission a thin dielectric passing base_color, else
+  a two-sided diffuse surface of the diffuse lobe's mean albedo.
 
-Sheen, clearcoat, anisotropy, specular tint and flatness are dropped, a textured roughness,
-metallic or spec_trans taken at its mean, a metallic or spec_trans between 0 and 1 rounded: each
-with a warning naming what was approximated."""
+Sheen, clearcoat, anisotropy, specular tint, flatness and diffuse transmission are dropped, a
+textured roughness, metallic or spec_trans taken at its mean, values outside [0, 1] clamped, a
+metallic or spec_trans between 0 and 1 rounded: each with a warning naming what was
+approximated."""
 from __future__ import annotations
 
 import dataclasses
@@ -24,12 +30,14 @@ import math
 import numpy as np
 
 from .mitsuba_doc import Node, Props
-from .scene import DIELECTRIC, PLASTIC, ROUGHCONDUCTOR, ROUGHPLASTIC, THINDIELECTRIC, Material, Texture
+from .scene import DIELECTRIC, DIFFUSE, PLASTIC, ROUGHCONDUCTOR, ROUGHPLASTIC, THINDIELECTRIC, Material, Texture
 
 # the smallest GGX α Mitsuba's principled lobe takes (calc_dist_params clamps roughness² to it)
 MIN_ALPHA = 1e-3
 _DROPPED = ("sheen", "sheen_tint", "clearcoat", "clearcoat_gloss", "anisotropic", "spec_tint", "flatness", "diff_trans")
-_RATES = ("diffuse_reflectance_sampling_rate", "main_specular_sampling_rate", "clearcoat_sampling_rate")
+_RATES = ("diffuse_reflectance_sampling_rate", "main_specular_sampling_rate", "clearcoat_sampling_rate",
+          "specular_reflectance_sampling_rate", "specular_transmittance_sampling_rate",
+          "diffuse_transmittance_sampling_rate")
 
 
 def principled_eta(specular: float) -> float:
@@ -58,10 +66,11 @@ def principled_diffuse_albedo(roughness: float, n: int = 48) -> float:
     return float(np.sum(per_wi * 2 * mu) / n)
 
 
-def plastic_layer_albedo(mat: Material) -> float:
-    """The mean albedo (cos θ_i-weighted over incidence) of ``mat``'s diffuse layer per unit of
-    its diffuse reflectance: what its coat lets in and out (common.bsdf)."""
-    from . import bsdf
+def plastic_layer_albedo(mat: Material, peak: bool = False) -> float:
+    """The albedo of ``mat``'s diffuse layer per unit of its diffuse reflectance: its mean over
+    incidence weighted by cos θ_i, or (``peak``) its largest over incidence — what its coat lets
+    in and out (common.bsdf)."""
+    from . import bsdf  # (common.bsdf reads the scene module this loader's callers build from)
 
     unit = dataclasses.replace(mat, diffuse=Texture.constant(1.0))
     n = 16
@@ -70,32 +79,41 @@ def plastic_layer_albedo(mat: Material) -> float:
     sp = bsdf.split_layer(sp, np.ones(n, bool))
     wi = np.stack([np.sqrt(1 - mu * mu), np.zeros(n), mu], -1)
     a = bsdf.directional_albedo(sp, wi, 1024)[:, 1]
-    return float(np.sum(a * 2 * mu) / n)
+    return float(a.max()) if peak else float(np.sum(a * 2 * mu) / n)
 
 
-def _scalar(loader, p: Props, name: str, default: float, approximated: list[str]) -> float:
-    """A float parameter that Mitsuba also takes as a texture: a texture's mean (noted)."""
+def _scalar(p: Props, name: str, default: float, approximated: list[str], lo: float = 0.0,
+            hi: float = 1.0) -> float:
+    """A float parameter that Mitsuba also takes as a texture (a texture: its mean), clamped to
+    [lo, hi]; what was approximated is noted."""
     if not p.has(name):
         return default
     node = p.named[name]
-    if node.tag == "float":
-        return float(p.float(name))
-    tex = p.texture(name, default)
-    if not tex.is_constant:
-        approximated.append(f"textured {name} as its mean")
-    return float(np.mean(tex.mean()))
+    if node.tag in ("float", "integer"):
+        v = float(p.float(name))
+    else:
+        tex = p.texture(name, default)
+        if not tex.is_constant:
+            approximated.append(f"textured {name} as its mean")
+        v = float(np.mean(tex.mean()))
+    if not lo <= v <= hi:
+        approximated.append(f"{name} {v:g} clamped to [{lo:g}, {hi:g}]")
+        v = min(max(v, lo), hi)
+    return v
 
 
 def load_principled(loader, node: Node, p: Props, name: str, thin: bool = False) -> Material:
     """The Material standing for the principled BSDF at ``node`` (module docstring);
-    ``principledthin`` (``thin``): its transmission a thin dielectric's."""
+    ``principledthin`` (``thin``): a thin sheet, two-sided: transmissive, a thin dielectric passing
+    base_color; else a diffuse surface of the principled diffuse lobe's mean albedo (its coat
+    reflection is weighted by spec_trans: none)."""
     approximated: list[str] = []
     base = p.texture("base_color", 0.5)
-    roughness = min(max(_scalar(loader, p, "roughness", 0.5, approximated), 0.0), 1.0)
-    metallic = _scalar(loader, p, "metallic", 0.0, approximated)
-    spec_trans = _scalar(loader, p, "spec_trans", 0.0, approximated)
+    roughness = _scalar(p, "roughness", 0.5, approximated)
+    metallic = 0.0 if thin else _scalar(p, "metallic", 0.0, approximated)
+    spec_trans = _scalar(p, "spec_trans", 0.0, approximated)
     if p.has("eta") and p.has("specular"):
-        raise loader.error(node, "<bsdf type='principled'> takes 'eta' or 'specular', not both")
+        raise loader.error(node, f"<bsdf type='{p.type}'> takes 'eta' or 'specular', not both")
     if p.has("eta"):
         eta = p.ior("eta", 1.5)
     else:
@@ -105,32 +123,49 @@ def load_principled(loader, node: Node, p: Props, name: str, thin: bool = False)
         eta = principled_eta(specular)
     for k in _DROPPED:
         if p.has(k):
-            v = _scalar(loader, p, k, 0.0, approximated)
+            v = _scalar(p, k, 0.0, approximated, hi=np.inf)
             if v > 0:
                 approximated.append(f"{k} {v:g} dropped")
     for k in _RATES:
         p.get(k)
     alpha = max(roughness * roughness, MIN_ALPHA)
-    if spec_trans >= 0.5:
+    # Mitsuba weighs its lobes metal m, transmission (1 - m) spec_trans, dielectric (1 - m)(1 - spec_trans):
+    # the heaviest stands for all
+    weights = {"metal": metallic, "glass": (1 - metallic) * spec_trans,
+               "plastic": (1 - metallic) * (1 - spec_trans)}
+    lobe = max(weights, key=weights.get)
+    if lobe == "glass":
         kind = "thin dielectric" if thin else "smooth dielectric"
+        # (Mitsuba's thin sheet passes base_color; the solid its square root, at entry and exit)
         mat = Material(name=name, kind=THINDIELECTRIC if thin else DIELECTRIC, int_ior=max(eta, 1.001), ext_ior=1.0,
-                       specular=Texture.constant(1.0), specular_transmittance=_sqrt(base))
+                       specular=Texture.constant(1.0), specular_transmittance=base if thin else _sqrt(base))
         if roughness > 0.1:
             approximated.append(f"rough transmission (roughness {roughness:g}) as smooth")
-    elif metallic >= 0.5:
+    elif lobe == "metal":
         kind = "rough conductor"
         mat = Material(name=name, kind=ROUGHCONDUCTOR, specular=base, alpha=alpha, distribution="ggx",
                        eta=np.zeros(3), k=np.zeros(3))
+    elif thin:
+        kind = "two-sided diffuse"
+        mat = Material(name=name, kind=DIFFUSE, diffuse=_scaled(base, principled_diffuse_albedo(roughness)),
+                       twosided=True)
     else:
         smooth = alpha <= MIN_ALPHA
         kind = "smooth plastic" if smooth else "rough plastic"
         mat = Material(name=name, kind=PLASTIC if smooth else ROUGHPLASTIC, specular=Texture.constant(1.0),
-                       alpha=alpha, distribution="ggx", int_ior=eta, ext_ior=1.0)
+                       alpha=alpha, distribution="ggx", int_ior=max(eta, 1.001), ext_ior=1.0)
         scale = principled_diffuse_albedo(roughness) / plastic_layer_albedo(mat)
+        # A rough coat lets little through at grazing angles: the mean matched, a white layer would
+        # reflect more than it receives straight on (1.3 at roughness 1). It stops at 1 there.
+        brightest = float(np.max(base.rgb)) if base.is_constant else float(np.percentile(base.image.max(-1), 99))
+        cap = 1.0 / (plastic_layer_albedo(mat, peak=True) * max(brightest, 1e-6))
+        if scale > cap:
+            approximated.append(f"diffuse {cap / scale:.2f} of the principled lobe's (rough coat)")
+            scale = cap
         mat.diffuse = _scaled(base, scale)
-    mixed = [f"{k} {v:g}" for k, v in (("metallic", metallic), ("spec_trans", spec_trans)) if 0.0 < v < 1.0]
-    if mixed:
-        approximated.append(", ".join(mixed) + " rounded")
+    rounded = [f"{k} {v:g}" for k, v in (("metallic", metallic), ("spec_trans", spec_trans)) if 0.0 < v < 1.0]
+    if rounded:
+        approximated.append(", ".join(rounded) + " rounded")
     loader.warn(node, f"bsdf '{p.type}' is approximated", f"as a {kind}"
                 + (f" ({'; '.join(approximated)})" if approximated else ""))
     p.finish()

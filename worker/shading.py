@@ -370,7 +370,7 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis
         nd_mask = ~delta & (sp.kind != NULL)
         # Smooth glossy surfaces along a chain are split as at the first hit: a plastic's diffuse
         # layer ends the path (VPL-lit), the lobe continues the chain by one sampled ray.
-        sp, lobe, lobe_sp, nd_mask = _split_smooth(sp, nd_mask, glossy_split_alpha)
+        sp, lobe, lobe_sp, nd_mask = _split_smooth(sp, nd_mask, glossy_split_alpha, bsdf.split_eligible(sp.kind, thr))
         nd = np.nonzero(nd_mask)[0]
         if len(nd):
             out.append(EndPoints(pix[nd], hpos[nd], hns[nd], hng[nd], wi[nd], sp.subset(nd), thr[nd],
@@ -427,15 +427,18 @@ def delta_bounce(materials: list, geom: Geometry, src: np.ndarray, pos: np.ndarr
     return out_src[:c], out_thr[:c], out_seg[:c], out_d[:c], out_o[:c]
 
 
-def _split_smooth(sp, nd_mask: np.ndarray, alpha: float):
+def _split_smooth(sp, nd_mask: np.ndarray, alpha: float, eligible: np.ndarray | None = None):
     """The per-component split of smooth glossy hits (bsdf.split_smooth: rough conductors and
     plastics smoother than ``alpha``, smooth plastics): ``(sp with the plastics reduced to their
     diffuse layer (bsdf.split_layer), lobe rows, their whole BSDFs for sampling the lobe, end-point
-    mask without the conductors)``."""
+    mask without the conductors)``; ``eligible`` (along chains: bsdf.split_eligible) the rows that
+    may split."""
     none = np.zeros(0, np.int64)
     if alpha <= 0:
         return sp, none, None, nd_mask
     smooth = bsdf.split_smooth(sp.kind, sp.alpha, alpha)
+    if eligible is not None:
+        smooth &= eligible
     if not smooth.any():
         return sp, none, None, nd_mask
     lobe = np.nonzero(smooth)[0]

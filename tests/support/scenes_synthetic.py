@@ -84,6 +84,22 @@ def plastic_tile_in_furnace(albedo: float, radiance: float, diffuse: float = 0.0
     return scene
 
 
+def plastic_box(width=32, height=32) -> Scene:
+    """A closed box of smooth plastic walls (diffuse 0.5) under a small ceiling lamp: every coat's
+    mirror ray meets another smooth plastic."""
+    from igi.common.scene import PLASTIC
+
+    mats = [Material("wall", PLASTIC, diffuse=Texture.constant(0.5)),
+            Material("lamp", DIFFUSE, diffuse=Texture.constant(0.0))]
+    meshes = [Mesh(f"wall{i}", v, f, 0) for i, (v, f) in enumerate(box_faces())]
+    lv, lf = quad([0.7, 1.99, 0.7], [0.6, 0, 0], [0, 0, 0.6])
+    if np.cross(lv[1] - lv[0], lv[2] - lv[0])[1] > 0:  # face down into the box
+        lf = lf[:, ::-1].copy()
+    meshes.append(Mesh("lamp", lv, lf, 1, emitter=0))
+    cam = Camera(look_at([1.0, 1.0, 1.9], [1.0, 1.0, 0.0], [0, 1, 0]), fov=60, width=width, height=height)
+    return Scene(meshes, mats, [Emitter(AREA, radiance=np.full(3, 20.0), mesh=6)], cam, source="plastic box")
+
+
 def two_rooms(width=32, height=24) -> Scene:
     """Two diffuse rooms side by side ([0,2] and [2,4] along x, 2 high and deep) joined by a
     narrow door in the wall x = 2; the only light is a ceiling quad in the left room and the

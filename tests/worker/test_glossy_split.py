@@ -169,13 +169,32 @@ def test_a_smooth_plastic_splits_into_its_diffuse_layer_and_its_coats_mirror_ray
         assert np.all(end.sp.kind[first] == PLASTIC) and np.all(end.main[first])
         if alpha > 0:
             # the layer: no coat (it never samples the mirror); the mirror's hits on the walls:
-            # one more end point per tile pixel, not the pixel's main one, no light-sample points
+            # one more end point per tile pixel, not the pixel's main one
             np.testing.assert_array_equal(end.sp.specular[first], 0.0)
             np.testing.assert_array_equal(end.sp.sampling_weight()[first], 0.0)
             mirrored = on_tile & (end.segments == 2)
             assert sorted(end.pixel[mirrored]) == sorted(tile_pixels)
             assert not np.any(end.main[mirrored])
             np.testing.assert_array_equal(end.sp.kind[mirrored], 0)  # DIFFUSE walls
-            assert end.direct_only is None or not np.any(end.direct_only[on_tile])
         else:  # not split: the whole plastic, its coat included
             assert np.all(end.sp.specular[first] > 0) and not np.any(on_tile & (end.segments > 1))
+
+
+def test_a_smooth_plastic_behind_a_dim_mirror_ray_ends_the_path_unsplit():
+    # In a box of smooth plastics every coat's mirror ray meets another: split again each time,
+    # a pixel gathered ~9 end points. Along a chain a smooth plastic splits only while its path
+    # carries a quarter of the light (common.bsdf.SPLIT_THROUGHPUT); a dimmer one is an end point
+    # whole, its coat intact.
+    from igi.common.bsdf import SPLIT_THROUGHPUT
+    from igi.common.lights import luminance
+    from igi.common.scene import PLASTIC
+    from tests.support.scenes_synthetic import plastic_box
+
+    scene = plastic_box(48, 48)
+    r = Renderer(scene)
+    end = _eye(r, 0.3, 48, 48).end
+    deep = (end.sp.kind == PLASTIC) & (end.segments >= 2)
+    assert deep.sum() > 1000
+    split = np.all(end.sp.specular == 0, axis=1)
+    np.testing.assert_array_equal(split[deep], luminance(end.throughput[deep]) >= SPLIT_THROUGHPUT)
+    assert len(end) < 2.6 * 48 * 48  # (a bright chain's plastic still splits: test_eye_paths_kernel's mirror)

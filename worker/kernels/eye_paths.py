@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from igi.common.bsdf import SPLIT_THROUGHPUT
 from igi.common.kernels import bsdf as kb
 from igi.common.kernels import environment_map as env_map
 from igi.common.kernels import shading_frame
@@ -25,8 +26,9 @@ from .environment_bins import guide_pdf
 from .specular_chain import delta_bounce
 
 _WR, _WG, _WB = LUMINANCE_WEIGHTS  # (frozen into the kernels as constants)
-# An end point's relabelling (ends' last array): a smooth plastic's diffuse layer
-# (ROUGHPLASTIC_DIFFUSE), or a split lobe's direct-only light-sample point (ROUGHPLASTIC_LOBE).
+# An end point's relabelling (ends' last array): a split plastic's diffuse layer (a rough one
+# ROUGHPLASTIC_DIFFUSE, a smooth one its coat zeroed: common.bsdf.split_layer), or a split lobe's
+# direct-only light-sample point (ROUGHPLASTIC_LOBE).
 LAYER, LOBE_LIGHTS = 1, 2
 
 
@@ -343,7 +345,9 @@ def _chains(P, kind, specular, null_kind, rng, closest, rays, live, specular_dep
             if kind[r] == null_kind:
                 continue
             code = 0
-            if split and smooth[r]:
+            # (common.bsdf.split_eligible: a dim path ends at a smooth plastic unsplit)
+            if split and smooth[r] and (kind[r] != PLASTIC
+                                        or thr[i, 0] * _WR + thr[i, 1] * _WG + thr[i, 2] * _WB >= SPLIT_THROUGHPUT):
                 lobe[n_lobe] = i
                 prow[i] = r
                 lobe_main[n_lobe] = main[i] and kind[r] == ROUGHCONDUCTOR  # a plastic's layer keeps the main end
