@@ -556,6 +556,30 @@ def test_diffuse_layer_plus_sampled_lobe_equal_the_whole_bsdf(mat, theta):
     assert np.all(np.abs(m1 - m2) <= e1 + e2), (m1, m2)
 
 
+@pytest.mark.parametrize("theta", (0.2, 1.0, 1.45))
+def test_a_smooth_plastics_layer_plus_its_coats_mirror_equal_the_whole_bsdf(theta):
+    """A smooth plastic split at its hit: its layer (bsdf.split_layer: the coat's reflection taken
+    out) sampled, plus its coat's mirror (bsdf.sample_lobe: weight F × specular), weigh a smooth test
+    function g as the whole plastic sampled does; the layer never samples the mirror."""
+    rng = _rng(5)
+    n = N
+    mat = Material("p", PLASTIC, diffuse=Texture.constant([0.7, 0.4, 0.1]), specular=Texture.constant(0.9))
+    sp = _sp(mat, n)
+    wi = _wi(theta, n)
+    g = lambda w: 1.0 + 0.5 * w[:, 0] + w[:, 2] ** 2  # noqa: E731
+    wo, w, _p, _d = bsdf.sample(sp, wi, rng.random(n), rng.random((n, 2)))
+    whole = w * g(wo)[:, None]
+    wo_m, w_m = bsdf.sample_lobe(sp, wi, rng.random((n, 2)))
+    np.testing.assert_allclose(wo_m, wi * np.array([-1.0, -1.0, 1.0]))
+    layer = bsdf.split_layer(sp, np.ones(n, bool))
+    wo_d, w_d, _p, d_d = bsdf.sample(layer, wi, rng.random(n), rng.random((n, 2)))
+    assert not d_d.any()
+    parts = w_m * g(wo_m)[:, None] + w_d * g(wo_d)[:, None]
+    m1, e1 = _mean_and_err(whole)
+    m2, e2 = _mean_and_err(parts)
+    assert np.all(np.abs(m1 - m2) <= e1 + e2), (m1, m2)
+
+
 # ---- a rough plastic's parts: diffuse layer + coat lobe = the whole BSDF ----------------------
 
 
