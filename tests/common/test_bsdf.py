@@ -523,17 +523,18 @@ def test_null_kind_black():
 
 # ----------------------------------------------------------- the split of smooth glossy surfaces
 
-SPLIT = [m for m in NON_DELTA if m.kind in (ROUGHPLASTIC, ROUGHCONDUCTOR)]
+SPLIT = [m for m in NON_DELTA if m.kind in (PLASTIC, ROUGHPLASTIC, ROUGHCONDUCTOR)] + [
+    Material("plastic_spec", PLASTIC, diffuse=Texture.constant([0.7, 0.4, 0.1]), specular=Texture.constant(0.9))]
 
 
 @pytest.mark.parametrize("mat", SPLIT, ids=_ids(SPLIT))
-@pytest.mark.parametrize("theta", (0.2, 1.0))
+@pytest.mark.parametrize("theta", (0.2, 1.0, 1.45))
 def test_diffuse_layer_plus_sampled_lobe_equal_the_whole_bsdf(mat, theta):
-    """Splitting a rough plastic/conductor into its diffuse layer (ROUGHPLASTIC_DIFFUSE) and its
-    glossy lobe (bsdf.sample_lobe) loses and adds nothing: for a smooth test function g,
-    E[lobe weight · g] + ∫ f_diffuse g = ∫ f g (both estimated by sampling the whole BSDF)."""
-    from igi.common.scene import ROUGHPLASTIC_DIFFUSE
-
+    """Splitting a plastic/rough conductor into its diffuse layer (bsdf.split_layer: a rough
+    plastic's ROUGHPLASTIC_DIFFUSE, a smooth one's coat reflection taken out) and its glossy lobe
+    (bsdf.sample_lobe: a smooth coat's mirror, weight F × specular) loses and adds nothing: for a
+    smooth test function g, E[lobe weight · g] + ∫ f_diffuse g = ∫ f g (both estimated by
+    sampling the whole BSDF); the layer never samples a mirror."""
     rng = _rng(4)
     n = N
     sp = _sp(mat, n)
@@ -543,38 +544,16 @@ def test_diffuse_layer_plus_sampled_lobe_equal_the_whole_bsdf(mat, theta):
     whole = w * g(wo)[:, None]
     wo_l, w_l = bsdf.sample_lobe(sp, wi, rng.random((n, 2)))
     parts = w_l * g(wo_l)[:, None]
-    if mat.kind == ROUGHPLASTIC:
-        dsp = _sp(mat, n)
-        dsp.kind = np.full(n, ROUGHPLASTIC_DIFFUSE, dsp.kind.dtype)
-        wo_d, w_d, p_d, _ = bsdf.sample(dsp, wi, rng.random(n), rng.random((n, 2)))
+    if mat.kind == PLASTIC:
+        np.testing.assert_allclose(wo_l, wi * np.array([-1.0, -1.0, 1.0]))
+    if mat.kind in (PLASTIC, ROUGHPLASTIC):
+        dsp = bsdf.split_layer(_sp(mat, n), np.ones(n, bool))
+        wo_d, w_d, p_d, d_d = bsdf.sample(dsp, wi, rng.random(n), rng.random((n, 2)))
+        assert not d_d.any()
         parts = parts + w_d * g(wo_d)[:, None]
         # the diffuse layer's eval/pdf are the whole BSDF's diffuse term and cosine sampling
         np.testing.assert_allclose(w_d[p_d > 0], (bsdf.eval(dsp, wi, wo_d) / p_d[:, None])[p_d > 0], rtol=1e-9)
         assert np.all(bsdf.albedo(dsp.subset(slice(0, 1)), wi[:1]) <= bsdf.albedo(_sp(mat, 1), wi[:1]) + 1e-12)
-    m1, e1 = _mean_and_err(whole)
-    m2, e2 = _mean_and_err(parts)
-    assert np.all(np.abs(m1 - m2) <= e1 + e2), (m1, m2)
-
-
-@pytest.mark.parametrize("theta", (0.2, 1.0, 1.45))
-def test_a_smooth_plastics_layer_plus_its_coats_mirror_equal_the_whole_bsdf(theta):
-    """A smooth plastic split at its hit: its layer (bsdf.split_layer: the coat's reflection taken
-    out) sampled, plus its coat's mirror (bsdf.sample_lobe: weight F × specular), weigh a smooth test
-    function g as the whole plastic sampled does; the layer never samples the mirror."""
-    rng = _rng(5)
-    n = N
-    mat = Material("p", PLASTIC, diffuse=Texture.constant([0.7, 0.4, 0.1]), specular=Texture.constant(0.9))
-    sp = _sp(mat, n)
-    wi = _wi(theta, n)
-    g = lambda w: 1.0 + 0.5 * w[:, 0] + w[:, 2] ** 2  # noqa: E731
-    wo, w, _p, _d = bsdf.sample(sp, wi, rng.random(n), rng.random((n, 2)))
-    whole = w * g(wo)[:, None]
-    wo_m, w_m = bsdf.sample_lobe(sp, wi, rng.random((n, 2)))
-    np.testing.assert_allclose(wo_m, wi * np.array([-1.0, -1.0, 1.0]))
-    layer = bsdf.split_layer(sp, np.ones(n, bool))
-    wo_d, w_d, _p, d_d = bsdf.sample(layer, wi, rng.random(n), rng.random((n, 2)))
-    assert not d_d.any()
-    parts = w_m * g(wo_m)[:, None] + w_d * g(wo_d)[:, None]
     m1, e1 = _mean_and_err(whole)
     m2, e2 = _mean_and_err(parts)
     assert np.all(np.abs(m1 - m2) <= e1 + e2), (m1, m2)
