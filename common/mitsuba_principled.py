@@ -66,10 +66,10 @@ def principled_diffuse_albedo(roughness: float, n: int = 48) -> float:
     return float(np.sum(per_wi * 2 * mu) / n)
 
 
-def plastic_layer_albedo(mat: Material, peak: bool = False) -> float:
-    """The albedo of ``mat``'s diffuse layer per unit of its diffuse reflectance: its mean over
-    incidence weighted by cos θ_i, or (``peak``) its largest over incidence — what its coat lets
-    in and out (common.bsdf)."""
+def plastic_layer_albedo(mat: Material) -> tuple[float, float]:
+    """The albedo of ``mat``'s diffuse layer per unit of its diffuse reflectance — what its coat
+    lets in and out (common.bsdf): ``(mean over incidence weighted by cos θ_i, largest over
+    incidence)``."""
     from . import bsdf  # (common.bsdf reads the scene module this loader's callers build from)
 
     unit = dataclasses.replace(mat, diffuse=Texture.constant(1.0))
@@ -79,7 +79,7 @@ def plastic_layer_albedo(mat: Material, peak: bool = False) -> float:
     sp = bsdf.split_layer(sp, np.ones(n, bool))
     wi = np.stack([np.sqrt(1 - mu * mu), np.zeros(n), mu], -1)
     a = bsdf.directional_albedo(sp, wi, 1024)[:, 1]
-    return float(a.max()) if peak else float(np.sum(a * 2 * mu) / n)
+    return float(np.sum(a * 2 * mu) / n), float(a.max())
 
 
 def _scalar(p: Props, name: str, default: float, approximated: list[str], lo: float = 0.0,
@@ -137,8 +137,9 @@ def load_principled(loader, node: Node, p: Props, name: str, thin: bool = False)
     if lobe == "glass":
         kind = "thin dielectric" if thin else "smooth dielectric"
         # (Mitsuba's thin sheet passes base_color; the solid its square root, at entry and exit)
+        passed = base if thin else _texture_map(base, lambda c: np.sqrt(np.maximum(c, 0.0)))
         mat = Material(name=name, kind=THINDIELECTRIC if thin else DIELECTRIC, int_ior=max(eta, 1.001), ext_ior=1.0,
-                       specular=Texture.constant(1.0), specular_transmittance=base if thin else _sqrt(base))
+                       specular=Texture.constant(1.0), specular_transmittance=passed)
         if roughness > 0.1:
             approximated.append(f"rough transmission (roughness {roughness:g}) as smooth")
     elif lobe == "metal":
@@ -147,22 +148,23 @@ def load_principled(loader, node: Node, p: Props, name: str, thin: bool = False)
                        eta=np.zeros(3), k=np.zeros(3))
     elif thin:
         kind = "two-sided diffuse"
-        mat = Material(name=name, kind=DIFFUSE, diffuse=_scaled(base, principled_diffuse_albedo(roughness)),
-                       twosided=True)
+        albedo = principled_diffuse_albedo(roughness)
+        mat = Material(name=name, kind=DIFFUSE, diffuse=_texture_map(base, lambda c: c * albedo), twosided=True)
     else:
         smooth = alpha <= MIN_ALPHA
         kind = "smooth plastic" if smooth else "rough plastic"
         mat = Material(name=name, kind=PLASTIC if smooth else ROUGHPLASTIC, specular=Texture.constant(1.0),
                        alpha=alpha, distribution="ggx", int_ior=max(eta, 1.001), ext_ior=1.0)
-        scale = principled_diffuse_albedo(roughness) / plastic_layer_albedo(mat)
+        mean, peak = plastic_layer_albedo(mat)
+        scale = principled_diffuse_albedo(roughness) / mean
         # A rough coat lets little through at grazing angles: the mean matched, a white layer would
         # reflect more than it receives straight on (1.3 at roughness 1). It stops at 1 there.
         brightest = float(np.max(base.rgb)) if base.is_constant else float(np.percentile(base.image.max(-1), 99))
-        cap = 1.0 / (plastic_layer_albedo(mat, peak=True) * max(brightest, 1e-6))
+        cap = 1.0 / (peak * max(brightest, 1e-6))
         if scale > cap:
             approximated.append(f"diffuse {cap / scale:.2f} of the principled lobe's (rough coat)")
             scale = cap
-        mat.diffuse = _scaled(base, scale)
+        mat.diffuse = _texture_map(base, lambda c: c * scale)
     rounded = [f"{k} {v:g}" for k, v in (("metallic", metallic), ("spec_trans", spec_trans)) if 0.0 < v < 1.0]
     if rounded:
         approximated.append(", ".join(rounded) + " rounded")
@@ -172,13 +174,8 @@ def load_principled(loader, node: Node, p: Props, name: str, thin: bool = False)
     return mat
 
 
-def _scaled(t: Texture, s: float) -> Texture:
+def _texture_map(t: Texture, f) -> Texture:
+    """``t`` with ``f`` applied to its colour, or to its bitmap's texels (kept float32)."""
     if t.is_constant:
-        return dataclasses.replace(t, rgb=t.rgb * s)
-    return dataclasses.replace(t, image=(t.image * np.float32(s)).astype(np.float32))
-
-
-def _sqrt(t: Texture) -> Texture:
-    if t.is_constant:
-        return dataclasses.replace(t, rgb=np.sqrt(np.maximum(t.rgb, 0.0)))
-    return dataclasses.replace(t, image=np.sqrt(np.maximum(t.image, 0.0)).astype(np.float32))
+        return dataclasses.replace(t, rgb=np.asarray(f(t.rgb), np.float64))
+    return dataclasses.replace(t, image=np.asarray(f(t.image), np.float32))

@@ -97,7 +97,7 @@ def test_a_smooth_principled_is_a_smooth_plastic_and_a_textured_base_colour_is_s
         <texture type="bitmap" name="base_color"><string name="filename" value="base.exr"/></texture>
         <float name="roughness" value="0"/></bsdf>""")
     assert mat.kind == PLASTIC
-    scale = principled_diffuse_albedo(0.0) / plastic_layer_albedo(mat)
+    scale = principled_diffuse_albedo(0.0) / plastic_layer_albedo(mat)[0]
     np.testing.assert_allclose(mat.diffuse.image, img * scale, rtol=1e-6)
 
 
@@ -146,7 +146,7 @@ def test_principled_in_twosided_keeps_twosided_and_defaults_are_mitsubas(tmp_pat
     mat, _w, _p = _material(tmp_path, '<bsdf type="twosided"><bsdf type="principled"/></bsdf>')
     assert mat.twosided and mat.kind == ROUGHPLASTIC
     assert mat.alpha == pytest.approx(0.25) and mat.int_ior / mat.ext_ior == pytest.approx(principled_eta(0.5))
-    np.testing.assert_allclose(mat.diffuse.rgb, 0.5 * principled_diffuse_albedo(0.5) / plastic_layer_albedo(mat))
+    np.testing.assert_allclose(mat.diffuse.rgb, 0.5 * principled_diffuse_albedo(0.5) / plastic_layer_albedo(mat)[0])
 
 
 @pytest.mark.parametrize("body, text", [
