@@ -1,5 +1,5 @@
 """BSDFs matching Mitsuba 3 (diffuse, conductor, roughconductor, dielectric, thindielectric,
-plastic, roughplastic, twosided, null) over N points: per-point parameters
+roughdielectric, plastic, roughplastic, twosided, null) over N points: per-point parameters
 (:class:`SurfacePoints`, :func:`gather`) and the array API, evaluated by the compiled scalar
 kernels of common.kernels.bsdf on the packed parameters (:func:`pack`), in float64; results
 come back in the inputs' float type.
@@ -15,6 +15,10 @@ Component layout of :func:`specular_components` (always two entries, masks say w
   thindielectric (R' x specular), plastic (F(cos_i) x specular);
 - ``[1]`` delta transmission: dielectric (T x transmittance, radiance mode x eta_ti^2),
   thindielectric (straight through, T' x transmittance).
+
+A rough dielectric is sampled as a delta too: both entries at one microfacet normal drawn from
+``u2`` (reflection F x G1(wo) x specular, refraction (1 - F) x G1(wo) x transmittance), eval and
+pdf 0: it is followed as a chain, never an end point.
 """
 from __future__ import annotations
 
@@ -31,6 +35,7 @@ from igi.common.scene import (
     NULL,
     PLASTIC,
     ROUGHCONDUCTOR,
+    ROUGHDIELECTRIC,
     ROUGHPLASTIC,
     ROUGHPLASTIC_DIFFUSE,
     ROUGHPLASTIC_LOBE,
@@ -43,9 +48,10 @@ from igi.common.scene import (
 INV_PI = 1.0 / np.pi
 ROUGH_PLASTIC_KINDS = (ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE, ROUGHPLASTIC_LOBE)  # the kinds that read coat tables
 
-DELTA_KINDS = (CONDUCTOR, DIELECTRIC, THINDIELECTRIC)  # no non-delta part at all
-HAS_DELTA_KINDS = (CONDUCTOR, DIELECTRIC, THINDIELECTRIC, PLASTIC)  # some delta component
-TRANSMISSIVE_KINDS = (DIELECTRIC, THINDIELECTRIC)  # two-sided by nature; ``twosided`` ignored
+# no non-delta part at all (the rough dielectric: sampled at a drawn microfacet, as a delta)
+DELTA_KINDS = (CONDUCTOR, DIELECTRIC, THINDIELECTRIC, ROUGHDIELECTRIC)
+HAS_DELTA_KINDS = DELTA_KINDS + (PLASTIC,)  # some delta component
+TRANSMISSIVE_KINDS = (DIELECTRIC, THINDIELECTRIC, ROUGHDIELECTRIC)  # two-sided by nature; ``twosided`` ignored
 
 
 # ----------------------------------------------------------------------------------------------
@@ -435,7 +441,8 @@ def finite_or_zero(a: np.ndarray) -> np.ndarray:
 
 
 def is_delta(kind) -> np.ndarray:
-    """Kinds that are purely delta (eval/pdf always 0): conductor, dielectric, thindielectric."""
+    """Kinds that are purely delta (eval/pdf always 0): conductor, dielectric, thindielectric,
+    roughdielectric (sampled as a delta)."""
     return kind_in(kind, DELTA_KINDS)
 
 
@@ -618,19 +625,21 @@ def lobe_only(sp: SurfacePoints) -> SurfacePoints:
     return sp.replaced(kind=np.where(rp, ROUGHPLASTIC_LOBE, sp.kind).astype(sp.kind.dtype))
 
 
-def specular_components(sp: SurfacePoints, wi: np.ndarray, mode: str = "radiance"):
+def specular_components(sp: SurfacePoints, wi: np.ndarray, mode: str = "radiance", u2: np.ndarray | None = None):
     """Deterministic split of an eye path at delta surfaces.
 
     Returns ``[(wo, weight, valid), (wo, weight, valid)]``: entry 0 the delta reflection, entry 1
     the delta transmission (see the module docstring for which kinds have which). Weights carry
     the Fresnel factor and the specular textures (no lobe-selection division); the dielectric
-    transmission is scaled by eta_ti^2 in radiance mode, as Mitsuba does.
+    transmission is scaled by eta_ti^2 in radiance mode, as Mitsuba does. ``u2`` (N, 2) draws
+    a rough dielectric's microfacet normal (None: (0.5, 0.5) for every point).
     """
     dt = _dtype(wi)
     n = len(sp)
     wi = _dirs(wi, n)
+    u2 = np.full((n, 2), 0.5) if u2 is None else _f64(u2).reshape(-1, 2)
     r_wo, r_w, t_wo, t_w = (np.empty((n, 3)) for _ in range(4))
-    kb.specular_many(*packed_rows(sp), wi, mode == "radiance", r_wo, r_w, t_wo, t_w)
+    kb.specular_many(*packed_rows(sp), wi, mode == "radiance", u2, r_wo, r_w, t_wo, t_w)
     r_w = r_w.astype(dt, copy=False)
     t_w = t_w.astype(dt, copy=False)
     return [(r_wo.astype(dt, copy=False), r_w, np.any(r_w > 0, axis=-1)),

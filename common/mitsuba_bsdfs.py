@@ -10,8 +10,8 @@ import numpy as np
 from . import transform as tf
 from .mitsuba_doc import Node, Props, fmt_rgb
 from .mitsuba_principled import load_principled
-from .scene import (CONDUCTOR, DIELECTRIC, DIFFUSE, NULL, PLASTIC, ROUGHCONDUCTOR, ROUGHPLASTIC, THINDIELECTRIC,
-                    Material, SceneError, Texture)
+from .scene import (CONDUCTOR, DIELECTRIC, DIFFUSE, NULL, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC,
+                    THINDIELECTRIC, Material, SceneError, Texture)
 
 # Conductor presets as RGB (eta, k): the values Mitsuba 3.9.1 (scalar_rgb) derives from its
 # spectral IOR tables, read back with mi.traverse().
@@ -170,16 +170,16 @@ def load_bsdf(loader, node: Node, name: str | None = None) -> Material:
         if kind == "roughconductor":
             _roughness(loader, p, mat, node)
     elif kind in ("dielectric", "thindielectric", "roughdielectric"):
-        if kind == "roughdielectric":
-            loader.warn(node, "bsdf 'roughdielectric' is not supported", "using a smooth dielectric")
-            p.get("alpha"), p.get("alpha_u"), p.get("alpha_v"), p.get("distribution")
-        mat = Material(name=name, kind=THINDIELECTRIC if kind == "thindielectric" else DIELECTRIC,
+        mat = Material(name=name, kind={"dielectric": DIELECTRIC, "thindielectric": THINDIELECTRIC,
+                                        "roughdielectric": ROUGHDIELECTRIC}[kind],
                        int_ior=p.ior("int_ior", 1.5046), ext_ior=p.ior("ext_ior", 1.000277),
                        specular=p.texture("specular_reflectance", 1.0),
                        specular_transmittance=p.texture("specular_transmittance", 1.0))
         if p.has("eta"):
             eta = p.float("eta")
             mat.int_ior, mat.ext_ior = float(eta), 1.0
+        if kind == "roughdielectric":
+            _roughness(loader, p, mat, node)
     elif kind in ("plastic", "roughplastic"):
         mat = Material(name=name, kind=PLASTIC if kind == "plastic" else ROUGHPLASTIC,
                        diffuse=p.texture("diffuse_reflectance", 0.5),
@@ -197,10 +197,12 @@ def load_bsdf(loader, node: Node, name: str | None = None) -> Material:
         inner = _nested_bsdfs(loader, p)
         if kind == "blendbsdf" and len(inner) > 1:
             # (1 - weight) × the first + weight × the second: the one weighing more stands for both
-            w = float(np.mean(p.texture("weight", 0.5).mean())) if p.has("weight") else 0.5
+            t = p.texture("weight", 0.5) if p.has("weight") else Texture.constant(0.5)
+            w = float(np.mean(t.mean()))
             pick = int(w > 0.5)
+            mean_of = "" if t.is_constant else ", its texture's mean"
             loader.warn(node, "bsdf 'blendbsdf' is not supported",
-                        f"using its {('first', 'second')[pick]} nested BSDF (weight {w:.3g})")
+                        f"using its {('first', 'second')[pick]} nested BSDF (weight {w:.3g}{mean_of})")
             return load_bsdf(loader, inner[pick], name)
         if inner:
             loader.warn(node, f"bsdf '{kind}' is not supported", "using its (first) nested BSDF")

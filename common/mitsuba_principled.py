@@ -6,8 +6,8 @@ highlights keep their size and colour instead of falling back to grey diffuse:
 
 - the heaviest of Mitsuba's lobe weights picks the kind: metallic m, transmission (1 - m) spec_trans,
   dielectric (1 - m)(1 - spec_trans);
-- transmission: a smooth dielectric of its η, transmittance √base_color (as Mitsuba weighs its
-  transmission lobe);
+- transmission: a rough dielectric of GGX α = roughness² and its η (below α 1e-3 a smooth one),
+  transmittance √base_color (as Mitsuba weighs its transmission lobe);
 - metal: a rough conductor of GGX α = roughness², its specular colour base_color under a Fresnel
   of 1 (Mitsuba's Schlick Fresnel from base_color whitens only at grazing);
 - dielectric: a rough plastic of GGX α = roughness² and η, the principled specular lobe's own (a
@@ -30,7 +30,8 @@ import math
 import numpy as np
 
 from .mitsuba_doc import Node, Props
-from .scene import DIELECTRIC, DIFFUSE, PLASTIC, ROUGHCONDUCTOR, ROUGHPLASTIC, THINDIELECTRIC, Material, Texture
+from .scene import (DIELECTRIC, DIFFUSE, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, THINDIELECTRIC,
+                    Material, Texture)
 
 # the smallest GGX α Mitsuba's principled lobe takes (calc_dist_params clamps roughness² to it)
 MIN_ALPHA = 1e-3
@@ -121,6 +122,9 @@ def load_principled(loader, node: Node, p: Props, name: str, thin: bool = False)
         if not 0.0 <= specular < 12.5:  # F0 = 0.08 × specular must stay below 1
             raise loader.error(p.named["specular"], f"principled 'specular' {specular:g} must be in [0, 12.5)")
         eta = principled_eta(specular)
+    if eta < 1.001:  # (an interface into a thinner medium: igi's plastics and glass take η > 1)
+        approximated.append(f"eta {eta:g} raised to 1.001")
+        eta = 1.001
     for k in _DROPPED:
         if p.has(k):
             v = _scalar(p, k, 0.0, approximated, hi=np.inf)
@@ -135,12 +139,14 @@ def load_principled(loader, node: Node, p: Props, name: str, thin: bool = False)
                "plastic": (1 - metallic) * (1 - spec_trans)}
     lobe = max(weights, key=weights.get)
     if lobe == "glass":
-        kind = "thin dielectric" if thin else "smooth dielectric"
+        rough = not thin and alpha > MIN_ALPHA
+        kind = "thin dielectric" if thin else "rough dielectric" if rough else "smooth dielectric"
         # (Mitsuba's thin sheet passes base_color; the solid its square root, at entry and exit)
         passed = base if thin else _texture_map(base, lambda c: np.sqrt(np.maximum(c, 0.0)))
-        mat = Material(name=name, kind=THINDIELECTRIC if thin else DIELECTRIC, int_ior=max(eta, 1.001), ext_ior=1.0,
-                       specular=Texture.constant(1.0), specular_transmittance=passed)
-        if roughness > 0.1:
+        mat = Material(name=name, kind=THINDIELECTRIC if thin else ROUGHDIELECTRIC if rough else DIELECTRIC,
+                       int_ior=eta, ext_ior=1.0, specular=Texture.constant(1.0),
+                       specular_transmittance=passed, alpha=alpha, distribution="ggx")
+        if thin and roughness > 0.1:
             approximated.append(f"rough transmission (roughness {roughness:g}) as smooth")
     elif lobe == "metal":
         kind = "rough conductor"
@@ -154,7 +160,7 @@ def load_principled(loader, node: Node, p: Props, name: str, thin: bool = False)
         smooth = alpha <= MIN_ALPHA
         kind = "smooth plastic" if smooth else "rough plastic"
         mat = Material(name=name, kind=PLASTIC if smooth else ROUGHPLASTIC, specular=Texture.constant(1.0),
-                       alpha=alpha, distribution="ggx", int_ior=max(eta, 1.001), ext_ior=1.0)
+                       alpha=alpha, distribution="ggx", int_ior=eta, ext_ior=1.0)
         mean, peak = plastic_layer_albedo(mat)
         scale = principled_diffuse_albedo(roughness) / mean
         # A rough coat lets little through at grazing angles: the mean matched, a white layer would

@@ -7,9 +7,9 @@ the element, its ``file:line`` and the fallback):
   with ``to_world``, ``face_normals``, ``flip_normals``, ``flip_tex_coords`` (obj), ``center`` and
   ``radius`` (sphere); a nested or referenced BSDF and area emitter;
 - BSDFs ``diffuse``, ``conductor``, ``roughconductor``, ``dielectric``, ``thindielectric``,
-  ``plastic``, ``roughplastic``, ``twosided``; ``principled`` and ``principledthin`` approximated
-  by the nearest of those (:mod:`common.mitsuba_principled`); ``null`` maps to the black ``NULL``
-  kind; ``roughdielectric`` falls back to ``dielectric``; ``mask``/``bumpmap``/``normalmap`` fall
+  ``roughdielectric``, ``plastic``, ``roughplastic``, ``twosided``; ``principled`` and
+  ``principledthin`` approximated by the nearest of those (:mod:`common.mitsuba_principled`);
+  ``null`` maps to the black ``NULL`` kind; ``mask``/``bumpmap``/``normalmap`` fall
   back to their nested BSDF, ``blendbsdf`` to the one its ``weight`` favours; textures ``bitmap``
   (``filename``, ``filter_type``, ``raw``, ``to_uv`` scale/translate) and ``checkerboard``; other
   textures fall back to their mean colour;

@@ -71,6 +71,9 @@ ROUGHPLASTIC_DIFFUSE = 8
 # Internal: the coat's glossy lobe of a rough plastic alone (its microfacet reflection), for the
 # light samples of a split lobe, MIS-weighted against the lobe's own traced ray.
 ROUGHPLASTIC_LOBE = 9
+# A rough dielectric (Mitsuba's roughdielectric, Walter et al. 2007): followed as a chain, as
+# glass is, each crossing at one microfacet normal drawn from those visible from wi.
+ROUGHDIELECTRIC = 10
 
 KIND_NAMES = {
     "diffuse": DIFFUSE,
@@ -78,13 +81,15 @@ KIND_NAMES = {
     "roughconductor": ROUGHCONDUCTOR,
     "dielectric": DIELECTRIC,
     "thindielectric": THINDIELECTRIC,
+    "roughdielectric": ROUGHDIELECTRIC,
     "plastic": PLASTIC,
     "roughplastic": ROUGHPLASTIC,
     "null": NULL,
 }
-SPECULAR_KINDS = (CONDUCTOR, DIELECTRIC, THINDIELECTRIC)  # delta BSDFs: chains are followed
+# delta BSDFs, and the rough dielectric sampled as one at a drawn microfacet: chains are followed
+SPECULAR_KINDS = (CONDUCTOR, DIELECTRIC, THINDIELECTRIC, ROUGHDIELECTRIC)
 GLOSSY_KINDS = (ROUGHCONDUCTOR, PLASTIC, ROUGHPLASTIC)
-_N_KINDS = ROUGHPLASTIC_LOBE + 1
+_N_KINDS = ROUGHDIELECTRIC + 1
 _KIND_TABLES: dict[tuple, np.ndarray] = {}
 
 

@@ -24,8 +24,8 @@ from igi.common.geometry import Geometry
 from igi.common.microfacet import lerp_gather
 from igi.common.lights import (VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE, LightSampler, luminance,
                                rays_meet_spheres, to_local, to_world)
-from igi.common.scene import (DIFFUSE, NULL, PLASTIC, ROUGHCONDUCTOR, ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE,
-                              ROUGHPLASTIC_LOBE, SPECULAR_KINDS, Scene, kind_in)
+from igi.common.scene import (DIFFUSE, NULL, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC,
+                              ROUGHPLASTIC_DIFFUSE, ROUGHPLASTIC_LOBE, SPECULAR_KINDS, Scene, kind_in)
 
 from .kernels import bsdf_direct as kbd
 from .kernels import bsdf_rays as br
@@ -190,7 +190,9 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
         branch(lobe[sel], wo[sel], weight[sel], np.zeros(len(sel), bool), pdf[sel])
     if len(di) and specular_depth > 0 and _allowed(2, max_depth):
         sp_d = sp.subset(di)
-        comps = bsdf.specular_components(sp_d, wi[di], mode="radiance")
+        # (a rough dielectric's microfacet normals, drawn only where there is one, as the kernel)
+        u_m = rng.random((len(di), 2)) if (sp_d.kind == ROUGHDIELECTRIC).any() else None
+        comps = bsdf.specular_components(sp_d, wi[di], mode="radiance", u2=u_m)
         lum = np.stack([np.where(c[2], luminance(c[1]), -1.0) for c in comps], axis=1)
         best = np.argmax(lum, axis=1)
         for ci, (wo, weight, ok) in enumerate(comps):

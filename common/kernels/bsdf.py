@@ -36,6 +36,7 @@ from igi.common.scene import (
     DIFFUSE,
     PLASTIC,
     ROUGHCONDUCTOR,
+    ROUGHDIELECTRIC,
     ROUGHPLASTIC,
     ROUGHPLASTIC_DIFFUSE,
     ROUGHPLASTIC_LOBE,
@@ -364,7 +365,7 @@ def carries(r: float, g: float, b: float) -> bool:
 def _flipped(P, i: int, wiz: float) -> bool:
     """Twosided point seen from the back (transmissive kinds are two-sided by nature)."""
     k = P[0][i]
-    return P[10][i] and wiz < 0.0 and k != DIELECTRIC and k != THINDIELECTRIC
+    return P[10][i] and wiz < 0.0 and k != DIELECTRIC and k != THINDIELECTRIC and k != ROUGHDIELECTRIC
 
 
 @njit(**_KERNEL)
@@ -552,6 +553,34 @@ def _reflect_m(wix, wiy, wiz, mx, my, mz) -> tuple:
 
 
 @njit(**_KERNEL, inline="always")
+def _rough_dielectric(P, i: int, wix, wiy, wiz, u2a, u2b, radiance: bool) -> tuple:
+    """A rough dielectric crossed at one microfacet normal m, drawn with ``(u2a, u2b)`` from the
+    normals visible from wi (turned to the outside first, as Mitsuba's roughdielectric samples):
+    ``(reflected wo, weight F·G1(wo)·specular, refracted wo, weight (1 − F)·G1(wo)·transmittance,
+    × eta_ti² when ``radiance``, F)``. Each weight is Mitsuba's sample weight of its lobe times
+    the probability F or 1 − F with which its sampler picks that lobe, so over m the pair's sum
+    is the whole BSDF's (Walter et al. 2007, with the separable Smith term). A side that the
+    crossing cannot reach (a reflection through the surface, a refraction back out) weighs 0."""
+    a = P[4][i]
+    beck = P[8][i]
+    s = 1.0 if wiz >= 0.0 else -1.0
+    mx, my, mz = sample_visible(s * wix, s * wiy, s * wiz, u2a, u2b, a, beck)
+    c = wix * mx + wiy * my + wiz * mz
+    r, cos_t, _eta_it, eta_ti = fresnel_dielectric(c, P[5][i])
+    rx, ry, rz = _reflect_m(wix, wiy, wiz, mx, my, mz)
+    k = c * eta_ti + cos_t
+    tx, ty, tz = k * mx - eta_ti * wix, k * my - eta_ti * wiy, k * mz - eta_ti * wiz
+    ok = wiz != 0.0 and c != 0.0
+    gr = smith_g1(rx, ry, rz, mx, my, mz, a, beck) if ok and rz * wiz > 0.0 else 0.0
+    gt = smith_g1(tx, ty, tz, mx, my, mz, a, beck) if ok and tz * wiz < 0.0 else 0.0
+    gt *= (1.0 - r) * (eta_ti * eta_ti if radiance else 1.0)
+    gr *= r
+    sp, tr = P[2], P[3]
+    return (rx, ry, rz, sp[i, 0] * gr, sp[i, 1] * gr, sp[i, 2] * gr,
+            tx, ty, tz, tr[i, 0] * gt, tr[i, 1] * gt, tr[i, 2] * gt, r)
+
+
+@njit(**_KERNEL, inline="always")
 def _sample_rough_conductor(P, i: int, wix, wiy, wiz, u2a, u2b) -> tuple:
     a = P[4][i]
     beck = P[8][i]
@@ -622,6 +651,14 @@ def _sample_kind(P, i: int, k: int, wix, wiy, wiz, u1, u2a, u2b, radiance: bool)
     if k == ROUGHPLASTIC_LOBE:
         wox, woy, woz, wr, wg, wb, p = _sample_coat_lobe(P, i, wix, wiy, wiz, u2a, u2b)
         return wox, woy, woz, wr, wg, wb, p, False
+    if k == ROUGHDIELECTRIC:
+        res = _rough_dielectric(P, i, wix, wiy, wiz, u2a, u2b, radiance)
+        r = res[12]
+        at = 0 if u1 <= r else 6
+        p = r if at == 0 else 1.0 - r
+        if not p > 0.0:
+            return res[at], res[at + 1], res[at + 2], 0.0, 0.0, 0.0, p, False
+        return res[at], res[at + 1], res[at + 2], res[at + 3] / p, res[at + 4] / p, res[at + 5] / p, p, True
     if k == DIELECTRIC or k == THINDIELECTRIC:
         if k == DIELECTRIC:
             r, cos_t, _eta_it, eta_ti = fresnel_dielectric(ci, P[5][i])
@@ -727,7 +764,7 @@ def albedo(P, i: int, wiz: float) -> tuple:
         r = fresnel_conductor(1.0, ce[i, 0], ck[i, 0]) * s[i, 0]
         g = fresnel_conductor(1.0, ce[i, 1], ck[i, 1]) * s[i, 1]
         b = fresnel_conductor(1.0, ce[i, 2], ck[i, 2]) * s[i, 2]
-    elif k == DIELECTRIC or k == THINDIELECTRIC:
+    elif k == DIELECTRIC or k == THINDIELECTRIC or k == ROUGHDIELECTRIC:
         r0 = fresnel_dielectric(1.0, P[5][i])[0]
         r = r0 * s[i, 0] + (1.0 - r0) * t[i, 0]
         g = r0 * s[i, 1] + (1.0 - r0) * t[i, 1]
@@ -758,11 +795,16 @@ def albedo(P, i: int, wiz: float) -> tuple:
 
 
 @njit(**_KERNEL, inline="always")
-def specular(P, i: int, wix: float, wiy: float, wiz: float, radiance: bool) -> tuple:
+def specular(P, i: int, wix: float, wiy: float, wiz: float, radiance: bool, u2a: float, u2b: float) -> tuple:
     """The deterministic delta split of common.bsdf.specular_components: ``(reflected wo xyz,
     reflection weight rgb, transmitted wo xyz, transmission weight rgb)``, weights with the
-    Fresnel factor and no lobe-selection division."""
+    Fresnel factor and no lobe-selection division; a rough dielectric split so at the
+    microfacet normal ``(u2a, u2b)`` draws (:func:`_rough_dielectric`)."""
     k = P[0][i]
+    if k == ROUGHDIELECTRIC:
+        res = _rough_dielectric(P, i, wix, wiy, wiz, u2a, u2b, radiance)
+        return (res[0], res[1], res[2], _fin(res[3]), _fin(res[4]), _fin(res[5]),
+                res[6], res[7], res[8], _fin(res[9]), _fin(res[10]), _fin(res[11]))
     ci = -wiz if _flipped(P, i, wiz) else wiz
     s, t = P[2], P[3]
     rr = rg = rb = tr = tg = tb = 0.0
@@ -850,10 +892,11 @@ def albedo_many(P, row, wi, out_rgb) -> None:
 
 
 @njit(**_KERNEL)
-def specular_many(P, row, wi, radiance, r_wo, r_w, t_wo, t_w) -> None:
-    """Row i: :func:`specular` of point i (row ``row[i]`` of P) at wi[i]."""
+def specular_many(P, row, wi, radiance, u2, r_wo, r_w, t_wo, t_w) -> None:
+    """Row i: :func:`specular` of point i (row ``row[i]`` of P) at wi[i] (a rough dielectric's
+    microfacet drawn with u2[i])."""
     for i in range(wi.shape[0]):
-        res = specular(P, row[i], wi[i, 0], wi[i, 1], wi[i, 2], radiance)
+        res = specular(P, row[i], wi[i, 0], wi[i, 1], wi[i, 2], radiance, u2[i, 0], u2[i, 1])
         for c in range(3):
             r_wo[i, c] = res[c]
             r_w[i, c] = res[3 + c]

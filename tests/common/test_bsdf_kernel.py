@@ -28,6 +28,7 @@ from igi.common.scene import (
     NULL,
     PLASTIC,
     ROUGHCONDUCTOR,
+    ROUGHDIELECTRIC,
     ROUGHPLASTIC,
     ROUGHPLASTIC_DIFFUSE,
     ROUGHPLASTIC_LOBE,
@@ -41,7 +42,7 @@ RTOL = 1e-5
 ATOL = 1e-12
 # the oracle's numpy warns on the NaN, Inf and grazing inputs (the kernels do not)
 pytestmark = pytest.mark.filterwarnings("ignore::RuntimeWarning")
-KINDS = (DIFFUSE, CONDUCTOR, ROUGHCONDUCTOR, DIELECTRIC, THINDIELECTRIC, PLASTIC, ROUGHPLASTIC,
+KINDS = (DIFFUSE, CONDUCTOR, ROUGHCONDUCTOR, DIELECTRIC, THINDIELECTRIC, ROUGHDIELECTRIC, PLASTIC, ROUGHPLASTIC,
          ROUGHPLASTIC_DIFFUSE, ROUGHPLASTIC_LOBE, NULL)
 SPLIT = (ROUGHPLASTIC_DIFFUSE, ROUGHPLASTIC_LOBE)  # internal kinds: parts of a rough plastic
 
@@ -126,8 +127,8 @@ def _assert_all_functions_match_the_oracle(sp, wi, wo, u1, u2):
         for name, g, w in zip(("wo", "weight", "pdf"), got[:3], want[:3]):
             _close(g, w, f"sample {mode} {name}")
         np.testing.assert_array_equal(got[3], want[3], err_msg=f"sample {mode} delta")
-        got = bsdf.specular_components(sp, wi, mode=mode)
-        want = oracle.specular_components(sp, wi, mode=mode)
+        got = bsdf.specular_components(sp, wi, mode=mode, u2=u2)
+        want = oracle.specular_components(sp, wi, mode=mode, u2=u2)
         for c in range(2):
             _close(got[c][0], want[c][0], f"specular {c} wo")
             _close(got[c][1], want[c][1], f"specular {c} weight")
@@ -329,7 +330,7 @@ def test_scalar_kernels_equal_the_array_loops():
     s = bsdf.sample(sp, wi, u1, u2)
     lobe = bsdf.sample_lobe(sp, wi, u2)
     alb = bsdf.albedo(sp, wi)
-    spec = bsdf.specular_components(sp, wi)
+    spec = bsdf.specular_components(sp, wi, u2=u2)
     for i in range(n):
         np.testing.assert_array_equal(kb.eval_pdf(P, i, *wi[i], *wo[i]), (*f[i], p[i]))
         got = kb.sample(P, i, *wi[i], u1[i], *u2[i], True)
@@ -337,7 +338,7 @@ def test_scalar_kernels_equal_the_array_loops():
         assert got[7] == s[3][i]
         np.testing.assert_array_equal(kb.sample_lobe(P, i, *wi[i], *u2[i]), (*lobe[0][i], *lobe[1][i]))
         np.testing.assert_array_equal(kb.albedo(P, i, wi[i, 2]), alb[i])
-        np.testing.assert_array_equal(kb.specular(P, i, *wi[i], True),
+        np.testing.assert_array_equal(kb.specular(P, i, *wi[i], True, *u2[i]),
                                       (*spec[0][0][i], *spec[0][1][i], *spec[1][0][i], *spec[1][1][i]))
 
 

@@ -12,8 +12,8 @@ import pytest
 from igi.common import bsdf
 from igi.common.mitsuba_principled import plastic_layer_albedo, principled_diffuse_albedo, principled_eta
 from igi.common.mitsuba_xml import load_mitsuba
-from igi.common.scene import (DIELECTRIC, DIFFUSE, PLASTIC, ROUGHCONDUCTOR, ROUGHPLASTIC, THINDIELECTRIC, Material,
-                              SceneError)
+from igi.common.scene import (DIELECTRIC, DIFFUSE, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC,
+                              THINDIELECTRIC, Material, SceneError)
 from tests.common.test_mitsuba_xml import line_of, scene_file
 
 
@@ -113,9 +113,16 @@ def test_metallic_and_transmissive_principled_and_what_they_drop_are_named(tmp_p
     glass, w, _p = _material(tmp_path, """<bsdf type="principled">
         <rgb name="base_color" value="0.81, 1, 1"/><float name="spec_trans" value="1"/>
         <float name="eta" value="1.33"/><float name="roughness" value="0.3"/></bsdf>""")
-    assert glass.kind == DIELECTRIC and glass.int_ior / glass.ext_ior == pytest.approx(1.33)
+    assert glass.kind == ROUGHDIELECTRIC and glass.int_ior / glass.ext_ior == pytest.approx(1.33)
+    assert glass.alpha == pytest.approx(0.09) and glass.distribution == "ggx"
     np.testing.assert_allclose(glass.specular_transmittance.rgb, (0.9, 1, 1))
-    assert "rough transmission (roughness 0.3) as smooth" in "\n".join(w)
+    assert "as a rough dielectric" in "\n".join(w)
+    smooth, _w, _p = _material(tmp_path, """<bsdf type="principled"><float name="spec_trans" value="1"/>
+        <float name="roughness" value="0.01"/></bsdf>""")
+    assert smooth.kind == DIELECTRIC  # α 1e-4: Mitsuba's lobe clamps it to 1e-3, a near-delta
+    thinner, w, _p = _material(tmp_path, """<bsdf type="principled"><float name="eta" value="0.8"/></bsdf>""")
+    assert thinner.int_ior / thinner.ext_ior == pytest.approx(1.001)
+    assert "eta 0.8 raised to 1.001" in "\n".join(w)
     # Mitsuba weighs transmission by (1 - metallic): a transmissive metal is a metal
     metal, _w, _p = _material(tmp_path, """<bsdf type="principled"><float name="metallic" value="1"/>
         <float name="spec_trans" value="1"/></bsdf>""")

@@ -15,7 +15,7 @@ from igi.common.loader import load_scene
 from igi.common.luminance import luminance
 from igi.common.mitsuba_xml import load_mitsuba
 from igi.common.scene import (AREA, CONDUCTOR, CONSTANT, DIELECTRIC, DIFFUSE, DIRECTIONAL, PLASTIC, POINT,
-                          ROUGHCONDUCTOR, ROUGHPLASTIC, SPOT, THINDIELECTRIC, SceneError)
+                          ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPOT, THINDIELECTRIC, SceneError)
 
 from tests.support.paths import SCENES
 
@@ -225,14 +225,16 @@ def test_bsdfs_and_mitsuba_defaults(tmp_path):
         <bsdf type="dielectric" id="g"/>
         <bsdf type="dielectric" id="w"><string name="int_ior" value="water"/><string name="ext_ior" value="air"/></bsdf>
         <bsdf type="thindielectric" id="t"><float name="int_ior" value="1.33"/></bsdf>
+        <bsdf type="roughdielectric" id="rg"><string name="distribution" value="ggx"/>
+            <float name="alpha" value="0.3"/><rgb name="specular_transmittance" value="0.9 0.8 0.7"/></bsdf>
         <bsdf type="plastic" id="p"><spectrum name="diffuse_reflectance" value="0.3"/></bsdf>
         <bsdf type="roughplastic" id="rp"><boolean name="nonlinear" value="true"/></bsdf>
         <bsdf type="twosided" id="two"><bsdf type="diffuse"><rgb name="reflectance" value="0.1, 0.2, 0.3"/></bsdf></bsdf>
     """ + "".join(f'<shape type="cube"><ref id="{i}"/></shape>' for i in
-                  ["d", "c", "au", "rc", "g", "w", "t", "p", "rp", "two", "d"]))
+                  ["d", "c", "au", "rc", "g", "w", "t", "rg", "p", "rp", "two", "d"]))
     s = load_mitsuba(p)
     m = {x.name: x for x in s.materials}
-    assert len(s.materials) == 10  # a referenced BSDF is one material, however often it is used
+    assert len(s.materials) == 11  # a referenced BSDF is one material, however often it is used
     assert s.meshes[0].material == s.meshes[-1].material
     assert m["d"].kind == DIFFUSE and np.allclose(m["d"].diffuse.rgb, 0.5)
     assert m["c"].kind == CONDUCTOR and not m["c"].eta.any() and not m["c"].k.any()  # perfect mirror
@@ -242,6 +244,9 @@ def test_bsdfs_and_mitsuba_defaults(tmp_path):
     assert m["g"].kind == DIELECTRIC and (m["g"].int_ior, m["g"].ext_ior) == (1.5046, 1.000277)
     assert (m["w"].int_ior, m["w"].ext_ior) == (1.3330, 1.000277)
     assert m["t"].kind == THINDIELECTRIC and m["t"].int_ior == 1.33
+    assert m["rg"].kind == ROUGHDIELECTRIC and (m["rg"].alpha, m["rg"].distribution) == (0.3, "ggx")
+    assert m["rg"].int_ior == 1.5046 and np.allclose(m["rg"].specular_transmittance.rgb, [0.9, 0.8, 0.7])
+    assert not [w for w in s.warnings if "no <sensor>" not in w]  # every BSDF read as it is, none replaced
     assert m["p"].kind == PLASTIC and np.allclose(m["p"].diffuse.rgb, 0.3) and m["p"].int_ior == 1.49
     assert m["rp"].kind == ROUGHPLASTIC and m["rp"].nonlinear and m["rp"].alpha == 0.1
     assert m["rp"].distribution == "beckmann"
@@ -544,3 +549,13 @@ def test_blendbsdf_stands_for_its_heavier_nested_bsdf(tmp_path, weight, kind):
     assert s.materials[0].kind == kind
     which = "second" if weight > 0.5 else "first"
     assert f"using its {which} nested BSDF (weight {weight:g})" in "\n".join(s.warnings)
+
+
+def test_a_blendbsdfs_textured_weight_is_taken_at_its_mean_and_the_warning_says_so(tmp_path):
+    p = scene_file(tmp_path, """
+        <shape type="cube"><bsdf type="blendbsdf"><texture type="checkerboard" name="weight">
+            <float name="color0" value="0.9"/><float name="color1" value="0.5"/></texture>
+            <bsdf type="diffuse"/><bsdf type="conductor"/></bsdf></shape>""")
+    s = load_mitsuba(p)
+    assert s.materials[0].kind == CONDUCTOR
+    assert "using its second nested BSDF (weight 0.7, its texture's mean)" in "\n".join(s.warnings)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from igi.common.lights import frame_from, to_local, to_world
-from igi.common.scene import SPECULAR_KINDS, kind_in
+from igi.common.scene import ROUGHDIELECTRIC, SPECULAR_KINDS, kind_in
 
 
 def _numpy_local(w, n):
@@ -48,7 +48,7 @@ def test_transforms_broadcast_one_normal_and_take_float32_and_empty_input():
 def test_kind_in_is_isin_for_every_code_and_rejects_unknown_codes():
     codes = np.concatenate([np.arange(-3, 20), [-128, 127]]).astype(np.int8)
     for kinds in (SPECULAR_KINDS, (2, 6), (0,), ()):
-        want = np.isin(codes, kinds) & (codes >= 0) & (codes <= 9)
+        want = np.isin(codes, kinds) & (codes >= 0) & (codes <= ROUGHDIELECTRIC)
         np.testing.assert_array_equal(kind_in(codes, kinds), want)
         # codes of another integer type take the range-checked path (300: past a byte's table)
         wide = np.concatenate([codes.astype(np.int64), [300, -300]])

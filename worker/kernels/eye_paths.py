@@ -20,7 +20,7 @@ from igi.common.kernels import shading_frame
 from igi.common.kernels.hit_surface import offset_point
 from igi.common.kernels.ray_packets import closest_surfaces, hit_buffers
 from igi.common.lights import LUMINANCE_WEIGHTS
-from igi.common.scene import PLASTIC, ROUGHCONDUCTOR
+from igi.common.scene import PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC
 
 from .environment_bins import guide_pdf
 from .specular_chain import delta_bounce
@@ -183,8 +183,14 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
     comp = np.empty((n_delta, 12))
     best = np.empty(n_delta, np.int64)
     sel = delta[:n_delta]
+    # a rough dielectric's microfacet normals: drawn only where there is one (other scenes' streams unchanged)
+    rough = False
+    for q in range(n_delta):
+        rough = rough or kind[prow[sel[q]]] == ROUGHDIELECTRIC
+    u_m = rng.random((n_delta, 2)) if rough else np.full((n_delta, 2), 0.5)
     # (np.bool_: a literal True would have specular_many compiled once more, for Literal[bool])
-    kb.specular_many(P, prow[sel], wi[sel], np.bool_(True), comp[:, 0:3], comp[:, 3:6], comp[:, 6:9], comp[:, 9:12])
+    kb.specular_many(P, prow[sel], wi[sel], np.bool_(True), u_m, comp[:, 0:3], comp[:, 3:6], comp[:, 6:9],
+                     comp[:, 9:12])
     for q in range(n_delta):
         # np.argmax of (luminance where the component carries light, else -1): NaN wins, ties go first
         lum0 = comp[q, 3] * _WR + comp[q, 4] * _WG + comp[q, 5] * _WB if _carries_any(

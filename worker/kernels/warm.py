@@ -304,7 +304,7 @@ def _bsdf_calls() -> dict:
         "sample_many": lambda: kb.sample_many(P, r1, w1, o1, w2, True, o3.copy(), o3.copy(), o1.copy(), np.zeros(1, bool)),
         "sample_lobe_many": lambda: kb.sample_lobe_many(P, r1, w1, w2, o3.copy(), o3.copy()),
         "albedo_many": lambda: kb.albedo_many(P, r1, w1, o3.copy()),
-        "specular_many": lambda: kb.specular_many(P, r1, w1, True, o3.copy(), o3.copy(), o3.copy(), o3.copy()),
+        "specular_many": lambda: kb.specular_many(P, r1, w1, True, w2, o3.copy(), o3.copy(), o3.copy(), o3.copy()),
         "coat_columns": lambda: bsdf.pack(bsdf.SurfacePoints.constant(Material("warm-up", DIFFUSE), 1)),
         "material_rows": lambda: kb.material_rows(*bsdf.material_packed([Material("warm-up", DIFFUSE)])[:1], r1, 1,
                                                   bsdf.texture_atlas([Material("warm-up", DIFFUSE)]), w2,
