@@ -19,6 +19,7 @@ from embreex.mesh_construction import TriangleMesh
 from . import hull_culling
 from .kernels import hit_surface, triangle_sampling
 from .ray_packets import PacketScene, packet_scene
+from .luminance import LUMINANCE_WEIGHTS
 from .scene import Scene, SceneError
 
 log = logging.getLogger("igi.geometry")
@@ -185,8 +186,13 @@ class Geometry:
         # copies); embreex's own robust scene is then built only if asked for (benchmark
         # replays), so the triangles are not held in two closest-hit BVHs.
         self._embree_scene = None
-        self._packets = packet_scene(local, robust=True)
+        # Mitsuba's masks: every BVH's filter (common.kernels.opacity_mask), None without masks
+        self._masks = opacity_masks(scene.materials, self.material_of, self.faces, self.vertex_uvs)
+        self._packets = packet_scene(local, robust=True, masks=self._masks)
         if self._packets is None:
+            if self._masks is not None:
+                log.warning("%s: no Embree C API at hand, opacity masks ignored (the surfaces are opaque)",
+                            scene.source or "scene")
             self.embreex_bvh()  # Embree builds a BVH on its first query: now
 
     def embreex_bvh(self):
@@ -220,7 +226,7 @@ class Geometry:
                 if self._shadow is None:
                     # Embree's C API in packets of the CPU's width (common.ray_packets) where at
                     # hand: the same answers ~1.6x faster than embreex's one ray per call.
-                    scene = packet_scene(self._local, robust=False)
+                    scene = packet_scene(self._local, robust=False, masks=self._masks)
                     if scene is None:
                         scene = rtcs.EmbreeScene(self._device, robust=False)
                         self._shadow_mesh = TriangleMesh(scene, self._local)
@@ -244,7 +250,9 @@ class Geometry:
                     if isinstance(shadow, PacketScene):
                         planes, culled = hull_culling.supporting_planes(self.vertices, self.faces, self.area,
                                                                         self.diagonal)
-                    inner = packet_scene(self._local[~culled], robust=False) if culled.any() else None
+                    masks = None if self._masks is None else (self._masks[0][~culled], self._masks[1][~culled],
+                                                              *self._masks[2:])
+                    inner = packet_scene(self._local[~culled], robust=False, masks=masks) if culled.any() else None
                     if inner is None:
                         self._interior = (shadow, np.zeros((0, 4), np.float32))
                     else:
@@ -437,6 +445,36 @@ class Geometry:
 
 
 _ONE_RAY = (np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32))  # a query that builds a BVH
+
+
+def opacity_masks(materials: list, material_of: np.ndarray, faces: np.ndarray, vertex_uvs: np.ndarray) -> tuple | None:
+    """The opacity masks of the triangles, as common.kernels.opacity_mask.user_data takes them —
+    ``(mask row per triangle (-1: opaque), its vertices' uv (F, 6), masks (M, 9), bitmap atlas)``
+    — or None where no material has a mask below full opacity. A constant mask is its
+    luminance, clamped to [0, 1]; a bitmap is looked up bilinearly, as the materials' textures."""
+    rows = np.full(len(materials), -1, np.int32)
+    masks, parts, base = [], [], 0
+    for i, mat in enumerate(materials):
+        t = mat.opacity
+        if t is None:
+            continue
+        if t.is_constant:
+            a = float(np.clip(np.dot(LUMINANCE_WEIGHTS, t.rgb), 0.0, 1.0))
+            if a >= 1.0:
+                continue
+            masks.append((a, 0, 0, 0, 0, 0, 0, 0, 0))
+        else:
+            img = np.ascontiguousarray(t.image, np.float32)
+            masks.append((-1.0, base, img.shape[0], img.shape[1], *t.uv_scale, *t.uv_offset, t.filter == "nearest"))
+            parts.append(img.reshape(-1))
+            base += img.size
+        rows[i] = len(masks) - 1
+    tri_mask = rows[material_of] if masks else rows[:0]
+    if not (tri_mask >= 0).any():
+        return None
+    tri_uv = np.where((tri_mask >= 0)[:, None], vertex_uvs[faces].reshape(-1, 6), 0.0)
+    pixels = np.concatenate(parts) if parts else np.zeros(0, np.float32)
+    return tri_mask, tri_uv, np.array(masks, np.float64), pixels
 
 
 class _TimedEmbree:

@@ -193,7 +193,18 @@ def load_bsdf(loader, node: Node, name: str | None = None) -> Material:
     elif kind == "null":
         loader.warn(node, "bsdf 'null' (pass-through) is not supported", "using a black (NULL) material")
         mat = Material(name=name, kind=NULL, diffuse=Texture.constant(0.0))
-    elif kind in ("mask", "bumpmap", "normalmap", "blendbsdf"):
+    elif kind == "mask":
+        inner = _nested_bsdfs(loader, p)
+        opacity = p.texture("opacity", 0.5)
+        if inner:
+            mat = load_bsdf(loader, inner[0], name)
+        else:
+            loader.warn(node, "bsdf 'mask' without a nested BSDF", "using diffuse 0.5 under the mask")
+            mat = Material(name=name, kind=DIFFUSE)
+        mat.opacity = opacity
+        p.finish()
+        return mat
+    elif kind in ("bumpmap", "normalmap", "blendbsdf"):
         inner = _nested_bsdfs(loader, p)
         if kind == "blendbsdf" and len(inner) > 1:
             # (1 - weight) × the first + weight × the second: the one weighing more stands for both

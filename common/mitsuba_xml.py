@@ -9,7 +9,8 @@ the element, its ``file:line`` and the fallback):
 - BSDFs ``diffuse``, ``conductor``, ``roughconductor``, ``dielectric``, ``thindielectric``,
   ``roughdielectric``, ``plastic``, ``roughplastic``, ``twosided``; ``principled`` and
   ``principledthin`` approximated by the nearest of those (:mod:`common.mitsuba_principled`);
-  ``null`` maps to the black ``NULL`` kind; ``mask``/``bumpmap``/``normalmap`` fall
+  ``null`` maps to the black ``NULL`` kind; ``mask`` is its nested BSDF with an ``opacity``
+  (constant or bitmap, :mod:`common.kernels.opacity_mask`); ``bumpmap``/``normalmap`` fall
   back to their nested BSDF, ``blendbsdf`` to the one its ``weight`` favours; textures ``bitmap``
   (``filename``, ``filter_type``, ``raw``, ``to_uv`` scale/translate) and ``checkerboard``; other
   textures fall back to their mean colour;

@@ -44,7 +44,10 @@ def _api():
                          [_SIZE, ctypes.c_int, ctypes.c_uint, ctypes.c_int, _SIZE, _SIZE, _SIZE, _SIZE]),
                         ("rtcCommitGeometry", None, [_SIZE]), ("rtcAttachGeometry", ctypes.c_uint, [_SIZE, _SIZE]),
                         ("rtcReleaseGeometry", None, [_SIZE]), ("rtcCommitScene", None, [_SIZE]),
-                        ("rtcReleaseScene", None, [_SIZE]), ("rtcGetDeviceError", ctypes.c_int, [_SIZE])):
+                        ("rtcReleaseScene", None, [_SIZE]), ("rtcGetDeviceError", ctypes.c_int, [_SIZE]),
+                        ("rtcSetGeometryUserData", None, [_SIZE, _SIZE]),
+                        ("rtcSetGeometryIntersectFilterFunction", None, [_SIZE, _SIZE]),
+                        ("rtcSetGeometryOccludedFilterFunction", None, [_SIZE, _SIZE])):
                     fn = getattr(lib, name)
                     fn.restype, fn.argtypes = res, args
             except (OSError, AttributeError):
@@ -103,9 +106,10 @@ class PacketScene:
         return prim >= 0, prim, u, v, t
 
 
-def packet_scene(triangles: np.ndarray, robust: bool = False) -> PacketScene | None:
+def packet_scene(triangles: np.ndarray, robust: bool = False, masks: tuple | None = None) -> PacketScene | None:
     """An Embree scene of ``triangles`` (float32 (F, 3, 3)) for packet queries, or None where
-    Embree's C API is not at hand (the caller keeps embreex's scene)."""
+    Embree's C API is not at hand (the caller keeps embreex's scene). ``masks``: the arguments of
+    common.kernels.opacity_mask.user_data for these triangles (their opacity masks), or None."""
     lib = _api()
     if lib is None:
         return None
@@ -127,6 +131,14 @@ def packet_scene(triangles: np.ndarray, robust: bool = False) -> PacketScene | N
     lib.rtcSetSharedGeometryBuffer(geom, _RTC_BUFFER_TYPE_VERTEX, 0, _RTC_FORMAT_FLOAT3, vertices.ctypes.data, 0, 12,
                                    3 * f)
     lib.rtcSetSharedGeometryBuffer(geom, _RTC_BUFFER_TYPE_INDEX, 0, _RTC_FORMAT_UINT3, index.ctypes.data, 0, 12, f)
+    held: tuple = ()
+    if masks is not None:
+        from .kernels import opacity_mask
+
+        held = opacity_mask.user_data(*masks)
+        lib.rtcSetGeometryUserData(geom, held[0].ctypes.data)
+        lib.rtcSetGeometryIntersectFilterFunction(geom, opacity_mask.mask_filter.address)
+        lib.rtcSetGeometryOccludedFilterFunction(geom, opacity_mask.mask_filter.address)
     lib.rtcCommitGeometry(geom)
     lib.rtcAttachGeometry(scene, geom)
     lib.rtcReleaseGeometry(geom)
@@ -134,4 +146,4 @@ def packet_scene(triangles: np.ndarray, robust: bool = False) -> PacketScene | N
     if lib.rtcGetDeviceError(device) != 0:
         lib.rtcReleaseScene(scene)
         return None
-    return PacketScene(lib, scene, (vertices, index))
+    return PacketScene(lib, scene, (vertices, index, held))

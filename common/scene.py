@@ -134,6 +134,9 @@ class Material:
     distribution: str = "beckmann"
     nonlinear: bool = False
     twosided: bool = False
+    # Mitsuba's ``mask``: the surface's opacity (its luminance; a hit is kept with this
+    # probability, common.kernels.opacity_mask); None: opaque
+    opacity: Texture | None = None
 
     @property
     def is_specular(self) -> bool:
@@ -244,6 +247,9 @@ class Scene:
             h.update(f"{m.material},{m.emitter}".encode())
         for mat in self.materials:
             h.update(repr((mat.kind, mat.alpha, mat.int_ior, mat.ext_ior, mat.distribution)).encode())
+            if mat.opacity is not None:  # (it changes what rays hit: a scene of its own)
+                t = mat.opacity
+                h.update(np.ascontiguousarray(t.rgb if t.is_constant else t.image, np.float64).tobytes())
         for e in self.emitters:
             h.update(repr((e.kind, e.radiance.tolist(), e.intensity.tolist(), e.position.tolist())).encode())
             if e.image is not None:

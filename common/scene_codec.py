@@ -260,8 +260,10 @@ def validate_scene(scene: Scene) -> None:
         if not -1 <= m.emitter < nem:
             raise SceneError(f"{w}: emitter index {m.emitter} outside -1..{nem - 1}")
     for i, mat in enumerate(scene.materials):
-        for tname in ("diffuse", "specular", "specular_transmittance"):
+        for tname in ("diffuse", "specular", "specular_transmittance", "opacity"):
             t = getattr(mat, tname)
+            if t is None and tname == "opacity":
+                continue
             if t.image is None and (t.rgb is None or t.rgb.shape != (3,)):
                 raise SceneError(f"material {i} ({mat.name}) {tname}: constant texture needs 3 values")
             if t.image is not None and (t.image.ndim != 3 or t.image.shape[2] != 3 or 0 in t.image.shape):
