@@ -23,8 +23,8 @@ from typing import Callable
 
 import numpy as np
 
-from igi.common.scene import (AREA, CONSTANT, DIELECTRIC, DIFFUSE, PLASTIC, POINT, ROUGHPLASTIC, SPOT,
-                          THINDIELECTRIC, Emitter, Material, Scene, Texture)
+from igi.common.scene import (AREA, CONSTANT, DIELECTRIC, DIFFUSE, PLASTIC, POINT, ROUGHDIELECTRIC, ROUGHPLASTIC,
+                          SPOT, THINDIELECTRIC, Emitter, Material, Scene, Texture)
 
 from .paths import SHARED_SCENES
 
@@ -237,7 +237,7 @@ def with_ior(scene: Scene, int_ior: float, ext_ior: float = 1.0, plastics: bool 
     out = _copy(scene, f"ior {int_ior:g}/{ext_ior:g}")
 
     def fn(m: Material):
-        if m.kind in (DIELECTRIC, THINDIELECTRIC) or (plastics and m.kind in (PLASTIC, ROUGHPLASTIC)):
+        if m.kind in (DIELECTRIC, THINDIELECTRIC, ROUGHDIELECTRIC) or (plastics and m.kind in (PLASTIC, ROUGHPLASTIC)):
             return dataclasses.replace(m, int_ior=float(int_ior), ext_ior=float(ext_ior))
         return None
 

@@ -632,12 +632,16 @@ def specular_components(sp: SurfacePoints, wi: np.ndarray, mode: str = "radiance
     the delta transmission (see the module docstring for which kinds have which). Weights carry
     the Fresnel factor and the specular textures (no lobe-selection division); the dielectric
     transmission is scaled by eta_ti^2 in radiance mode, as Mitsuba does. ``u2`` (N, 2) draws
-    a rough dielectric's microfacet normal (None: (0.5, 0.5) for every point).
+    a rough dielectric's microfacet normal (None: none may be a rough dielectric).
     """
     dt = _dtype(wi)
     n = len(sp)
     wi = _dirs(wi, n)
-    u2 = np.full((n, 2), 0.5) if u2 is None else _f64(u2).reshape(-1, 2)
+    if u2 is None:
+        if (sp.kind == ROUGHDIELECTRIC).any():  # (one fixed microfacet would be a biased answer)
+            raise ValueError("specular_components: a rough dielectric needs u2 to draw its microfacet normals")
+        u2 = np.full((n, 2), 0.5)
+    u2 = _f64(u2).reshape(-1, 2)
     r_wo, r_w, t_wo, t_w = (np.empty((n, 3)) for _ in range(4))
     kb.specular_many(*packed_rows(sp), wi, mode == "radiance", u2, r_wo, r_w, t_wo, t_w)
     r_w = r_w.astype(dt, copy=False)

@@ -187,7 +187,7 @@ class Geometry:
         # replays), so the triangles are not held in two closest-hit BVHs.
         self._embree_scene = None
         # Mitsuba's masks: every BVH's filter (common.kernels.opacity_mask), None without masks
-        self._masks = opacity_masks(scene.materials, self.material_of, self.faces, self.vertex_uvs)
+        self._masks = opacity_masks(scene.materials, self.material_of, self.faces, self.vertex_uvs, self.emitter_of)
         self._packets = packet_scene(local, robust=True, masks=self._masks)
         if self._packets is None:
             if self._masks is not None:
@@ -251,7 +251,7 @@ class Geometry:
                         planes, culled = hull_culling.supporting_planes(self.vertices, self.faces, self.area,
                                                                         self.diagonal)
                     masks = None if self._masks is None else (self._masks[0][~culled], self._masks[1][~culled],
-                                                              *self._masks[2:])
+                                                              self._masks[2], self._masks[3], self._masks[4][~culled])
                     inner = packet_scene(self._local[~culled], robust=False, masks=masks) if culled.any() else None
                     if inner is None:
                         self._interior = (shadow, np.zeros((0, 4), np.float32))
@@ -447,11 +447,14 @@ class Geometry:
 _ONE_RAY = (np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32))  # a query that builds a BVH
 
 
-def opacity_masks(materials: list, material_of: np.ndarray, faces: np.ndarray, vertex_uvs: np.ndarray) -> tuple | None:
+def opacity_masks(materials: list, material_of: np.ndarray, faces: np.ndarray, vertex_uvs: np.ndarray,
+                  emitter_of: np.ndarray | None = None) -> tuple | None:
     """The opacity masks of the triangles, as common.kernels.opacity_mask.user_data takes them —
-    ``(mask row per triangle (-1: opaque), its vertices' uv (F, 6), masks (M, 9), bitmap atlas)``
+    ``(mask row per triangle (-1: opaque), its vertices' uv (F, 6), masks (M, 9), bitmap atlas,
+    triangle index)``
     — or None where no material has a mask below full opacity. A constant mask is its
-    luminance, clamped to [0, 1]; a bitmap is looked up bilinearly, as the materials' textures."""
+    luminance, clamped to [0, 1]; a bitmap is looked up as the materials' textures are. Emitting
+    triangles (``emitter_of`` >= 0) stay opaque: the lights are sampled over their whole shape."""
     rows = np.full(len(materials), -1, np.int32)
     masks, parts, base = [], [], 0
     for i, mat in enumerate(materials):
@@ -470,11 +473,13 @@ def opacity_masks(materials: list, material_of: np.ndarray, faces: np.ndarray, v
             base += img.size
         rows[i] = len(masks) - 1
     tri_mask = rows[material_of] if masks else rows[:0]
+    if masks and emitter_of is not None:
+        tri_mask = np.where(emitter_of >= 0, -1, tri_mask).astype(np.int32)
     if not (tri_mask >= 0).any():
         return None
     tri_uv = np.where((tri_mask >= 0)[:, None], vertex_uvs[faces].reshape(-1, 6), 0.0)
     pixels = np.concatenate(parts) if parts else np.zeros(0, np.float32)
-    return tri_mask, tri_uv, np.array(masks, np.float64), pixels
+    return tri_mask, tri_uv, np.array(masks, np.float64), pixels, np.arange(len(tri_mask), dtype=np.int32)
 
 
 class _TimedEmbree:

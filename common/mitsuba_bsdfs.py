@@ -202,6 +202,10 @@ def load_bsdf(loader, node: Node, name: str | None = None) -> Material:
             loader.warn(node, "bsdf 'mask' without a nested BSDF", "using diffuse 0.5 under the mask")
             mat = Material(name=name, kind=DIFFUSE)
         mat.opacity = opacity
+        src = p.named.get("opacity")
+        if src is not None and loader.deref(src).attrib.get("type") == "checkerboard":
+            loader.warn(src, "a checkerboard opacity is read as Mitsuba's checkerboard paints colours (eval)",
+                        "Mitsuba 3.9.1's mask reads it through eval_1, which swaps its colours")
         p.finish()
         return mat
     elif kind in ("bumpmap", "normalmap", "blendbsdf"):

@@ -106,3 +106,6 @@ def load_shape(loader, node: Node) -> None:
             ep.finish()
             loader.emitters.append(e)
             mesh.emitter = len(loader.emitters) - 1
+            if loader.materials[mat].opacity is not None:
+                # (light sampling emits from the whole shape: a mask on it would show α·L seen)
+                loader.warn(node, "an opacity mask on an emitting shape is not supported", "the shape is opaque")

@@ -250,6 +250,7 @@ class Scene:
             if mat.opacity is not None:  # (it changes what rays hit: a scene of its own)
                 t = mat.opacity
                 h.update(np.ascontiguousarray(t.rgb if t.is_constant else t.image, np.float64).tobytes())
+                h.update(repr((t.uv_scale, t.uv_offset, t.filter)).encode())
         for e in self.emitters:
             h.update(repr((e.kind, e.radiance.tolist(), e.intensity.tolist(), e.position.tolist())).encode())
             if e.image is not None:

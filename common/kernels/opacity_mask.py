@@ -31,7 +31,7 @@ _ARGS = 6  # 8-byte slots (the last holds N in its low 32 bits)
 # RTCRayN: org_x, org_y, org_z, tnear, dir_x, dir_y, dir_z, time, tfar, mask, id, flags (N-wide fields);
 # RTCHitN: Ng_x, Ng_y, Ng_z, u, v, primID, geomID, instID (N-wide)
 _U, _V, _PRIM = 3, 4, 5
-_USER = 7  # user data: addresses of tri_mask, tri_uv, masks, pixels; then F, M, P
+_USER = 8  # user data: addresses of tri_mask, tri_uv, masks, pixels, tri_id; then F, M, P
 _MASK = 9  # a mask's row: constant opacity (-1: a bitmap), bitmap base, height, width, uv scale, offset, nearest
 _WR, _WG, _WB = LUMINANCE_WEIGHTS
 
@@ -69,9 +69,10 @@ def passes(ox, oy, oz, dx, dy, dz, prim, alpha) -> bool:
 
 
 @njit(cache=True, nogil=True, inline="always")  # (compiled into the filter function alone)
-def filter_hits(valid, ray, hit, hitf, n, tri_mask, tri_uv, masks, pixels) -> None:
+def filter_hits(valid, ray, hit, hitf, n, tri_mask, tri_uv, masks, pixels, tri_id) -> None:
     """Embree's filter on an N-wide packet: lanes whose hit is on a masked triangle and whose
-    ray passes (:func:`passes`, at the opacity at the hit's interpolated uv) are made invalid."""
+    ray passes (:func:`passes`, at the opacity at the hit's interpolated uv; the triangle
+    hashed by its scene-wide index ``tri_id``, so every BVH decides alike) are made invalid."""
     for k in range(n):
         if valid[k] == 0:
             continue
@@ -87,7 +88,8 @@ def filter_hits(valid, ray, hit, hitf, n, tri_mask, tri_uv, masks, pixels) -> No
         u = b0 * tri_uv[prim, 0] + b1 * tri_uv[prim, 2] + b2 * tri_uv[prim, 4]
         v = b0 * tri_uv[prim, 1] + b1 * tri_uv[prim, 3] + b2 * tri_uv[prim, 5]
         alpha = opacity(masks, pixels, row, u, v)
-        if passes(ray[k], ray[n + k], ray[2 * n + k], ray[4 * n + k], ray[5 * n + k], ray[6 * n + k], prim, alpha):
+        if passes(ray[k], ray[n + k], ray[2 * n + k], ray[4 * n + k], ray[5 * n + k], ray[6 * n + k], tri_id[prim],
+                  alpha):
             valid[k] = 0
 
 
@@ -100,17 +102,21 @@ def mask_filter(args_ptr):
     user = carray(_ptr(args[1]), _USER, np.int64)
     filter_hits(carray(_ptr(args[0]), n, np.int32), carray(_ptr(args[3]), 12 * n, np.uint32),
                 carray(_ptr(args[4]), 8 * n, np.uint32), carray(_ptr(args[4]), 8 * n, np.float32), n,
-                carray(_ptr(user[0]), user[4], np.int32), carray(_ptr(user[1]), (user[4], 6), np.float64),
-                carray(_ptr(user[2]), (user[5], _MASK), np.float64), carray(_ptr(user[3]), user[6], np.float32))
+                carray(_ptr(user[0]), user[5], np.int32), carray(_ptr(user[1]), (user[5], 6), np.float64),
+                carray(_ptr(user[2]), (user[6], _MASK), np.float64), carray(_ptr(user[3]), user[7], np.float32),
+                carray(_ptr(user[4]), user[5], np.int32))
 
 
-def user_data(tri_mask: np.ndarray, tri_uv: np.ndarray, masks: np.ndarray, pixels: np.ndarray) -> tuple:
+def user_data(tri_mask: np.ndarray, tri_uv: np.ndarray, masks: np.ndarray, pixels: np.ndarray,
+              tri_id: np.ndarray) -> tuple:
     """``(user int64 array, the arrays it points to)`` for :func:`mask_filter`: hold both while
     Embree may call the filter. ``tri_mask`` int32 (F,) mask row per triangle of the Embree
     scene (-1: opaque), ``tri_uv`` (F, 6) its vertices' uv, ``masks`` (M, 9) (:func:`opacity`),
-    ``pixels`` the bitmaps' luminance-ready RGB atlas (float32)."""
+    ``pixels`` the bitmaps' RGB atlas (float32), ``tri_id`` (F,) each triangle's index in the
+    whole scene (a BVH of a subset numbers its triangles anew)."""
     held = (np.ascontiguousarray(tri_mask, np.int32), np.ascontiguousarray(tri_uv, np.float64).reshape(-1, 6),
             np.ascontiguousarray(masks, np.float64).reshape(-1, _MASK),
-            np.ascontiguousarray(pixels, np.float32).reshape(-1) if len(pixels) else np.zeros(1, np.float32))
+            np.ascontiguousarray(pixels, np.float32).reshape(-1) if len(pixels) else np.zeros(1, np.float32),
+            np.ascontiguousarray(tri_id, np.int32))
     user = np.array([a.ctypes.data for a in held] + [len(held[0]), len(held[2]), len(held[3])], np.int64)
     return user, held

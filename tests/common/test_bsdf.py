@@ -406,6 +406,8 @@ def test_a_rough_dielectric_of_tiny_roughness_is_the_smooth_one():
     smooth = bsdf.specular_components(_sp(Material("g", DIELECTRIC, int_ior=1.5, ext_ior=1.0), n), wi)
     for dist in ("ggx", "beckmann"):
         mat = Material("rg", ROUGHDIELECTRIC, alpha=1e-4, distribution=dist, int_ior=1.5, ext_ior=1.0)
+        with pytest.raises(ValueError, match="needs u2"):  # one fixed microfacet would be a biased answer
+            bsdf.specular_components(_sp(mat, n), wi)
         rough = bsdf.specular_components(_sp(mat, n), wi, u2=rng.random((n, 2)))
         for (wo_s, w_s, ok_s), (wo_r, w_r, ok_r) in zip(smooth, rough):
             np.testing.assert_array_equal(ok_r, ok_s)

@@ -224,7 +224,7 @@ def test_nan_and_inf_directions_give_finite_results_and_match_the_oracle_where_i
     for wi, wo in ((bad, good), (good, bad), (bad, bad)):
         res = [bsdf.eval(sp, wi, wo), bsdf.pdf(sp, wi, wo), *bsdf.sample(sp, wi, u1, u2)[1:3],
                bsdf.sample_lobe(sp, wi, u2)[1], bsdf.albedo(sp, wi)]
-        res += [c[1] for c in bsdf.specular_components(sp, wi)]
+        res += [c[1] for c in bsdf.specular_components(sp, wi, u2=u2)]
         for r in res:
             assert np.all(np.isfinite(r))
         for i in range(8):  # one point at a time: the oracle's failure on one does not hide the others
@@ -240,7 +240,7 @@ def _assert_point_matches_where_the_oracle_runs(one, wi, wo, u1, u2):
               ("sample", lambda m: list(m.sample(one, wi, u1, u2)), slice(1, 3)),
               ("sample_lobe", lambda m: list(m.sample_lobe(one, wi, u2)), slice(1, 2)),
               ("albedo", lambda m: [m.albedo(one, wi)], slice(None)),
-              ("specular", lambda m: [x for c in m.specular_components(one, wi) for x in c], slice(None)))
+              ("specular", lambda m: [x for c in m.specular_components(one, wi, u2=u2) for x in c], slice(None)))
     for name, call, weights in checks:
         got = call(bsdf)
         try:

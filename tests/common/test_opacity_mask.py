@@ -11,14 +11,17 @@ from igi.common.geometry import Geometry, opacity_masks
 from igi.common.mitsuba_xml import load_mitsuba
 from igi.common.scene import DIFFUSE
 from igi.common.scene_codec import decode_scene, encode_scene
+from igi.common.ray_packets import _api
 from tests.common.test_mitsuba_xml import scene_file
 
+# masks need Embree's C API (embreex's own scenes take no filter function)
+pytestmark = pytest.mark.skipif(_api() is None, reason="Embree's C API is not at hand")
 _N = 40_000
 
 
 def _quad_scene(tmp_path, opacity_xml: str):
-    """A unit quad at z = 0 (x, y in [-1, 1], uv = its corners) under ``opacity_xml``, and an
-    opaque floor below it at z = -1 (so the hull culling keeps the quad in every BVH)."""
+    """A quad at z = 0 (x, y in [-1, 1], uv = its corners) under ``opacity_xml``, and an opaque
+    floor below it at z = -1."""
     return load_mitsuba(scene_file(tmp_path, f"""
         <shape type="rectangle"><bsdf type="mask">{opacity_xml}<bsdf type="diffuse"/></bsdf></shape>
         <shape type="rectangle"><transform name="to_world"><scale value="3"/><translate z="-1"/></transform>
@@ -50,6 +53,26 @@ def test_a_constant_mask_stops_its_share_of_rays_alike_in_every_query_and_bvh(tm
     assert abs(both.mean() - 0.09) < 0.01
 
 
+def test_the_hull_culled_interior_bvh_masks_its_own_triangles_as_the_full_one(tmp_path):
+    """The shadow rays between two points inside a closed box take the BVH without its walls
+    (Geometry.interior_bvh: a subset of the triangles, indexed anew): a masked quad inside,
+    listed after the walls, stops the same rays there as in the full BVH."""
+    scene = load_mitsuba(scene_file(tmp_path, """
+        <shape type="cube"><transform name="to_world"><scale value="2"/></transform></shape>
+        <shape type="rectangle"><bsdf type="mask"><float name="opacity" value="0.3"/><bsdf type="diffuse"/></bsdf>
+        </shape>"""))
+    geom = Geometry(scene)
+    inner, planes = geom.interior_bvh()
+    assert len(planes) == 6 and inner is not geom.shadow_bvh()  # the walls culled: a BVH of the quad alone
+    o, d = _rays_down(np.random.default_rng(4))
+    local = (o - geom.center).astype(np.float32)
+    t = np.full(_N, 1.0)
+    full = geom.occluded_local(local, d, t)
+    interior = geom.occluded_local(local, d, t, interior=np.ones(_N, bool))
+    np.testing.assert_array_equal(interior, full)
+    assert abs(full.mean() - 0.3) < 0.015
+
+
 def test_a_bitmap_masks_holes_pass_every_ray_and_its_solid_cells_none(tmp_path):
     # Mitsuba's checkerboard: color0 (opacity 1) where (u mod 1 > ½) == (v mod 1 > ½)
     scene = _quad_scene(tmp_path, """<texture type="checkerboard" name="opacity">
@@ -62,6 +85,7 @@ def test_a_bitmap_masks_holes_pass_every_ray_and_its_solid_cells_none(tmp_path):
     blocked = geom.occluded(o, d, np.full(_N, 1.0))
     np.testing.assert_array_equal(blocked[away], solid[away])
     assert solid[away].any() and (~solid[away]).any()
+    assert any("checkerboard opacity" in w and "eval_1" in w for w in scene.warnings)  # Mitsuba 3.9.1 swaps it
 
 
 def test_an_opaque_or_absent_mask_builds_no_filter(tmp_path):
@@ -84,6 +108,18 @@ def test_mask_loads_as_its_nested_bsdf_with_an_opacity_and_travels_with_the_scen
     assert denser.digest() != scene.digest()  # the mask is part of what the scene is
     bare = load_mitsuba(scene_file(tmp_path, '<shape type="rectangle"><bsdf type="mask"/></shape>'))
     assert any("bsdf 'mask' without a nested BSDF" in w for w in bare.warnings)
+
+
+def test_a_masked_emitter_stays_opaque_and_says_so(tmp_path):
+    """Light sampling emits from an area light's whole shape: a mask on it would show α·L."""
+    scene = load_mitsuba(scene_file(tmp_path, """
+        <shape type="rectangle"><bsdf type="mask"><float name="opacity" value="0.3"/><bsdf type="diffuse"/></bsdf>
+            <emitter type="area"><rgb name="radiance" value="1, 1, 1"/></emitter></shape>"""))
+    assert any("opacity mask on an emitting shape" in w for w in scene.warnings)
+    geom = Geometry(scene)
+    assert opacity_masks(scene.materials, geom.material_of, geom.faces, geom.vertex_uvs, geom.emitter_of) is None
+    o, d = _rays_down(np.random.default_rng(5), 1000)
+    assert geom.intersect(o, d).valid.all()
 
 
 @pytest.mark.parametrize("value", ["0.4", "0.4, 0.2, 0.9"])
