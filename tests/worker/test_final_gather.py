@@ -287,13 +287,13 @@ def test_light_crossing_a_water_surface_between_diffuse_bounces_is_not_lost(monk
     r = Renderer(scene)
     keep = ~_emitter_blocks(scene, r.geom, block)
 
-    def indirect_ratio() -> float:
-        img = render_local(scene, {"seed": 0}, 24, width=ref.shape[1], height=ref.shape[0], renderer=r)[..., :3]
+    def indirect_ratio(frames: int) -> float:
+        img = render_local(scene, {"seed": 0}, frames, width=ref.shape[1], height=ref.shape[0], renderer=r)[..., :3]
         return float((img - direct)[keep].sum() / (ref - direct)[keep].sum())
 
-    ratio = indirect_ratio()
+    ratio = indirect_ratio(24)
     monkeypatch.setattr(fg, "LENSED_DEPTH", 1)
-    one_chain = indirect_ratio()
+    one_chain = indirect_ratio(8)  # (a bias of 10-14%: fewer frames tell it)
     print(f"indirect light / reference: {ratio:.3f} (one chain: {one_chain:.3f})")
     assert 0.95 <= ratio <= 1.05
     assert one_chain < 0.93
