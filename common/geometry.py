@@ -451,8 +451,7 @@ def opacity_masks(materials: list, material_of: np.ndarray, faces: np.ndarray, v
                   emitter_of: np.ndarray | None = None) -> tuple | None:
     """The opacity masks of the triangles, as common.kernels.opacity_mask.user_data takes them —
     ``(mask row per triangle (-1: opaque), its vertices' uv (F, 6), masks (M, 9), bitmap atlas,
-    triangle index)``
-    — or None where no material has a mask below full opacity. A constant mask is its
+    triangle index)`` — or None where no material has a mask below full opacity. A constant mask is its
     luminance, clamped to [0, 1]; a bitmap is looked up as the materials' textures are. Emitting
     triangles (``emitter_of`` >= 0) stay opaque: the lights are sampled over their whole shape."""
     rows = np.full(len(materials), -1, np.int32)
