@@ -11,7 +11,7 @@ between rays, so a shadow ray and the eye ray that made its end point see the ma
 
 The filter's data (``geometryUserPtr``) is an int64 array of addresses and sizes,
 :func:`user_data`: per triangle of the Embree scene its mask row (-1: opaque) and its three
-vertices' uv; per mask its constant opacity or bitmap (a luminance atlas, looked up as
+vertices' uv; per mask its constant opacity or bitmap (an RGB atlas whose luminance is the opacity, looked up as
 common.kernels.texture looks colours up).
 """
 from __future__ import annotations
