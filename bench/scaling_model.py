@@ -360,8 +360,9 @@ def simulate(costs: Costs, cfg: Config) -> SimResult:
             # the master's view of a worker's sets: its last reported list plus the sets of the
             # tasks it has in flight (it builds them), as the broker keeps it
             # (only the sets still queued matter to the policy)
+            queued_sets = by_set.keys()
             views = [scheduler.WorkerView(w, credit, inflight[w],
-                                          frozenset(k for k in by_set if k in master_view[w] or k in inflight_keys[w]))
+                                          frozenset(queued_sets & (master_view[w] | set(inflight_keys[w]))))
                      for w in range(cfg.workers)]
             pending = [scheduler.PendingTask(t, key) for key, dq in by_set.items()
                        for t in itertools.islice(dq, free)]

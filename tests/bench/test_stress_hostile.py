@@ -10,7 +10,8 @@ import pytest
 
 from tests.support.paths import ROOT, pythonpath_env
 
-CASES = ["scene-root", "host-rebinding", "viewer-validation", "rogue-wrong", "moves-5000"]
+# moves-5000 is left out: its behaviour is test_scene_edits.py's (15 s more here for the same proof)
+CASES = ["scene-root", "host-rebinding", "viewer-validation", "rogue-wrong"]
 
 
 @pytest.mark.timeout(600)
@@ -31,8 +32,7 @@ def test_bench_stress_runs_the_selected_hostile_cases(tmp_path):
     assert by["host-rebinding"]["figure"] == 4
     assert by["viewer-validation"]["figure"] == by["viewer-validation"]["detail"]["sent"]
     assert by["rogue-wrong"]["detail"]["identical_to_clean_render"]
-    assert by["moves-5000"]["detail"]["frame_versions"] == [5000] * 3
-    assert "hostile 5/5 passed" in r.stderr
+    assert "hostile 4/4 passed" in r.stderr
 
 
 def test_unknown_case_is_one_line():

@@ -43,31 +43,26 @@ def test_render_exr_and_png(tmp_path):
     assert p.shape == (64, 64, 3) and p.max() > 0
 
 
-def test_in_process_render_matches_the_workers(tmp_path):
-    from igi.common.image_io import read_image
-
-    a, b = tmp_path / "a.exr", tmp_path / "b.exr"
-    common = ["--width", 32, "--height", 24, "--photons", 0, "-q"]
-    assert igi("render", CORNELL, "-o", a, "--workers", 0, *common).returncode == 0
-    assert igi("render", CORNELL, "-o", b, "--workers", 1, *common).returncode == 0
-    assert np.array_equal(read_image(a), read_image(b))
-
-
 def test_task_pixels_cut_the_frame_alike_in_process_and_through_the_broker(tmp_path):
     """--task-pixels reaches the broker: the same cut gives the same image in process and
-    through a worker, a finer cut a different one (tiles seed their random streams)."""
+    through a worker process, at the default cut as at another; a finer cut gives a different
+    image (tiles seed their random streams). ('auto', sizing tasks by the threads connected, is
+    test_broker's.)"""
     from igi.common.image_io import read_image
+    from igi.master.cli import _task_pixels
 
     common = ["--width", 160, "--height", 120, "--photons", 0, "--indirect-vpls", 4, "-q"]
-    a, b, c = tmp_path / "a.exr", tmp_path / "b.exr", tmp_path / "c.exr"
+    a, b, c, d = (tmp_path / f"{x}.exr" for x in "abcd")
     assert igi("render", CORNELL, "-o", a, "--workers", 0, "--task-pixels", 256, *common).returncode == 0
     r = igi("render", CORNELL, "-o", b, "--workers", 1, "--task-pixels", 256, *common)
     assert r.returncode == 0, r.stderr
     assert igi("render", CORNELL, "-o", c, "--workers", 0, *common).returncode == 0
-    assert np.array_equal(read_image(a), read_image(b))
-    assert not np.array_equal(read_image(a), read_image(c))
-    r = igi("render", CORNELL, "-o", c, "--workers", 1, "--task-pixels", "auto", *common)
+    r = igi("render", CORNELL, "-o", d, "--workers", 1, *common)
     assert r.returncode == 0, r.stderr
+    assert np.array_equal(read_image(a), read_image(b))
+    assert np.array_equal(read_image(c), read_image(d))
+    assert not np.array_equal(read_image(a), read_image(c))
+    assert _task_pixels("auto") is None and _task_pixels("300") == 300
 
 
 @pytest.mark.parametrize("args,needle", [

@@ -94,7 +94,7 @@ def _render_tiny() -> None:
     from igi.common.params import make_params, params_to_dict
     from igi.worker.renderer import Renderer
 
-    pd = params_to_dict(make_params(photons=2000, interleave=2))
+    pd = params_to_dict(make_params(photons=500, interleave=2))
     for scene in (_tiny_scene(), _tiny_scene(floor=0)):
         cam, fov_x, w, h = resolve_camera(scene, None, None, None)
         r = Renderer(scene)
@@ -102,7 +102,7 @@ def _render_tiny() -> None:
             params = dict(pd, consistent=True, accumulate=True)
             spec = FrameSpec(frame=index, seed=index, camera_to_world=tuple(np.asarray(cam, float).ravel()),
                              fov_x=float(fov_x), width=w, height=h, params=params, scene_version=0, jitter=jitter)
-            for t in make_tiles(w, h, 2, 3, 3):
+            for t in make_tiles(w, h, 2, 8, 8):  # one tile a set k
                 buf = r.render_tile(spec, t)
                 decode(encode(buf), len(buf))
 
