@@ -90,14 +90,15 @@ def assign(pending: Sequence[PendingTask], workers: Iterable[WorkerView],
     by_set: dict = {}
     for pos, t in enumerate(pending):
         by_set.setdefault(t.set_key, []).append(pos)
-    holders: dict = {}  # set key -> workers holding it (computed when first needed)
+    holders: dict = {}  # set key -> workers holding it (one pass over the workers' sets)
+    for wid, s in state.items():
+        for key in s[2]:
+            if key in by_set:
+                holders.setdefault(key, set()).add(wid)
     lost_sets = {t.set_key for t in pending if t.avoid}  # sets of tasks another worker gave back
 
     def holders_of(key) -> set:
-        h = holders.get(key)
-        if h is None:
-            h = holders[key] = {wid for wid, s in state.items() if key in s[2]}
-        return h
+        return holders.setdefault(key, set())
     taken: set[int] = set()
     heads = {key: 0 for key in by_set}  # index into by_set[key] of the first untaken position
     out: list[tuple[Hashable, Hashable]] = []
@@ -166,8 +167,7 @@ def assign(pending: Sequence[PendingTask], workers: Iterable[WorkerView],
         state[wid][1] += 1
         if t.set_key not in state[wid][2]:
             state[wid][2].add(t.set_key)
-            if t.set_key in holders:
-                holders[t.set_key].add(wid)
+            holders_of(t.set_key).add(wid)
     return out
 
 
