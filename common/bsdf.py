@@ -90,6 +90,11 @@ class SurfacePoints:
     # Stale if alpha, eta or beckmann are changed in place afterwards.
     coat_row: np.ndarray | None = None
 
+    def material_rows(self) -> np.ndarray | None:
+        """Each point's row of the materials' tables (its material; ``len(materials)``: none),
+        or None where the points are not material-backed."""
+        return self.__dict__.get("_rows")
+
     @classmethod
     def _backed(cls, tables: dict, rows: np.ndarray, held: dict) -> "SurfacePoints":
         """Points of material-table ``rows`` (tables of :func:`_material_tables`), with the

@@ -17,6 +17,7 @@ from embreex import rtcore_scene as rtcs
 from embreex.mesh_construction import TriangleMesh
 
 from . import hull_culling
+from .bump_mapping import bump_tables
 from .kernels import hit_surface, triangle_sampling
 from .ray_packets import PacketScene, packet_scene
 from .luminance import LUMINANCE_WEIGHTS
@@ -167,6 +168,13 @@ class Geometry:
         self.counters = {"intersect_rays": 0, "occluded_rays": 0}
         # Texture coordinates are interpolated only when some texture reads them (render plan).
         self.need_uv = bool(any(m.uvs is not None for m in scene.meshes))
+        # Mitsuba's normal and bump maps: the shading normal's perturbation at each hit
+        # (common.kernels.bump_mapping; empty tables without them): they read uv
+        self.bumps = bump_tables(scene.materials, self.material_of, self.vertices, self.faces, self.vertex_uvs,
+                                 self.emitter_of)
+        self.need_uv = self.need_uv or len(self.bumps[0]) > 0
+        # per material: is its shading normal perturbed (the light paths' corrections apply there)
+        self.bumped_materials = self.bumps[2][:, 0] > 0 if len(self.bumps[0]) else np.zeros(len(scene.materials), bool)
         self.record: list | None = None
         # float32 per-triangle data for hit reconstruction (centred positions, normals).
         local = (tri - self.center).astype(np.float32)
@@ -279,7 +287,7 @@ class Geometry:
             return None
         return (self._packets.handle, self.center, self._v0c, self._e1c, self._e2c, self._fn32, self.smooth,
                 self._tri_normals, self.faces, self.vertex_uvs, bool(self.need_uv), self.material_of,
-                self.emitter_of, self.mesh_of)
+                self.emitter_of, self.mesh_of, self.bumps)
 
     # -- queries ---------------------------------------------------------------------------
     def intersect(self, origins: np.ndarray, directions: np.ndarray,
@@ -425,11 +433,21 @@ class Geometry:
         pos, ng, ns = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
         uv, tt = np.empty((n, 2)), np.empty(n)
         mat, em, mesh = (np.empty(n, np.int32) for _ in range(3))
-        hit_surface.reconstruct(valid, prim, u, v, t, self.center, self._v0c, self._e1c, self._e2c,
+        d = np.ascontiguousarray(directions, np.float64).reshape(n, 3)  # (one compiled signature)
+        hit_surface.reconstruct(valid, prim, u, v, t, d, self.center, self._v0c, self._e1c, self._e2c,
                                 self._fn32, self.smooth, self._tri_normals, self.faces, self.vertex_uvs,
                                 bool(self.need_uv), self.material_of, self.emitter_of, self.mesh_of,
-                                pos, ng, ns, uv, tt, mat, em, mesh)
+                                self.bumps, pos, ng, ns, uv, tt, mat, em, mesh)
         return Hits(valid, tt, prim, pos, ng, ns, uv, mat, em, mesh)
+
+    def bumped(self, material: np.ndarray) -> np.ndarray:
+        """Per hit of ``material`` (-1 or past the materials: none): does a normal or bump map
+        perturb its shading normal?"""
+        m = np.asarray(material, np.int64)
+        ok = (m >= 0) & (m < len(self.bumped_materials))
+        out = np.zeros(m.shape, bool)
+        out[ok] = self.bumped_materials[m[ok]]
+        return out
 
     def sample_triangles(self, tri_idx: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Uniform points on the given triangles from (N, 2) uniforms: (position, ng, uv).

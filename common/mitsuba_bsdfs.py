@@ -208,7 +208,9 @@ def load_bsdf(loader, node: Node, name: str | None = None) -> Material:
                         "Mitsuba 3.9.1's mask reads it through eval_1, which swaps its colours")
         p.finish()
         return mat
-    elif kind in ("bumpmap", "normalmap", "blendbsdf"):
+    elif kind in ("normalmap", "bumpmap"):
+        return _load_perturbed(loader, node, p, name, kind)
+    elif kind == "blendbsdf":
         inner = _nested_bsdfs(loader, p)
         if kind == "blendbsdf" and len(inner) > 1:
             # (1 - weight) × the first + weight × the second: the one weighing more stands for both
@@ -228,6 +230,39 @@ def load_bsdf(loader, node: Node, name: str | None = None) -> Material:
         loader.warn(node, f"unsupported bsdf '{kind}'", "using diffuse 0.5")
         return Material(name=name, kind=DIFFUSE)
     p.finish(ignore=("sample_visible", "specular_sampling_weight"))
+    return mat
+
+
+def _load_perturbed(loader, node: Node, p: Props, name: str, kind: str) -> Material:
+    """Mitsuba's ``normalmap`` (its ``normalmap`` texture) and ``bumpmap`` (its one nested texture, a
+    height, × ``scale``): the nested BSDF with the texture that perturbs its shading normal."""
+    inner = _nested_bsdfs(loader, p)
+    if inner:
+        mat = load_bsdf(loader, inner[0], name)
+    else:
+        loader.warn(node, f"bsdf '{kind}' without a nested BSDF", "using diffuse 0.5 under it")
+        mat = Material(name=name, kind=DIFFUSE)
+    if mat.perturbs_normal:
+        loader.warn(node, f"bsdf '{kind}' around another normal or bump map", "only the outer one is used")
+        mat.normal_map = mat.bump_map = None
+    if kind == "normalmap":
+        if not p.has("normalmap"):
+            raise loader.error(node, "bsdf 'normalmap' needs a texture named 'normalmap'")
+        mat.normal_map = p.texture("normalmap", None)
+    else:
+        textures = [c for c in p.children if loader.deref(c).tag == "texture"]
+        textures += [p.get(k) for k, c in p.named.items() if loader.deref(c).tag == "texture"]
+        if len(textures) != 1:
+            raise loader.error(node, f"bsdf 'bumpmap' needs exactly one nested texture (has {len(textures)})")
+        mat.bump_map = loader.texture(textures[0])
+        mat.bump_scale = p.float("scale", 1.0)
+        if not math.isfinite(mat.bump_scale):
+            raise loader.error(p.named["scale"], f"bumpmap scale {mat.bump_scale} is not finite")
+    mat.flip_invalid_normals = p.bool("flip_invalid_normals", True)
+    # Mitsuba's terminator softening (Conty Estevez et al. 2019) scales the BSDF by a function of
+    # wo and the unperturbed normal, which igi's kernels do not carry: read, not modelled
+    p.bool("use_shadowing_function", True)
+    p.finish()
     return mat
 
 

@@ -10,8 +10,10 @@ the element, its ``file:line`` and the fallback):
   ``roughdielectric``, ``plastic``, ``roughplastic``, ``twosided``; ``principled`` and
   ``principledthin`` approximated by the nearest of those (:mod:`common.mitsuba_principled`);
   ``null`` maps to the black ``NULL`` kind; ``mask`` is its nested BSDF with an ``opacity``
-  (constant or bitmap, :mod:`common.kernels.opacity_mask`); ``bumpmap``/``normalmap`` fall
-  back to their nested BSDF, ``blendbsdf`` to the one its ``weight`` favours; textures ``bitmap``
+  (constant or bitmap, :mod:`common.kernels.opacity_mask`); ``normalmap`` and ``bumpmap`` (its
+  one texture, ``scale``) perturb their nested BSDF's shading normal
+  (:mod:`common.kernels.bump_mapping`); ``blendbsdf`` falls back to the nested BSDF its ``weight``
+  favours; textures ``bitmap``
   (``filename``, ``filter_type``, ``raw``, ``to_uv`` scale/translate) and ``checkerboard``; other
   textures fall back to their mean colour;
 - emitters ``area``, ``point``, ``spot``, ``directional``, ``constant``, ``envmap`` (``filename``:

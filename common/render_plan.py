@@ -144,7 +144,8 @@ def analyze(scene: Scene, geom, lights: LightSampler) -> RenderPlan:
     glossy = bool(used & set(GLOSSY_KINDS))
     reasons["glossy_vpl_eval"] = ("glossy surfaces: full BSDF toward each VPL" if glossy
                                   else "all non-specular surfaces Lambertian: scalar VPL gather only")
-    textured = any(scene.materials[m.material].has_texture for m in scene.meshes if len(m.faces))
+    textured = any(scene.materials[m.material].has_texture or scene.materials[m.material].perturbs_normal
+                   for m in scene.meshes if len(m.faces))
     reasons["textures"] = "bitmap textures in use" if textured else "no textures: constant albedo tables"
     n_local = int(np.count_nonzero(lights.powers > 0))
     point = False

@@ -137,6 +137,17 @@ class Material:
     # Mitsuba's ``mask``: the surface's opacity (its luminance; a hit is kept with this
     # probability, common.kernels.opacity_mask); None: opaque
     opacity: Texture | None = None
+    # Mitsuba's ``normalmap`` (RGB: the shading normal in the shading frame, 2·rgb − 1) and
+    # ``bumpmap`` (a height, its luminance, × ``bump_scale``): the shading normal at a hit is
+    # perturbed by them (common.kernels.shading_normal); None: the interpolated normal
+    normal_map: Texture | None = None
+    bump_map: Texture | None = None
+    bump_scale: float = 1.0
+    flip_invalid_normals: bool = True  # a perturbed normal facing away from wi is mirrored (Mitsuba's)
+
+    @property
+    def perturbs_normal(self) -> bool:
+        return self.normal_map is not None or self.bump_map is not None
 
     @property
     def is_specular(self) -> bool:
@@ -247,10 +258,13 @@ class Scene:
             h.update(f"{m.material},{m.emitter}".encode())
         for mat in self.materials:
             h.update(repr((mat.kind, mat.alpha, mat.int_ior, mat.ext_ior, mat.distribution)).encode())
-            if mat.opacity is not None:  # (it changes what rays hit: a scene of its own)
-                t = mat.opacity
-                h.update(np.ascontiguousarray(t.rgb if t.is_constant else t.image, np.float64).tobytes())
-                h.update(repr((t.uv_scale, t.uv_offset, t.filter)).encode())
+            # (a mask changes what rays hit, a normal or bump map what a hit's normal is)
+            for t in (mat.opacity, mat.normal_map, mat.bump_map):
+                if t is not None:
+                    h.update(np.ascontiguousarray(t.rgb if t.is_constant else t.image, np.float64).tobytes())
+                    h.update(repr((t.uv_scale, t.uv_offset, t.filter)).encode())
+            if mat.perturbs_normal:
+                h.update(repr((mat.bump_scale, mat.flip_invalid_normals)).encode())
         for e in self.emitters:
             h.update(repr((e.kind, e.radiance.tolist(), e.intensity.tolist(), e.position.tolist())).encode())
             if e.image is not None:

@@ -260,9 +260,9 @@ def validate_scene(scene: Scene) -> None:
         if not -1 <= m.emitter < nem:
             raise SceneError(f"{w}: emitter index {m.emitter} outside -1..{nem - 1}")
     for i, mat in enumerate(scene.materials):
-        for tname in ("diffuse", "specular", "specular_transmittance", "opacity"):
+        for tname in ("diffuse", "specular", "specular_transmittance", "opacity", "normal_map", "bump_map"):
             t = getattr(mat, tname)
-            if t is None and tname == "opacity":
+            if t is None and tname in ("opacity", "normal_map", "bump_map"):
                 continue
             if t.image is None and (t.rgb is None or t.rgb.shape != (3,)):
                 raise SceneError(f"material {i} ({mat.name}) {tname}: constant texture needs 3 values")

@@ -34,7 +34,7 @@ from igi.common.specular import specular_targets
 
 from .hash_grid import HashGrid
 from .kernels import light_paths, photon_aim, photon_estimate
-from .light_paths import continue_paths, roulette_numbers, set_key
+from .light_paths import continue_paths, incident_ratios, roulette_numbers, set_key
 
 PHOTON_STREAM = "caustic photons"
 EMIT_DIMS = 5  # 2 position (distant: the map's direction), 1 target, 2 direction in the cone (distant: on the disk)
@@ -368,12 +368,13 @@ def _trace_photons(scene, geom, o, d, flux, u, max_bounces, keys, per_set):
             break
         sp = bsdf.gather(scene.materials, hits.material[v], hits.uv[v])
         ns, ng, pos = hits.ns[v], hits.ng[v], hits.position[v]
+        bumped = geom.bumped(hits.material[v])
         spec = kind_in(sp.kind, SPECULAR_KINDS)
         store = ~spec & bounced[alive] & (sp.kind != NULL)
         if store.any():
             s = np.nonzero(store)[0]
             out_p.append(pos[s])
-            out_w.append(flux[alive[s]])
+            out_w.append(flux[alive[s]] * incident_ratios(-d[alive[s]], ns[s], ng[s], bumped[s])[:, None])
             out_d.append(-d[alive[s]])
             out_n.append(ns[s])
             out_dp.append(np.full(len(s), b + 1, np.int32))
@@ -383,7 +384,8 @@ def _trace_photons(scene, geom, o, d, flux, u, max_bounces, keys, per_set):
         if b == max_bounces or len(si) == 0:
             break
         bounced[alive[si]] = True
-        alive = continue_paths(sp, geom, si, alive, pos, ns, ng, d, o, flux, u, EMIT_DIMS + BOUNCE_DIMS * b)
+        alive = continue_paths(sp, geom, si, alive, pos, ns, ng, d, o, flux, u, EMIT_DIMS + BOUNCE_DIMS * b,
+                               bumped=bumped)
     if not out_p:
         return None
     return (np.concatenate(out_p), np.concatenate(out_w), np.concatenate(out_d),

@@ -7,6 +7,7 @@ import numpy as np
 
 from igi.common import bsdf
 from igi.common.geometry import Geometry
+from igi.common.kernels import shading_normals
 from igi.common.kernels.splitmix import mix64
 
 from .kernels import light_paths
@@ -18,12 +19,15 @@ _NO_KEYS = np.zeros(0, np.uint64)
 
 def continue_paths(sp: bsdf.SurfacePoints, geom: Geometry, sel: np.ndarray, rows: np.ndarray, pos: np.ndarray,
                    ns: np.ndarray, ng: np.ndarray, d: np.ndarray, o: np.ndarray, flux: np.ndarray, u: np.ndarray,
-                   col: int, survival: np.ndarray | None = None, bounce: int = 0) -> np.ndarray:
+                   col: int, survival: np.ndarray | None = None, bounce: int = 0,
+                   bumped: np.ndarray | None = None) -> np.ndarray:
     """Hits ``sel`` (of the per-hit arrays ``sp``, ``pos``, ``ns``, ``ng``) of paths ``rows``
     continue: their BSDF sampled (importance mode) with u[path, col : col + 3], Russian roulette
     on ``survival[path, bounce]`` where given, the path's flux, direction ``d`` and origin ``o``
     (float64 (paths, 3), C order: updated in place) set for the next ray. Returns the paths of
-    ``sel`` whose flux still carries light, in order."""
+    ``sel`` whose flux still carries light, in order. ``bumped`` (per hit; None: none): the hits
+    whose normal a normal or bump map perturbed, where the flux takes the shading-normal
+    correction (common.kernels.shading_normals)."""
     for a in (d, o, flux):
         if a.dtype != np.float64 or not a.flags.c_contiguous:
             raise ValueError("continue_paths updates d, o and flux in place: float64, C order")
@@ -31,10 +35,21 @@ def continue_paths(sp: bsdf.SurfacePoints, geom: Geometry, sel: np.ndarray, rows
     out = np.empty(len(sel), np.int64)
     c = np.ascontiguousarray
     n = light_paths.continue_paths(P, prow, c(sel, np.int64), c(rows, np.int64), c(pos, np.float64),
-                                   c(ns, np.float64), c(ng, np.float64), d, o, flux, c(u, np.float64), int(col),
+                                   c(ns, np.float64), c(ng, np.float64),
+                                   np.zeros(len(pos), np.bool_) if bumped is None else c(bumped, np.bool_),
+                                   d, o, flux, c(u, np.float64), int(col),
                                    survival is not None, _NO_SURVIVAL if survival is None else c(survival, np.float64),
                                    int(bounce), *geom.offset_terms(), out)
     return out[:n]
+
+
+def incident_ratios(w: np.ndarray, ns: np.ndarray, ng: np.ndarray, bumped: np.ndarray) -> np.ndarray:
+    """|w·ns| / |w·ng| per row where ``bumped`` (1 elsewhere): what a light walk's or photon's
+    flux arriving from w is scaled by where it is stored (common.kernels.shading_normals)."""
+    c = np.ascontiguousarray
+    out = np.empty(len(w))
+    shading_normals.incident_ratios(c(w, np.float64), c(ns, np.float64), c(ng, np.float64), out)
+    return np.where(bumped, out, 1.0)
 
 
 def trace_walks(materials: list, geom: Geometry, o: np.ndarray, d: np.ndarray, flux: np.ndarray, u: np.ndarray,

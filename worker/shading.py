@@ -566,7 +566,7 @@ def _gather_packets(geom: Geometry, end: EndPoints, cols: "_VPLColumns", max_dep
         P_end, end_row = receivers.packed
         P_vpl = cols.P if cols.P is not None else P_end  # (typing only: no glossy column reads it)
         factors = (P_end, end_row, receivers.wi, receivers.ns, receivers.albedo, cols.glossy, P_vpl, cols.p_row,
-                   cols.vwi, cols.vnormal)
+                   cols.vwi, cols.vframes)
     n, m = len(x), len(cols.depth)
     lobes = _lobes(row, receivers, slice(0, n), roulette)
     boost = _pixel_boost(geom, end, cols, max_depth, receivers, roulette, pixel,
@@ -798,6 +798,14 @@ def vpl_columns(vpls: VPLSet, geom: Geometry, clamp_d2: float, force_general: bo
     return cols
 
 
+def _bumped_rows(sp, geom: Geometry) -> np.ndarray:
+    """Per surface VPL (its BSDF points ``sp``): on a normal- or bump-mapped material?"""
+    rows = sp.material_rows()
+    if rows is None or not geom.bumped_materials.any():
+        return np.zeros(len(sp), bool)
+    return geom.bumped(rows)
+
+
 class _VPLColumns:
     """Per-VPL constants of the gather as flat kernel arrays (made by :func:`vpl_columns`)."""
 
@@ -811,7 +819,7 @@ class _VPLColumns:
         spot = kind == VPL_SPOT
         surface = kind == VPL_SURFACE
         self.pos = np.ascontiguousarray(vpls.position - geom.center, dtype=f32)
-        self.normal = np.ascontiguousarray(vpls.normal, dtype=f32)
+        self.normal = np.array(vpls.normal, dtype=f32)  # (a copy: Lambertian rows take ng below)
         color = vpls.power.astype(np.float64).copy()
         self.glossy = np.zeros(m, bool)
         self.surf_rows = np.nonzero(surface)[0]
@@ -827,6 +835,12 @@ class _VPLColumns:
             rows = self.surf_rows
             self.side[rows] = np.where(vpls.wi_local[rows, 2] >= 0, 1.0, -1.0)
             color[rows[lam]] *= sp.diffuse[lam].astype(np.float32) / np.float32(np.pi)  # ρ/π as it always rounded
+            # On a normal- or bump-mapped surface a Lambertian VPL's cos θ toward a receiver is
+            # the one of its true surface (the area its light leaves), not of its perturbed
+            # normal (common.kernels.shading_normals); elsewhere the interpolated normal stands
+            # for the smooth surface its mesh approximates
+            bumped = _bumped_rows(sp, geom)
+            self.normal[rows[lam & bumped]] = vpls.ng[rows[lam & bumped]]
             self.glossy[rows[~lam]] = True
             if not lam.all():
                 reg = regularized_senders(sp, lobe_alpha)
@@ -839,7 +853,13 @@ class _VPLColumns:
         # glossy columns' rows in P (its rows need not be the surface VPLs' order), -1 elsewhere
         self.p_row = self.vpl_row if p_row is None else np.where(self.vpl_row >= 0, p_row[self.vpl_row], -1)
         self.vwi = np.ascontiguousarray(vpls.wi_local, dtype=np.float64)
-        self.vnormal = np.ascontiguousarray(vpls.normal, dtype=np.float64)
+        # a glossy VPL's BSDF frame (shading normal) and the surface its light leaves (ng on a
+        # normal- or bump-mapped surface, else the shading normal: no correction)
+        leaves = vpls.normal.copy()
+        if len(self.surf_rows):
+            b = self.surf_rows[_bumped_rows(vpls.surface, geom)]
+            leaves[b] = vpls.ng[b]
+        self.vframes = np.ascontiguousarray(np.concatenate([vpls.normal, leaves], axis=1), dtype=np.float64)
         self.color = np.ascontiguousarray(color)
         # The shadow roulette's light per unit pair weight; a glossy sender's is a guess: a
         # Lambertian VPL of its albedo.
@@ -987,7 +1007,7 @@ def _bsdf_factors(sl: slice, cols: _VPLColumns, row: np.ndarray, pi: np.ndarray,
     P_end, end_row = receivers.packed
     P_vpl = cols.P if cols.P is not None else P_end  # (typing only: no glossy column reads it)
     if not vg.pair_factors(pi, pj, d, pl, blocked, row, sl.start, P_end, end_row, receivers.wi, receivers.ns,
-                           receivers.albedo, cols.glossy, P_vpl, cols.p_row, cols.vwi, cols.vnormal, factor):
+                           receivers.albedo, cols.glossy, P_vpl, cols.p_row, cols.vwi, cols.vframes, factor):
         return np.zeros((0, 3))
     return factor
 

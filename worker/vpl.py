@@ -18,7 +18,7 @@ from igi.common.lights import VPL_SPOT, VPL_SURFACE, LightSampler, PointSamples,
 from igi.common.scene import NULL, SPECULAR_KINDS, Scene, kind_in
 from igi.common.sobol_stream import SobolStream, stream_seed
 
-from .light_paths import continue_paths, roulette_numbers, set_key, trace_walks
+from .light_paths import continue_paths, incident_ratios, roulette_numbers, set_key, trace_walks
 from .portals import portal_walks
 
 # Sobol dimensions: direct samples use 3 (emitter, 2 for the point); a walk uses 5 to leave
@@ -217,6 +217,7 @@ def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarr
         mat = hits.material[keep]
         uv = hits.uv[keep]
         sp = bsdf.gather(scene.materials, mat, uv)
+        bumped = geom.bumped(mat)
         wi = to_local(-d[alive], ns)
         nondelta = ~kind_in(sp.kind, SPECULAR_KINDS) & (sp.kind != NULL)
         if nondelta.any():
@@ -224,7 +225,7 @@ def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarr
             pos_l.append(pos[sel])
             ns_l.append(ns[sel])
             ng_l.append(ng[sel])
-            pw_l.append(flux[alive[sel]])
+            pw_l.append(flux[alive[sel]] * incident_ratios(-d[alive[sel]], ns[sel], ng[sel], bumped[sel])[:, None])
             dp_l.append(np.full(len(sel), bounce + 1, np.int32))
             wi_l.append(wi[sel])
             sp_l.append(sp.subset(sel))
@@ -236,7 +237,7 @@ def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarr
         roulette = roulette_after is not None and bounce + 1 >= roulette_after
         alive = continue_paths(sp, geom, np.arange(len(alive)), alive, pos, ns, ng, d, o, flux, u,
                                WALK_DIMS_START + WALK_DIMS_PER_BOUNCE * bounce, survival if roulette else None,
-                               bounce)
+                               bounce, bumped)
     if not pos_l:
         return _empty_set(), np.zeros(0, np.int64)
     sp_all = concat_surface(sp_l)

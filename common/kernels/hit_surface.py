@@ -9,12 +9,19 @@ import math
 import numpy as np
 from numba import njit
 
+from .bump_mapping import perturb
+
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def reconstruct(valid, prim, u, v, t, center, v0c, e1c, e2c, fn32, smooth, tri_normals, faces,
-                vertex_uvs, need_uv, material_of, emitter_of, mesh_of,
+def reconstruct(valid, prim, u, v, t, d, center, v0c, e1c, e2c, fn32, smooth, tri_normals, faces,
+                vertex_uvs, need_uv, material_of, emitter_of, mesh_of, bumps,
                 pos, ng, ns, uv, tt, mat, em, mesh):
+    """``bumps``: the normal and bump maps' tables (common.bump_mapping.bump_tables; empty: none),
+    which perturb the shading normal after ng has been turned to the interpolated one's side
+    (``d``: the rays' directions, which the perturbation may depend on)."""
     one = np.float32(1.0)
+    tri_row, tangents, maps, pixels = bumps
+    bumped = tri_row.shape[0] > 0
     for i in range(valid.shape[0]):
         ok = valid[i]
         p = prim[i] if ok else 0
@@ -35,8 +42,6 @@ def reconstruct(valid, prim, u, v, t, center, v0c, e1c, e2c, fn32, smooth, tri_n
                 s0, s1, s2 = a0 / inv, a1 / inv, a2 / inv
                 if g0 * s0 + g1 * s1 + g2 * s2 < 0:
                     g0, g1, g2 = -g0, -g1, -g2
-        ng[i, 0], ng[i, 1], ng[i, 2] = g0, g1, g2
-        ns[i, 0], ns[i, 1], ns[i, 2] = s0, s1, s2
         if need_uv:
             w = 1.0 - u[i] - v[i]
             f0, f1, f2 = faces[p, 0], faces[p, 1], faces[p, 2]
@@ -45,6 +50,12 @@ def reconstruct(valid, prim, u, v, t, center, v0c, e1c, e2c, fn32, smooth, tri_n
         else:
             uv[i, 0] = 0.0
             uv[i, 1] = 0.0
+        ng[i, 0], ng[i, 1], ng[i, 2] = g0, g1, g2
+        if ok and bumped:
+            ns[i, 0], ns[i, 1], ns[i, 2] = perturb(p, material_of[p], uv[i, 0], uv[i, 1], s0, s1, s2, g0, g1, g2,
+                                                   d[i, 0], d[i, 1], d[i, 2], tri_row, tangents, maps, pixels)
+        else:
+            ns[i, 0], ns[i, 1], ns[i, 2] = s0, s1, s2
         if ok:
             tt[i] = t[i]
             mat[i] = material_of[p]

@@ -223,6 +223,6 @@ def closest_surfaces(closest, o, d, c, hits) -> None:
     closest_hits(closest[0], o[:c], d[:c], tfar[:c], closest[1], prim[:c], hu[:c], hv[:c], ht[:c])
     for i in range(c):
         valid[i] = prim[i] >= 0
-    reconstruct(valid[:c], prim[:c], hu[:c], hv[:c], ht[:c], closest[1], closest[2], closest[3], closest[4],
+    reconstruct(valid[:c], prim[:c], hu[:c], hv[:c], ht[:c], d[:c], closest[1], closest[2], closest[3], closest[4],
                 closest[5], closest[6], closest[7], closest[8], closest[9], closest[10], closest[11], closest[12],
-                closest[13], hpos, hng, hns, huv, htt, hmat, hem, hmesh)
+                closest[13], closest[14], hpos, hng, hns, huv, htt, hmat, hem, hmesh)

@@ -46,6 +46,7 @@ class _VPLColumns:
         # Surface VPLs: Lambertian ones fold rho/π into their colour and radiate on the side
         # their light arrived from; the others need their BSDF per pair.
         self.side = np.ones(len(kind), np.float32)
+        self.bumped = np.zeros(len(kind), bool)
         if len(self.surf_rows):
             sp = vpls.surface
             # force_general: every surface VPL through the full BSDF (the plan-off baseline).
@@ -53,6 +54,10 @@ class _VPLColumns:
             rows = self.surf_rows
             self.side[rows] = np.where(vpls.wi_local[rows, 2] >= 0, 1.0, -1.0)
             color[rows[lam]] *= sp.diffuse[lam] / np.pi
+            bumped = geom.bumped(sp.material_rows()) if sp.material_rows() is not None else np.zeros(len(rows), bool)
+            self.normal[rows[lam & bumped]] = vpls.ng[rows[lam & bumped]]  # mapped: leaves through the true surface
+            self.bumped = np.zeros(len(kind), bool)
+            self.bumped[rows[bumped]] = True
             self.glossy[rows[~lam]] = True
         self.color = color
         self.spot_params = vpls.wi_local[self.spot]
@@ -171,7 +176,12 @@ def _gather_chunk(geom, end, sl, vpls, cols, clamp_d2, max_depth, albedo):
         ny = np.tile(vpls.normal[gj], (n, 1))
         spy = sub.subset(np.tile(np.arange(len(gj)), n))
         wi_y = np.tile(vpls.wi_local[gj], (n, 1))
-        fy = bsdf.eval(spy, wi_y, to_local(wo_y, ny), mode="importance").reshape(n, len(gj), 3)
+        fy = bsdf.eval(spy, wi_y, to_local(wo_y, ny), mode="importance")
+        # on a mapped surface its light leaves through the true surface: |wo·ng| / |wo·ns|
+        gy = np.tile(np.where(cols.bumped[gj][:, None], vpls.ng[gj], vpls.normal[gj]), (n, 1))
+        cs, cg = np.abs(np.sum(wo_y * ny, 1)), np.abs(np.sum(wo_y * gy, 1))
+        ratio = np.where(cs > 1e-9, cg / np.where(cs > 1e-9, cs, 1.0), 0.0)
+        fy = (fy * np.where(np.all(ny == gy, axis=1), 1.0, ratio)[:, None]).reshape(n, len(gj), 3)
         # out already holds weight * flux for these columns; swap flux for flux * f_y.
         wg = weight[:, gj]
         rec = wg[:, :, None] * cols.color[gj][None]

@@ -18,16 +18,18 @@ from igi.common.kernels import bsdf as kb
 from igi.common.kernels import shading_frame
 from igi.common.kernels.hit_surface import offset_point
 from igi.common.kernels.ray_packets import closest_surfaces, hit_buffers
+from igi.common.kernels.shading_normals import adjoint_correction, incident_ratio
 from igi.common.kernels.splitmix import mix64, unit
 
 
 # No reference counting (as common.kernels.bsdf): P's 17 arrays would be counted per path.
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def continue_paths(P, prow, sel, rows, pos, ns, ng, d, o, flux, u, col, roulette, survival, bounce,
+def continue_paths(P, prow, sel, rows, pos, ns, ng, bumped, d, o, flux, u, col, roulette, survival, bounce,
                    center, eps, ulps, out_rows) -> int:
     """For the hits ``j = sel[t]`` (surface parameters at ``P[.][prow[j]]``, position, normals)
     of paths ``r = rows[j]``: sample the BSDF at -d[r] with u[r, col : col + 3] (importance
-    mode); with ``roulette``, keep the path with probability q = clip(max weight, 0, 0.95)
+    mode; on a hit whose normal a normal or bump map perturbed, ``bumped[j]``, its weight corrected
+    for the shading normal: common.kernels.shading_normals); with ``roulette``, keep the path with probability q = clip(max weight, 0, 0.95)
     (uniform ``survival[r, bounce]``) and divide by q; flux[r] *= weight; d[r], o[r] = the new
     direction and the offset origin. Paths whose flux still carries light (positive in some
     channel, finite in all) are written to ``out_rows`` in order; returns how many."""
@@ -40,6 +42,9 @@ def continue_paths(P, prow, sel, rows, pos, ns, ng, d, o, flux, u, col, roulette
         ox, oy, oz, w0, w1, w2, _p, _delta = kb.sample(P, prow[j], wix, wiy, wiz, u[r, col], u[r, col + 1],
                                                        u[r, col + 2], False)
         dx, dy, dz = shading_frame.to_world(ox, oy, oz, nx, ny, nz)
+        if bumped[j]:
+            a = adjoint_correction(-d[r, 0], -d[r, 1], -d[r, 2], dx, dy, dz, nx, ny, nz, ng[j, 0], ng[j, 1], ng[j, 2])
+            w0, w1, w2 = w0 * a, w1 * a, w2 * a
         if roulette:
             q = np.maximum(np.maximum(w0, w1), w2)  # NaN propagates, as numpy's max
             if not math.isnan(q):
@@ -60,6 +65,14 @@ def continue_paths(P, prow, sel, rows, pos, ns, ng, d, o, flux, u, col, roulette
             out_rows[c] = r
             c += 1
     return c
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _bumped(maps, material) -> bool:
+    """Is ``material``'s shading normal perturbed by a normal or bump map (common.bump_mapping's
+    table; empty: no map in the scene)? Only there do the light paths take the shading-normal
+    corrections: an interpolated normal stands for the smooth surface its mesh approximates."""
+    return 0 <= material < maps.shape[0] and maps[material, 0] > 0.0
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -135,7 +148,9 @@ def trace_photons(P, kind, specular, null_kind, closest, o, d, flux, u, max_boun
     call: the photons whose flux carries light go to Embree in packets (``closest``:
     common.geometry.Geometry.closest_terms), bounce by bounce; a photon that has bounced off a
     mirror or glass (material rows ``specular``) and hits another surface (kind not
-    ``null_kind``) is stored — position, flux, direction toward where it came from, ns, depth
+    ``null_kind``) is stored — position, flux (on a normal- or bump-mapped surface × |wi·ns| / |wi·ng|:
+    common.kernels.shading_normals),
+    direction toward where it came from, ns, depth
     b + 1, its row — in ``out`` (in bounce order, then row order); one on a mirror or glass
     surface bounces on (:func:`continue_paths` with u[row, emit_dims + bounce_dims·b …] while u
     has them, then :func:`walk_uniform` of (keys[row], row % per_set)); any other ends. ``o``,
@@ -148,6 +163,8 @@ def trace_photons(P, kind, specular, null_kind, closest, o, d, flux, u, max_boun
     bo, bd = np.empty((n, 3)), np.empty((n, 3))
     hits = hit_buffers(n)
     hpos, hng, hns, hmat = hits[5], hits[6], hits[7], hits[10]
+    maps = closest[14][2]
+    bumped = np.zeros(n, np.bool_)
     null_row = specular.shape[0] - 1
     quasi = (u.shape[1] - emit_dims) // bounce_dims  # bounces with numbers of u
     drawn = np.empty((n, bounce_dims))  # a bounce's numbers past those
@@ -169,11 +186,15 @@ def trace_photons(P, kind, specular, null_kind, closest, o, d, flux, u, max_boun
             if specular[row]:
                 sel[spec] = j
                 prow[j] = row
+                bumped[j] = _bumped(maps, m)
                 spec += 1
             elif bounced[r] and kind[row] != null_kind:
+                bump = _bumped(maps, m)
+                k = incident_ratio(-d[r, 0], -d[r, 1], -d[r, 2], hns[j, 0], hns[j, 1], hns[j, 2],
+                                   hng[j, 0], hng[j, 1], hng[j, 2]) if bump else 1.0
                 for a in range(3):
                     out_p[stored, a] = hpos[j, a]
-                    out_w[stored, a] = flux[r, a]
+                    out_w[stored, a] = flux[r, a] * k if bump else flux[r, a]
                     out_d[stored, a] = -d[r, a]
                     out_n[stored, a] = hns[j, a]
                 out_dp[stored] = b + 1
@@ -186,7 +207,7 @@ def trace_photons(P, kind, specular, null_kind, closest, o, d, flux, u, max_boun
             bounced[rows[sel[q]]] = True
         # (typed values, not literals or a global array: either would compile continue_paths once more)
         if b < quasi:
-            live = continue_paths(P, prow, sel[:spec], rows, hpos, hns, hng, d, o, flux, u,
+            live = continue_paths(P, prow, sel[:spec], rows, hpos, hns, hng, bumped, d, o, flux, u,
                                   emit_dims + bounce_dims * b, np.bool_(False), no_survival, np.int64(0), center, eps,
                                   ulps, alive)
         else:
@@ -194,7 +215,7 @@ def trace_photons(P, kind, specular, null_kind, closest, o, d, flux, u, max_boun
                 r = rows[sel[q]]
                 for c in range(bounce_dims):
                     drawn[r, c] = walk_uniform(keys[r], r % per_set, b, c)
-            live = continue_paths(P, prow, sel[:spec], rows, hpos, hns, hng, d, o, flux, drawn, np.int64(0),
+            live = continue_paths(P, prow, sel[:spec], rows, hpos, hns, hng, bumped, d, o, flux, drawn, np.int64(0),
                                   np.bool_(False), no_survival, np.int64(0), center, eps, ulps, alive)
     return stored, traced
 
@@ -205,7 +226,8 @@ def trace_walks(P, reflects, atlas, closest, o, d, flux, u, max_length, roulette
     """Instant radiosity's light walks (worker.vpl._light_walks) from emission to their end, in
     one call: the walks whose flux carries light go to Embree in packets (``closest``:
     common.geometry.Geometry.closest_terms) bounce by bounce; every hit on a material row that
-    ``reflects`` (not mirror/glass, not NULL) leaves a VPL — position, ns, ng, the walk's flux,
+    ``reflects`` (not mirror/glass, not NULL) leaves a VPL — position, ns, ng, the walk's flux
+    (on a normal- or bump-mapped surface × |wi·ns| / |wi·ng|: common.kernels.shading_normals),
     depth b + 1, wi in its shading frame, material, uv, the walk's row — in ``out`` (bounce
     order, then row order); each hit continues (:func:`continue_paths`, u[row, dims_start +
     dims_per_bounce·b …] while u has them, then :func:`walk_uniform` of (keys[row], row % walks);
@@ -223,6 +245,8 @@ def trace_walks(P, reflects, atlas, closest, o, d, flux, u, max_length, roulette
     bo, bd = np.empty((n, 3)), np.empty((n, 3))
     hits = hit_buffers(n)
     hpos, hng, hns, huv, hmat = hits[5], hits[6], hits[7], hits[8], hits[10]
+    maps = closest[14][2]
+    bumped = np.zeros(n, np.bool_)
     m = reflects.shape[0] - 1  # the NULL row
     quasi = (u.shape[1] - dims_start) // dims_per_bounce  # bounces with numbers of u
     drawn = np.empty((n, dims_per_bounce))  # a bounce's numbers past those
@@ -241,16 +265,19 @@ def trace_walks(P, reflects, atlas, closest, o, d, flux, u, max_length, roulette
             row = mat if 0 <= mat < m else m
             prow[j] = kb.material_row(P, row, m + 1 + j, atlas, huv[j, 0], huv[j, 1])
             sel[j] = j
+            bumped[j] = _bumped(maps, mat)
             if not reflects[row]:
                 continue
             if stored == cap:
                 return -1, traced
             r = rows[j]
+            k = incident_ratio(-d[r, 0], -d[r, 1], -d[r, 2], hns[j, 0], hns[j, 1], hns[j, 2],
+                               hng[j, 0], hng[j, 1], hng[j, 2]) if bumped[j] else 1.0
             for a in range(3):
                 out_p[stored, a] = hpos[j, a]
                 out_n[stored, a] = hns[j, a]
                 out_g[stored, a] = hng[j, a]
-                out_w[stored, a] = flux[r, a]
+                out_w[stored, a] = flux[r, a] * k if bumped[j] else flux[r, a]
             out_wi[stored, 0], out_wi[stored, 1], out_wi[stored, 2] = shading_frame.to_local(
                 -d[r, 0], -d[r, 1], -d[r, 2], hns[j, 0], hns[j, 1], hns[j, 2])
             out_dp[stored] = b + 1
@@ -269,10 +296,10 @@ def trace_walks(P, reflects, atlas, closest, o, d, flux, u, max_length, roulette
                     for q in range(dims_per_bounce):
                         drawn[r, q] = walk_uniform(keys[r], r % walks, b, q)
         if b < quasi:
-            live = continue_paths(P, prow, sel[:c], rows, hpos, hns, hng, d, o, flux, u,
+            live = continue_paths(P, prow, sel[:c], rows, hpos, hns, hng, bumped, d, o, flux, u,
                                   dims_start + dims_per_bounce * b, np.bool_(roulette), survival, np.int64(0), center,
                                   eps, ulps, alive)
         else:
-            live = continue_paths(P, prow, sel[:c], rows, hpos, hns, hng, d, o, flux, drawn, np.int64(0),
+            live = continue_paths(P, prow, sel[:c], rows, hpos, hns, hng, bumped, d, o, flux, drawn, np.int64(0),
                                   np.bool_(roulette), survival, np.int64(0), center, eps, ulps, alive)
     return stored, traced

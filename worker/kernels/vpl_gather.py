@@ -36,6 +36,7 @@ from numba import njit
 from igi.common.kernels import bsdf as kb
 from igi.common.kernels import shading_frame
 from igi.common.kernels.ray_packets import FIELDS, LANES, occlude_lanes, packet_lanes
+from igi.common.kernels.shading_normals import exit_ratio
 from igi.common.kernels.splitmix import mix32, mix64, unit32
 
 INV_PI = 1.0 / math.pi
@@ -717,7 +718,7 @@ def gather_packets(scene, inner, x, ns, ng, off, side, row, vmax,
 
     ``factors`` None: no pair needs a BSDF factor (no ROW_GLOSSY row, no glossy column);
     else :func:`pair_factors`' arguments past ``base`` (P_end, end_row, wi, ns, albedo,
-    glossy_col, P_vpl, vpl_row, vwi, vnormal), applied to each block's unoccluded pairs
+    glossy_col, P_vpl, vpl_row, vwi, vframes), applied to each block's unoccluded pairs
     before they are summed."""
     n = x.shape[0]
     rows_per_block, staging = _staging(n, col_lo, col_hi, vpos, vnormal, spot_cutoff, vdepth)
@@ -892,9 +893,9 @@ def _sum_held(count, held, row, factors, color, sums) -> None:
     """Add the held unoccluded pairs' weight × VPL colour × BSDF factor (:func:`pair_factors`)
     to their rows of ``sums[stream]`` (the BVH each was traced on), in the order held."""
     hi, hj, hw, hpl, hd, hb, hf, hs = held
-    P_end, end_row, wi, ns, albedo, glossy_col, P_vpl, vpl_row, vwi, vnormal = factors
+    P_end, end_row, wi, ns, albedo, glossy_col, P_vpl, vpl_row, vwi, vframes = factors
     pair_factors(hi[:count], hj[:count], hd[:count], hpl[:count], hb[:count], row, np.int64(0), P_end, end_row, wi, ns,
-                 albedo, glossy_col, P_vpl, vpl_row, vwi, vnormal, hf[:count])
+                 albedo, glossy_col, P_vpl, vpl_row, vwi, vframes, hf[:count])
     for q in range(count):
         if hb[q]:
             continue
@@ -1034,13 +1035,15 @@ def _finite_rows(n, out) -> None:
 # the 17 arrays of P, and counting their references on each of them cost ~160 ns a pair.
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def pair_factors(pi, pj, d, pl, blocked, row, base, P_end, end_row, wi, ns, albedo,
-                 glossy_col, P_vpl, vpl_row, vwi, vnormal, out):
+                 glossy_col, P_vpl, vpl_row, vwi, vframes, out):
     """Per-pair RGB factors of the unoccluded pairs (``out`` (k, 3), 1 elsewhere): a glossy
     receiver's f_x(wi, ω)/albedo with its MIS weight against the emitter sample's light pdf
     ``pl``, times a glossy VPL's f_y(ω_in, y→x) in place of its Lambertian colour.
 
     Rows ``pi`` are chunk-relative: end point ``base + i`` of wi / ns / albedo, whose BSDF is
-    row ``end_row[base + i]`` of P_end. VPL column j's BSDF is row ``vpl_row[j]`` of P_vpl.
+    row ``end_row[base + i]`` of P_end. VPL column j's BSDF is row ``vpl_row[j]`` of P_vpl, in
+    the frame of its shading normal ``vframes[j, :3]``; its light leaves through its geometric
+    normal ``vframes[j, 3:]`` (common.kernels.shading_normals.exit_ratio).
     Returns whether any
     pair needed a factor (False: the caller may drop ``out``)."""
     any_factor = False
@@ -1069,10 +1072,12 @@ def pair_factors(pi, pj, d, pl, blocked, row, base, P_end, end_row, wi, ns, albe
             any_factor = True
         if glossy_col[j]:
             q = vpl_row[j]
-            lx, ly, lz = shading_frame.to_local(-dx, -dy, -dz, vnormal[j, 0], vnormal[j, 1], vnormal[j, 2])
+            sx, sy, sz = vframes[j, 0], vframes[j, 1], vframes[j, 2]
+            lx, ly, lz = shading_frame.to_local(-dx, -dy, -dz, sx, sy, sz)
             r, g, b, _p = kb.eval_pdf(P_vpl, q, vwi[j, 0], vwi[j, 1], vwi[j, 2], lx, ly, lz)
-            out[k, 0] *= r
-            out[k, 1] *= g
-            out[k, 2] *= b
+            a = exit_ratio(-dx, -dy, -dz, sx, sy, sz, vframes[j, 3], vframes[j, 4], vframes[j, 5])
+            out[k, 0] *= r * a
+            out[k, 1] *= g * a
+            out[k, 2] *= b * a
             any_factor = True
     return any_factor

@@ -128,7 +128,7 @@ def _direct_calls() -> dict:
     """Tiny calls of the kernels the render does not register: the worker never decodes,
     and helpers that are loaded from the cache inside their caller keep no signature."""
     from igi.common.environment_map import no_map
-    from igi.common.kernels import environment_map, shading_frame, texture, wire_decode
+    from igi.common.kernels import environment_map, shading_frame, shading_normals, texture, wire_decode
     from igi.worker.kernels import environment_bins, light_paths, photon_query, tile_buffers, vpl_gather
 
     z = np.zeros(0, np.uint8)
@@ -180,6 +180,9 @@ def _direct_calls() -> dict:
         "igi.worker.kernels.light_paths.roulette_uniforms": lambda: light_paths.roulette_uniforms(
             np.zeros(1, np.uint64), 1, 0, 3, np.empty((1, 3)), np.empty((1, 1))),
         "igi.worker.kernels.light_paths.continue_paths": _continue_paths_call,
+        # the numpy walks' shading-normal ratios (the compiled walks inline them)
+        "igi.common.kernels.shading_normals.incident_ratios": lambda: shading_normals.incident_ratios(
+            np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)),
     }
 
 
@@ -191,9 +194,9 @@ def _continue_paths_call() -> None:
 
     P = bsdf.SurfacePoints.constant(Material("warm-up", DIFFUSE), 1).packed()
     i64, f64 = np.zeros(0, np.int64), np.zeros((0, 3))
-    light_paths.continue_paths(P, np.zeros(1, np.int64), i64, i64.copy(), f64, f64.copy(), f64.copy(), f64.copy(),
-                               f64.copy(), f64.copy(), np.zeros((0, 5)), 0, False, np.zeros((0, 0)), 0, np.zeros(3),
-                               0.0, 0.0, i64.copy())
+    light_paths.continue_paths(P, np.zeros(1, np.int64), i64, i64.copy(), f64, f64.copy(), f64.copy(),
+                               np.zeros(0, np.bool_), f64.copy(), f64.copy(), f64.copy(), np.zeros((0, 5)), 0, False,
+                               np.zeros((0, 0)), 0, np.zeros(3), 0.0, 0.0, i64.copy())
 
 
 def _visit_call() -> None:
