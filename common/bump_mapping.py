@@ -30,11 +30,11 @@ def triangle_tangents(vertices: np.ndarray, faces: np.ndarray, vertex_uvs: np.nd
 
 
 def bump_tables(materials: list, material_of: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
-                vertex_uvs: np.ndarray, emitter_of: np.ndarray | None = None) -> tuple:
+                vertex_uvs: np.ndarray) -> tuple:
     """``(tri_row (F,), tangents (R, 6), maps (M, 14), bitmap atlas)`` as
-    common.kernels.bump_mapping.perturb reads them, tangents only for the triangles whose material
-    has a map; :func:`no_bumps` where none has. Emitting triangles are left as they are (their
-    emission follows the unperturbed normal, as Mitsuba's area lights)."""
+    common.kernels.bump_mapping.perturb reads them, tangents for every triangle whose material
+    has a map (an emitting one too: Mitsuba perturbs its BSDF as any other); :func:`no_bumps`
+    where none has."""
     maps = np.zeros((len(materials), MAP_COLUMNS))
     parts, base = [], 0
     for i, mat in enumerate(materials):
@@ -55,8 +55,6 @@ def bump_tables(materials: list, material_of: np.ndarray, vertices: np.ndarray, 
         parts.append(img.reshape(-1))
         base += img.size
     perturbed = maps[material_of, 0] > 0 if len(material_of) else np.zeros(0, bool)
-    if emitter_of is not None:
-        perturbed &= emitter_of < 0
     if not perturbed.any():
         return no_bumps()
     idx = np.flatnonzero(perturbed)

@@ -170,8 +170,7 @@ class Geometry:
         self.need_uv = bool(any(m.uvs is not None for m in scene.meshes))
         # Mitsuba's normal and bump maps: the shading normal's perturbation at each hit
         # (common.kernels.bump_mapping; empty tables without them): they read uv
-        self.bumps = bump_tables(scene.materials, self.material_of, self.vertices, self.faces, self.vertex_uvs,
-                                 self.emitter_of)
+        self.bumps = bump_tables(scene.materials, self.material_of, self.vertices, self.faces, self.vertex_uvs)
         self.need_uv = self.need_uv or len(self.bumps[0]) > 0
         # per material: is its shading normal perturbed (the light paths' corrections apply there)
         self.bumped_materials = self.bumps[2][:, 0] > 0 if len(self.bumps[0]) else np.zeros(len(scene.materials), bool)

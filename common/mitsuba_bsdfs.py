@@ -237,6 +237,11 @@ def _load_perturbed(loader, node: Node, p: Props, name: str, kind: str) -> Mater
     """Mitsuba's ``normalmap`` (its ``normalmap`` texture) and ``bumpmap`` (its one nested texture, a
     height, × ``scale``): the nested BSDF with the texture that perturbs its shading normal."""
     inner = _nested_bsdfs(loader, p)
+    for k, c in p.named.items():  # (a named nested BSDF is read here, not an unknown parameter)
+        if loader.deref(c).tag == "bsdf":
+            p.get(k)
+    if len(inner) > 1:
+        raise loader.error(node, f"bsdf '{kind}' takes exactly one nested BSDF (has {len(inner)})")
     if inner:
         mat = load_bsdf(loader, inner[0], name)
     else:

@@ -139,7 +139,7 @@ class Material:
     opacity: Texture | None = None
     # Mitsuba's ``normalmap`` (RGB: the shading normal in the shading frame, 2·rgb − 1) and
     # ``bumpmap`` (a height, its luminance, × ``bump_scale``): the shading normal at a hit is
-    # perturbed by them (common.kernels.shading_normal); None: the interpolated normal
+    # perturbed by them (common.kernels.bump_mapping); None: the interpolated normal
     normal_map: Texture | None = None
     bump_map: Texture | None = None
     bump_scale: float = 1.0
@@ -259,8 +259,9 @@ class Scene:
         for mat in self.materials:
             h.update(repr((mat.kind, mat.alpha, mat.int_ior, mat.ext_ior, mat.distribution)).encode())
             # (a mask changes what rays hit, a normal or bump map what a hit's normal is)
-            for t in (mat.opacity, mat.normal_map, mat.bump_map):
+            for slot, t in (("", mat.opacity), ("normal map", mat.normal_map), ("bump map", mat.bump_map)):
                 if t is not None:
+                    h.update(slot.encode())  # (the opacity's untagged: digests of masked scenes as before)
                     h.update(np.ascontiguousarray(t.rgb if t.is_constant else t.image, np.float64).tobytes())
                     h.update(repr((t.uv_scale, t.uv_offset, t.filter)).encode())
             if mat.perturbs_normal:

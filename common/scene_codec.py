@@ -260,6 +260,8 @@ def validate_scene(scene: Scene) -> None:
         if not -1 <= m.emitter < nem:
             raise SceneError(f"{w}: emitter index {m.emitter} outside -1..{nem - 1}")
     for i, mat in enumerate(scene.materials):
+        if not np.isfinite(mat.bump_scale):
+            raise SceneError(f"material {i} ({mat.name}) bump_scale: {mat.bump_scale} is not finite")
         for tname in ("diffuse", "specular", "specular_transmittance", "opacity", "normal_map", "bump_map"):
             t = getattr(mat, tname)
             if t is None and tname in ("opacity", "normal_map", "bump_map"):

@@ -840,7 +840,11 @@ class _VPLColumns:
             # normal (common.kernels.shading_normals); elsewhere the interpolated normal stands
             # for the smooth surface its mesh approximates
             bumped = _bumped_rows(sp, geom)
-            self.normal[rows[lam & bumped]] = vpls.ng[rows[lam & bumped]]
+            mapped = rows[lam & bumped]
+            self.normal[mapped] = vpls.ng[mapped]
+            if len(mapped):  # (and radiates on the side of its true surface its light came from)
+                wi = to_world(vpls.wi_local[mapped], vpls.normal[mapped])
+                self.side[mapped] = np.where(np.sum(wi * vpls.ng[mapped], axis=1) >= 0, 1.0, -1.0)
             self.glossy[rows[~lam]] = True
             if not lam.all():
                 reg = regularized_senders(sp, lobe_alpha)

@@ -161,6 +161,8 @@ def test_normal_and_bump_maps_load_from_mitsuba_xml_and_travel_with_the_scene(tm
 
 @pytest.mark.parametrize("body,needle", [
     ('<bsdf type="normalmap"><bsdf type="diffuse"/></bsdf>', "needs a texture named 'normalmap'"),
+    ('<bsdf type="normalmap"><rgb name="normalmap" value="0.5, 0.5, 1"/><bsdf type="diffuse"/>'
+     '<bsdf type="conductor"/></bsdf>', "exactly one nested BSDF"),
     ('<bsdf type="bumpmap"><bsdf type="diffuse"/></bsdf>', "exactly one nested texture"),
     ('<bsdf type="bumpmap"><float name="scale" value="nan"/><texture type="checkerboard"/>'
      '<bsdf type="diffuse"/></bsdf>', "not finite"),
@@ -172,6 +174,14 @@ def test_malformed_maps_are_named(tmp_path, body, needle):
         load_mitsuba(scene_file(tmp_path, f'<shape type="rectangle">{body}</shape>'))
 
 
+def test_a_named_nested_bsdf_is_read_without_a_warning(tmp_path):
+    scene = load_mitsuba(scene_file(tmp_path, """
+        <shape type="rectangle"><bsdf type="normalmap"><rgb name="normalmap" value="0.5, 0.5, 1"/>
+            <bsdf type="conductor" name="inner"/></bsdf></shape>"""))
+    assert scene.materials[0].normal_map is not None and scene.materials[0].kind != 0
+    assert not [w for w in scene.warnings if "sensor" not in w], scene.warnings
+
+
 def test_a_map_around_a_map_keeps_the_outer_one_with_a_warning(tmp_path):
     scene = load_mitsuba(scene_file(tmp_path, """
         <shape type="rectangle"><bsdf type="normalmap"><rgb name="normalmap" value="0.5, 0.5, 1"/>
@@ -180,7 +190,20 @@ def test_a_map_around_a_map_keeps_the_outer_one_with_a_warning(tmp_path):
     assert any("around another normal or bump map" in w for w in scene.warnings)
 
 
-def test_no_bumps_are_the_kernels_types():
+def test_a_scene_without_maps_passes_tables_of_the_types_a_scene_with_them_does():
+    """(one compiled signature of hit reconstruction for both)"""
     t = no_bumps()
-    assert [a.dtype for a in t] == [np.int32, np.float64, np.float64, np.float32]
-    assert [a.ndim for a in t] == [1, 2, 2, 1] and t[2].shape[1] == kb.MAP_COLUMNS
+    real = _tables({"bump_map": Texture(image=np.ones((2, 2, 3), np.float32)), "bump_scale": 0.5})
+    assert len(real[0]) == 1
+    assert [a.dtype for a in t] == [a.dtype for a in real] == [np.int32, np.float64, np.float64, np.float32]
+    assert [a.ndim for a in t] == [a.ndim for a in real] == [1, 2, 2, 1]
+    assert t[2].shape[1] == real[2].shape[1] == kb.MAP_COLUMNS
+
+
+def test_a_height_ramp_along_v_tilts_the_normal_along_dp_dv():
+    # the image's rows run against v (row 0 is v = 1): a height rising with v falls down the rows
+    h = 64
+    ramp = np.repeat((1.0 - (np.arange(h) + 0.5) / h)[:, None, None], 4, 1).repeat(3, 2).astype(np.float32)
+    got = _perturb(_tables({"bump_map": Texture(image=ramp), "bump_scale": 0.5}), uv=(0.3, 0.5))
+    want = np.array([0.0, -0.5 * 2.0, 4.0])  # dp/du × (dp/dv + n g): (2,0,0) × (0,2,0.5)
+    np.testing.assert_allclose(got, want / np.linalg.norm(want), atol=2e-3)

@@ -9,7 +9,7 @@ import numpy as np
 
 from igi.common import bsdf
 from igi.common.geometry import Geometry
-from igi.common.lights import VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE, spot_falloff, to_local
+from igi.common.lights import VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE, spot_falloff, to_local, to_world
 from igi.worker.vpl import VPLSet
 from igi.common.scene import DIFFUSE, NULL
 
@@ -55,7 +55,10 @@ class _VPLColumns:
             self.side[rows] = np.where(vpls.wi_local[rows, 2] >= 0, 1.0, -1.0)
             color[rows[lam]] *= sp.diffuse[lam] / np.pi
             bumped = geom.bumped(sp.material_rows()) if sp.material_rows() is not None else np.zeros(len(rows), bool)
-            self.normal[rows[lam & bumped]] = vpls.ng[rows[lam & bumped]]  # mapped: leaves through the true surface
+            mapped = rows[lam & bumped]  # mapped: leaves through the true surface, on its side
+            self.normal[mapped] = vpls.ng[mapped]
+            wi = to_world(vpls.wi_local[mapped], vpls.normal[mapped])
+            self.side[mapped] = np.where(np.sum(wi * vpls.ng[mapped], axis=1) >= 0, 1.0, -1.0)
             self.bumped = np.zeros(len(kind), bool)
             self.bumped[rows[bumped]] = True
             self.glossy[rows[~lam]] = True
