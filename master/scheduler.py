@@ -96,6 +96,7 @@ def assign(pending: Sequence[PendingTask], workers: Iterable[WorkerView],
             if key in by_set:
                 holders.setdefault(key, set()).add(wid)
     lost_sets = {t.set_key for t in pending if t.avoid}  # sets of tasks another worker gave back
+    queued = by_set.keys()
 
     def holders_of(key) -> set:
         return holders.setdefault(key, set())
@@ -123,11 +124,10 @@ def assign(pending: Sequence[PendingTask], workers: Iterable[WorkerView],
         nobody holds, 2 a set others hold (only when the worker is nearly idle); None: none."""
         held = state[wid][2]
         best = None
-        for key in by_set:
-            if key in held or key in lost_sets:
-                pos = first_for(key, wid)
-                if pos is not None and (key in held or pending[pos].avoid) and (best is None or pos < best):
-                    best = pos
+        for key in (held | lost_sets) & queued:  # (the queued sets it holds or others gave back)
+            pos = first_for(key, wid)
+            if pos is not None and (key in held or pending[pos].avoid) and (best is None or pos < best):
+                best = pos
         if best is not None:
             return (0, 0, best)
         cands = []

@@ -24,7 +24,7 @@ pytestmark = [pytest.mark.timeout(600),
 def run():
     from igi.bench.stress_hostile import serve_with_rogue
 
-    r = serve_with_rogue("cornell-box", baseline_s=5.0, window_s=10.0)
+    r = serve_with_rogue("cornell-box", baseline_s=3.0, window_s=10.0)
     print({k: v for k, v in r.items() if k not in ("serve_log", "state_after")})
     return r
 

@@ -35,7 +35,7 @@ def test_normal_and_bump_mapped_surfaces_render_as_mitsubas():
     err = relmse(img, ref)
     flat = load_scene(DATA / "bump.xml")
     flat.materials = [dataclasses.replace(m, normal_map=None, bump_map=None) for m in flat.materials]
-    old = render_local(flat, frames=4, width=W, height=H)
+    old = render_local(flat, frames=2, width=W, height=H)  # (its error is bias: 2 frames tell it)
     print("relMSE", err, "flat", relmse(old, ref), "ripple contrast", _ripple_contrast(img),
           _ripple_contrast(ref), _ripple_contrast(old), "floor", img[int(H * 0.7):].mean() / ref[int(H * 0.7):].mean())
     assert err < 0.006, err
