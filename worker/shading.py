@@ -839,7 +839,7 @@ class _VPLColumns:
             # the one of its true surface (the area its light leaves), not of its perturbed
             # normal (common.kernels.shading_normals); elsewhere the interpolated normal stands
             # for the smooth surface its mesh approximates
-            bumped = _bumped_rows(sp, geom)
+            bumped = _bumped_rows(sp, geom)  # (per surface VPL; the glossy ones' frames below too)
             mapped = rows[lam & bumped]
             self.normal[mapped] = vpls.ng[mapped]
             if len(mapped):  # (and radiates on the side of its true surface its light came from)
@@ -861,7 +861,7 @@ class _VPLColumns:
         # normal- or bump-mapped surface, else the shading normal: no correction)
         leaves = vpls.normal.copy()
         if len(self.surf_rows):
-            b = self.surf_rows[_bumped_rows(vpls.surface, geom)]
+            b = self.surf_rows[bumped]
             leaves[b] = vpls.ng[b]
         self.vframes = np.ascontiguousarray(np.concatenate([vpls.normal, leaves], axis=1), dtype=np.float64)
         self.color = np.ascontiguousarray(color)

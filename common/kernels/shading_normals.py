@@ -18,27 +18,29 @@ _GRAZING = 1e-9  # |w·n| below this: the direction runs along the surface
 
 
 @njit(**_KERNEL, inline="always")
+def _cos_ratio(wx, wy, wz, ax, ay, az, bx, by, bz):
+    """|w·a| / |w·b|: 1 where a is b, 0 where w runs along b's plane."""
+    if ax == bx and ay == by and az == bz:
+        return 1.0
+    cb = abs(wx * bx + wy * by + wz * bz)
+    if not cb > _GRAZING:
+        return 0.0
+    return abs(wx * ax + wy * ay + wz * az) / cb
+
+
+@njit(**_KERNEL, inline="always")
 def incident_ratio(wx, wy, wz, sx, sy, sz, gx, gy, gz):
     """|w·ns| / |w·ng| for light arriving from w (1 where ns is ng; 0 along the true surface,
     where no light arrives)."""
-    if sx == gx and sy == gy and sz == gz:
-        return 1.0
-    cg = abs(wx * gx + wy * gy + wz * gz)
-    if not cg > _GRAZING:
-        return 0.0
-    return abs(wx * sx + wy * sy + wz * sz) / cg
+    return _cos_ratio(wx, wy, wz, sx, sy, sz, gx, gy, gz)
 
 
 @njit(**_KERNEL, inline="always")
 def exit_ratio(wx, wy, wz, sx, sy, sz, gx, gy, gz):
     """|w·ng| / |w·ns| for light leaving toward w, whose BSDF value (f·|w·ns|) counted the
-    shading normal's cosine where the true surface's belongs (1 where ns is ng)."""
-    if sx == gx and sy == gy and sz == gz:
-        return 1.0
-    cs = abs(wx * sx + wy * sy + wz * sz)
-    if not cs > _GRAZING:
-        return 0.0
-    return abs(wx * gx + wy * gy + wz * gz) / cs
+    shading normal's cosine where the true surface's belongs (1 where ns is ng; 0 along the
+    shading plane, where the BSDF gave nothing)."""
+    return _cos_ratio(wx, wy, wz, gx, gy, gz, sx, sy, sz)
 
 
 @njit(**_KERNEL, inline="always")
