@@ -92,7 +92,7 @@ def load_shape(loader, node: Node) -> None:
     if len(f) == 0:
         loader.warn(node, f"{node.describe()} has no triangles", "skipped")
         return
-    mat = material_index(loader, bsdf_node)
+    mat = material_index(loader, bsdf_node, emitting=emitter_node is not None)
     mesh = Mesh(name=name, vertices=V, faces=np.ascontiguousarray(f, dtype=np.int32), material=mat,
                 normals=N, uvs=uv)
     loader.meshes.append(mesh)

@@ -95,7 +95,7 @@ class _Loader:
         self.material_of: dict[int, int] = {}
         self.texture_of: dict[int, Texture] = {}
         self.images: dict[tuple[str, bool], np.ndarray] = {}
-        self.default_material: int | None = None
+        self.default_materials: dict[str, int] = {}  # mitsuba_bsdfs.material_index's defaults
         self.camera: Camera | None = None
         self.max_depth = -1
 

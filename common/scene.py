@@ -93,6 +93,12 @@ _N_KINDS = ROUGHDIELECTRIC + 1
 _KIND_TABLES: dict[tuple, np.ndarray] = {}
 
 
+def black_rows(materials: list) -> np.ndarray:
+    """(len(materials) + 1,) bool: each material row is black (Material.is_black); the last row,
+    NULL, is not."""
+    return np.array([m.is_black for m in materials] + [False], bool)
+
+
 def kind_in(kind: np.ndarray, kinds: tuple) -> np.ndarray:
     """``np.isin(kind, kinds)`` for BSDF kind codes, as one table lookup (isin sorts per call;
     this runs per bounce of every tile). Codes outside the known kinds are in no set."""
@@ -152,6 +158,12 @@ class Material:
     @property
     def is_specular(self) -> bool:
         return self.kind in SPECULAR_KINDS
+
+    @property
+    def is_black(self) -> bool:
+        """Reflects nothing anywhere: a diffuse of constant 0 (Mitsuba's default on an emitting
+        shape). Light walks leave no VPLs on it (each would cost its shadow rays for no light)."""
+        return self.kind == DIFFUSE and self.diffuse.is_constant and not np.any(self.diffuse.rgb)
 
     @property
     def is_glossy(self) -> bool:

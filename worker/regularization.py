@@ -22,7 +22,7 @@ from threading import Lock
 import numpy as np
 
 from igi.common import bsdf
-from igi.common.scene import NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, SPECULAR_KINDS, kind_in
+from igi.common.scene import NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, SPECULAR_KINDS, black_rows, kind_in
 
 from .kernels import regularization_gain as kg
 
@@ -145,7 +145,7 @@ _SENDER_LOCK = Lock()
 def sender_rows(materials: list, lobe_alpha: float) -> tuple:
     """(P, reflects) per material row (NULL at row len(materials)): the materials' packed
     parameters as senders (lobes regularized at ``lobe_alpha``, as they are at 0; a bitmap
-    texture's value at uv 0) and whether they reflect (not mirror/glass, not NULL): the rows the
+    texture's value at uv 0) and whether they reflect (not mirror/glass, not NULL, not black): the rows the
     final gather's level finder and the light walks read. Kept for the last few (materials,
     lobe_alpha): the bound moves with every accumulated frame."""
     key = (tuple(id(m) for m in materials), float(lobe_alpha))
@@ -153,7 +153,7 @@ def sender_rows(materials: list, lobe_alpha: float) -> tuple:
     if hit is None:
         sp = regularized_senders(bsdf.gather(materials, np.arange(len(materials) + 1), None), lobe_alpha)
         P, _rows = bsdf.packed_rows(sp)
-        rows = (P, ~kind_in(sp.kind, SPECULAR_KINDS) & (sp.kind != NULL))
+        rows = (P, ~kind_in(sp.kind, SPECULAR_KINDS) & (sp.kind != NULL) & ~black_rows(materials))
         hit = (tuple(materials), rows)  # the materials held: their ids stay theirs
         with _SENDER_LOCK:  # render threads share the cache
             while len(_SENDER_ROWS) >= 8:

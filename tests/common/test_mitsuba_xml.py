@@ -282,6 +282,27 @@ def test_emitters_sensor_and_integrator(tmp_path):
     assert area.kind == AREA and area.mesh == 0 and s.meshes[0].emitter == 4
 
 
+def test_a_shape_without_a_bsdf_is_diffuse_half_grey_and_black_where_it_emits(tmp_path):
+    # Mitsuba 3.9.1: Shape gives a shape without a BSDF a diffuse of reflectance 0.5, or 0 where it
+    # carries an emitter (a bare lamp reflects nothing; reflecting 0.5 there made igi's indirect light
+    # 8-13% too bright in open scenes lit by a bare rectangle)
+    p = scene_file(tmp_path, """
+        <shape type="rectangle"/>
+        <shape type="rectangle"><emitter type="area"><rgb name="radiance" value="5"/></emitter></shape>
+        <shape type="cube"><emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>
+        <shape type="rectangle"><emitter type="area"><rgb name="radiance" value="5"/></emitter>
+            <bsdf type="diffuse"/></shape>
+        <shape type="cube"/>
+    """)
+    s = load_mitsuba(p)
+    plain, lamp, cube_lamp, lamp_with_bsdf, cube = (s.materials[m.material] for m in s.meshes)
+    assert plain is cube and lamp is cube_lamp  # one default material of each kind
+    assert plain.kind == DIFFUSE and np.allclose(plain.diffuse.rgb, 0.5) and not plain.is_black
+    assert lamp.kind == DIFFUSE and np.allclose(lamp.diffuse.rgb, 0.0) and lamp.is_black
+    assert np.allclose(lamp_with_bsdf.diffuse.rgb, 0.5) and not lamp_with_bsdf.is_black  # a BSDF given is kept
+    assert len(s.materials) == 3
+
+
 SPECTRAL = """
     <emitter type="point"><point name="position" value="1 2 3"/><spectrum name="intensity" value="4"/></emitter>
     <emitter type="directional"><vector name="direction" value="0 -1 0"/><spectrum name="irradiance" value="2"/>

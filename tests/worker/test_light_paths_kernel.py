@@ -153,6 +153,47 @@ def test_compiled_light_walks_equal_the_numpy_loop(monkeypatch, name, roulette):
             np.testing.assert_array_equal(pa, pb)
 
 
+LAMP_ROOM = """<scene version="3.0.0">
+  <bsdf type="diffuse" id="wall"><rgb name="reflectance" value="0.7"/></bsdf>
+  <shape type="rectangle"><transform name="to_world"><scale x="3" y="3"/><rotate x="1" angle="-90"/></transform>
+    <ref id="wall"/></shape>
+  <shape type="rectangle"><transform name="to_world"><scale x="3" y="2"/><translate y="2" z="-2"/></transform>
+    <ref id="wall"/></shape>
+  <shape type="rectangle"><transform name="to_world"><scale x="0.6" y="0.6"/><rotate x="1" angle="90"/>
+    <translate x="0.5" y="1.5" z="-0.6"/></transform>LAMP_BSDF
+    <emitter type="area"><rgb name="radiance" value="14"/></emitter></shape>
+</scene>"""
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_light_walks_leave_no_vpls_on_a_black_lamp(monkeypatch, tmp_path, compiled):
+    """A bare area light is black (Mitsuba's default; common.mitsuba_bsdfs.material_index): the
+    walks that come back to it end there and leave no VPL (one would cost its shadow rays for
+    no light) — where the same lamp reflects (a diffuse given), they leave VPLs on it. Compiled
+    and numpy walks alike."""
+    from igi.common.lights import LightSampler
+    from igi.common.loader import load_scene
+    from igi.worker.vpl import build_vpl_sets
+
+    def lamp_vpls(bsdf_xml):
+        path = tmp_path / "lamp.xml"
+        path.write_text(LAMP_ROOM.replace("LAMP_BSDF", bsdf_xml))
+        scene = load_scene(path)
+        geom = Geometry(scene)
+        if not compiled:
+            monkeypatch.setattr(geom, "closest_terms", lambda: None)
+        lamp = scene.meshes[scene.emitters[0].mesh].material
+        sets = build_vpl_sets(scene, geom, LightSampler(scene, geom), 3, list(range(8)), 0, 64, 4)
+        rows = np.concatenate([s.surface.material_rows() for s in sets if len(s)])
+        return len(rows), int(np.sum(rows == lamp)), scene.materials[lamp]
+
+    n_black, on_black, black = lamp_vpls("")
+    n_grey, on_grey, grey = lamp_vpls('<bsdf type="diffuse"/>')
+    assert black.is_black and not grey.is_black
+    assert on_grey > 10 and on_black == 0
+    assert 0 < n_black <= n_grey - on_grey  # (walks are the same until they meet the lamp)
+
+
 def test_walks_that_outgrow_the_first_buffer_are_traced_again_whole(monkeypatch):
     """More VPLs than eight per walk (a white furnace: every walk bounces to its length of 12)
     take the second, full-sized buffer: the same VPLs as the numpy loop."""

@@ -30,7 +30,10 @@ def test_masked_surfaces_render_as_mitsubas_mask():
     print("relMSE", err, "solid", relmse(old, ref))
     assert err < 0.006, err
     assert relmse(old, ref) > 10 * err
-    # the ball behind the veil: as bright as Mitsuba's within 5% (solid: the veil's yellow)
+    # the ball behind the veil: as bright as Mitsuba's within 10% — its 64 pixels see it through
+    # the veil's stochastic holes: 0.92-1.01 of Mitsuba's red over four seeds at 16 frames (solid:
+    # the veil's yellow, 1.4x the ball's green)
     ball = (slice(30, 38), slice(62, 70))
-    np.testing.assert_allclose(img[ball].mean((0, 1)), ref[ball].mean((0, 1)), rtol=0.05)
+    np.testing.assert_allclose(img[ball].mean((0, 1)), ref[ball].mean((0, 1)), rtol=0.1)
+    assert old[ball].mean((0, 1))[1] > 1.3 * ref[ball].mean((0, 1))[1]
     np.testing.assert_allclose(img.mean((0, 1)), ref.mean((0, 1)), rtol=0.03)

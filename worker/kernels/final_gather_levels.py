@@ -32,7 +32,7 @@ def find_levels(P, reflects, atlas, closest, rng, center, eps, ulps, reach_all, 
     """Every level's points from the ``first`` arrivals (position, ns, ng, material, uv, t,
     direction, segments, parent, factor, level: worker.arrivals.Arrivals' fields) into
     ``points`` (the same fields, then wo), level by level: a point is kept where its material
-    row reflects (``reflects``: not mirror/glass, not NULL); ``level_stop[i]`` ends level i.
+    row reflects (``reflects``: not mirror/glass, not NULL, not black); ``level_stop[i]`` ends level i.
     Each level's points with a segment left sample a ray (u1 then u2 drawn from ``rng``) into
     ``rays`` (row within its level, weight, pdf, delta, direction, origin; ``ray_stop``) traced
     into ``hits`` (common.kernels.ray_packets.hit_buffers), unbounded where it may reach an

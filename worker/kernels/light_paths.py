@@ -226,7 +226,7 @@ def trace_walks(P, reflects, atlas, closest, o, d, flux, u, max_length, roulette
     """Instant radiosity's light walks (worker.vpl._light_walks) from emission to their end, in
     one call: the walks whose flux carries light go to Embree in packets (``closest``:
     common.geometry.Geometry.closest_terms) bounce by bounce; every hit on a material row that
-    ``reflects`` (not mirror/glass, not NULL) leaves a VPL — position, ns, ng, the walk's flux
+    ``reflects`` (not mirror/glass, not NULL, not black) leaves a VPL — position, ns, ng, the walk's flux
     (on a normal- or bump-mapped surface × |wi·ns| / |wi·ng|: common.kernels.shading_normals),
     depth b + 1, wi in its shading frame, material, uv, the walk's row — in ``out`` (bounce
     order, then row order); each hit continues (:func:`continue_paths`, u[row, dims_start +
