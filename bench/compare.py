@@ -104,6 +104,21 @@ _probe(sys.argv[1], sys.argv[2], int(sys.argv[3]))
 """
 
 
+def mitsuba_rfilter(kind: str, params: tuple[float, float]) -> dict:
+    """The scene's reconstruction filter (common.reconstruction_filter) as Mitsuba's plugin
+    dict: both renderers filter their pixels alike."""
+    a, b = params
+    if kind == "tent":
+        return {"type": kind, "radius": float(a)}
+    if kind == "gaussian":
+        return {"type": kind, "stddev": float(a)}
+    if kind == "mitchell":
+        return {"type": kind, "B": float(a), "C": float(b)}
+    if kind == "lanczos":
+        return {"type": kind, "lobes": int(a)}
+    return {"type": kind}
+
+
 def _probe(variant: str, scene_path: str, max_depth: int) -> None:
     """Subprocess body: render a tiny image of the scene as MitsubaPT would, print its mean."""
     import mitsuba as mi
@@ -224,8 +239,8 @@ class MitsubaPT:
         self.integrator = mi.load_dict({"type": "path", "max_depth": int(max_depth)})
         self.sensor = mi.load_dict({
             "type": "perspective", "fov_axis": "x", "fov": float(cam.fov_x), "near_clip": float(cam.near_clip),
-            "film": {"type": "hdrfilm", "width": setup.width, "height": setup.height, "rfilter": {"type": "box"},
-                     "pixel_format": "rgb"},
+            "film": {"type": "hdrfilm", "width": setup.width, "height": setup.height,
+                     "rfilter": mitsuba_rfilter(cam.rfilter, cam.rfilter_params), "pixel_format": "rgb"},
             "sampler": {"type": "independent", "sample_count": 1}})
         self._params = mi.traverse(self.sensor)
         self._to_world = None

@@ -12,6 +12,7 @@ import functools
 
 import numpy as np
 
+from . import reconstruction_filter as rf
 from .kernels import camera_rays as kc
 from .scene import Camera, Scene
 
@@ -74,6 +75,19 @@ def pixel_jitter(jitter: tuple, px: np.ndarray, py: np.ndarray) -> np.ndarray:
     jx, jy = np.asarray(jitter, np.float64)
     kc.rotated_jitter(pixel_tile(), float(jx), float(jy), px, np.ascontiguousarray(py, np.int64).ravel(), out)
     return out
+
+
+def frame_jitter(jitter: tuple, accumulated: bool, px: np.ndarray, py: np.ndarray, camera: Camera, width: int,
+                 height: int) -> np.ndarray | tuple:
+    """Sub-pixel positions of a frame's eye rays through pixels (px, py) of a ``width`` x
+    ``height`` film: the frame's ``jitter`` point for every pixel on the first frame after a
+    reset (the pixel centres), each pixel's rotation of it on accumulated frames
+    (:func:`pixel_jitter`) — then drawn from the film's reconstruction filter
+    (common.reconstruction_filter; the pixel's own box leaves them as they are)."""
+    jit = pixel_jitter(jitter, px, py) if accumulated else jitter
+    if rf.is_identity(camera.rfilter, camera.rfilter_params):
+        return jit
+    return rf.filtered_jitter(camera.rfilter, camera.rfilter_params, jit, np.ravel(px), np.ravel(py), width, height)
 
 
 def rays_for_camera(cam: Camera, px: np.ndarray, py: np.ndarray, jitter=(0.5, 0.5)):

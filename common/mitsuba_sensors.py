@@ -10,7 +10,8 @@ import numpy as np
 
 from . import transform as tf
 from .mitsuba_doc import Node, Props
-from .scene import Camera
+from . import reconstruction_filter as rf
+from .scene import Camera, SceneError
 
 
 def load_sensor(loader, node: Node) -> None:
@@ -41,6 +42,10 @@ def load_sensor(loader, node: Node) -> None:
         height = fp.int("height", 576)
         if width <= 0 or height <= 0:
             raise loader.error(film, f"film size {width}x{height} must be positive")
+        rfilter = load_rfilter(loader, [loader.deref(c) for c in fp.children + list(fp.named.values())
+                                        if loader.deref(c).tag == "rfilter"])
+    else:
+        rfilter = rf.DEFAULT
     fov_axis = p.string("fov_axis", "x")
     if fov_axis not in ("x", "y", "diagonal", "smaller", "larger"):
         raise loader.error(p.named["fov_axis"], f"unknown fov_axis '{fov_axis}'")
@@ -62,9 +67,45 @@ def load_sensor(loader, node: Node) -> None:
         fov = math.degrees(2 * math.atan(math.hypot(36.0, 24.0) / (2 * flen)))
         fov_axis = "diagonal"
     loader.camera = Camera(to_world=M, fov=float(fov), fov_axis=fov_axis, width=int(width), height=int(height),
-                         near_clip=float(p.float("near_clip", 0.01)))
+                         near_clip=float(p.float("near_clip", 0.01)), rfilter=rfilter[0], rfilter_params=rfilter[1])
     p.finish(ignore=("far_clip", "shutter_open", "shutter_close", "principal_point_offset_x",
                      "principal_point_offset_y", "sample_border", "srf"))
+
+
+def load_rfilter(loader, nodes: list[Node]) -> tuple[str, tuple[float, float]]:
+    """A film's reconstruction filter (common.reconstruction_filter) from its ``<rfilter>``
+    elements: Mitsuba's default (gaussian, stddev 0.5) without one."""
+    if not nodes:
+        return rf.DEFAULT
+    if len(nodes) > 1:
+        loader.warn(nodes[1], "more than one <rfilter> in a film", "using the first")
+    node = nodes[0]
+    p = Props(loader, node)
+    kind = p.type
+    if kind not in rf.KINDS:
+        loader.warn(node, f"unknown reconstruction filter '{kind}'", "using Mitsuba's default gaussian")
+        return rf.DEFAULT
+    if kind == "box":  # (Mitsuba 3's box takes no radius)
+        params = (0.5, 0.0)
+    elif kind == "tent":
+        params = (float(p.float("radius", 1.0)), 0.0)
+    elif kind == "gaussian":
+        params = (float(p.float("stddev", 0.5)), 0.0)
+    elif kind == "mitchell":
+        params = (float(p.float("B", 1 / 3)), float(p.float("C", 1 / 3)))
+    elif kind == "lanczos":
+        params = (float(p.int("lobes", 3)), 0.0)
+    else:  # catmullrom: no parameters
+        params = (0.0, 0.0)
+    p.finish()
+    try:
+        rf.validate(kind, params)
+    except SceneError as e:
+        raise loader.error(node, str(e)) from None
+    if kind in rf.NEGATIVE_LOBES:
+        loader.warn(node, f"reconstruction filter '{kind}' has negative lobes, which igi does not draw",
+                    "sampling its positive part (slightly softer than Mitsuba's)")
+    return kind, params
 
 
 def load_integrator(loader, node: Node) -> None:
@@ -91,4 +132,5 @@ def default_camera(loader) -> Camera:
     centre, ext = 0.5 * (lo + hi), hi - lo
     dist = float(ext.max()) / (2.0 * math.tan(math.radians(22.5)))
     M = tf.translate([centre[0], centre[1], lo[2] - dist])
-    return Camera(to_world=M, fov=45.0, fov_axis="x", width=768, height=576, near_clip=max(dist / 100, 1e-4))
+    return Camera(to_world=M, fov=45.0, fov_axis="x", width=768, height=576, near_clip=max(dist / 100, 1e-4),
+                  rfilter=rf.DEFAULT[0], rfilter_params=rf.DEFAULT[1])

@@ -229,6 +229,10 @@ class Camera:
     width: int = 768
     height: int = 576
     near_clip: float = 0.01
+    # the film's reconstruction filter (common.reconstruction_filter): Mitsuba's name and its
+    # parameters (box/tent: radius, gaussian: stddev, mitchell: B and C, lanczos: lobes)
+    rfilter: str = "box"
+    rfilter_params: tuple[float, float] = (0.5, 0.0)
 
     @property
     def fov_x(self) -> float:

@@ -53,6 +53,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from . import reconstruction_filter
 from . import scene as scene_mod
 from .scene import Camera, Emitter, Material, Mesh, Scene, SceneError, Texture
 
@@ -287,6 +288,7 @@ def validate_scene(scene: Scene) -> None:
         raise SceneError("only one environment emitter (constant or envmap) per scene, as in Mitsuba 3")
     if np.shape(scene.camera.to_world) != (4, 4):
         raise SceneError("camera to_world: expected a 4x4 matrix")
+    reconstruction_filter.validate(scene.camera.rfilter, scene.camera.rfilter_params)
 
 
 def scene_from_dict(tree: Any) -> Scene:

@@ -386,6 +386,36 @@ def test_focal_length_and_default_camera(tmp_path):
     assert s.camera.to_world[2, 3] < -1  # in front of the cube, looking along +z
 
 
+def _film_filter(tmp_path, film_body, film=True):
+    f = f'<film type="hdrfilm">{film_body}</film>' if film else ""
+    s = load_mitsuba(scene_file(tmp_path, f'<sensor type="perspective">{f}</sensor><shape type="cube"/>'))
+    return (s.camera.rfilter, s.camera.rfilter_params), s.warnings
+
+
+def test_a_films_reconstruction_filter_is_read_with_mitsubas_defaults(tmp_path):
+    # Mitsuba 3: hdrfilm's rfilter defaults to gaussian (stddev 0.5), with or without a <film>
+    assert _film_filter(tmp_path, "")[0] == ("gaussian", (0.5, 0.0))
+    assert _film_filter(tmp_path, "", film=False)[0] == ("gaussian", (0.5, 0.0))
+    assert load_mitsuba(scene_file(tmp_path, '<shape type="cube"/>')).camera.rfilter == "gaussian"  # no sensor
+    assert _film_filter(tmp_path, '<rfilter type="box"/>')[0] == ("box", (0.5, 0.0))
+    assert _film_filter(tmp_path, '<rfilter type="tent"><float name="radius" value="1.5"/></rfilter>')[0] == (
+        "tent", (1.5, 0.0))
+    assert _film_filter(tmp_path, '<rfilter type="gaussian"><float name="stddev" value="0.3"/></rfilter>')[0] == (
+        "gaussian", (0.3, 0.0))
+    assert _film_filter(tmp_path, '<rfilter name="rfilter" type="tent"/>')[0] == ("tent", (1.0, 0.0))  # named
+    (kind, params), warnings = _film_filter(tmp_path, '<rfilter type="mitchell"><float name="B" value="0.2"/></rfilter>')
+    assert kind == "mitchell" and params == pytest.approx((0.2, 1 / 3))
+    assert any("negative lobes" in w for w in warnings)
+    (kind, params), warnings = _film_filter(tmp_path, '<rfilter type="lanczos"><integer name="lobes" value="2"/></rfilter>')
+    assert (kind, params) == ("lanczos", (2.0, 0.0)) and any("negative lobes" in w for w in warnings)
+    filt, warnings = _film_filter(tmp_path, '<rfilter type="sinc"/>')
+    assert filt == ("gaussian", (0.5, 0.0)) and any("unknown reconstruction filter 'sinc'" in w for w in warnings)
+    with pytest.raises(SceneError, match=r"scene.xml:\d+.*stddev -0.5 must be"):
+        _film_filter(tmp_path, '<rfilter type="gaussian"><float name="stddev" value="-0.5"/></rfilter>')
+    filt, warnings = _film_filter(tmp_path, '<rfilter type="tent"><float name="width" value="2"/></rfilter>')
+    assert filt == ("tent", (1.0, 0.0)) and any("unsupported parameter 'width'" in w for w in warnings)
+
+
 def test_defaults_substitution_refs_aliases_and_includes(tmp_path):
     p = scene_file(tmp_path, """
         <default name="spp" value="16"/>

@@ -61,6 +61,14 @@ def test_shared_scene_round_trip(name):
     assert_same(s, sc.decode_scene(blob, expected_hash=sc.scene_hash(blob)))
 
 
+def test_the_cameras_reconstruction_filter_travels_with_the_scene():
+    scene = mini_cornell()
+    scene.camera = dataclasses.replace(scene.camera, rfilter="tent", rfilter_params=(1.5, 0.0))
+    back = sc.decode_scene(sc.encode_scene(scene))
+    assert (back.camera.rfilter, back.camera.rfilter_params) == ("tent", (1.5, 0.0))
+    assert sc.scene_hash(sc.encode_scene(scene)) != sc.scene_hash(sc.encode_scene(mini_cornell()))
+
+
 def test_corrupt_blobs_raise_scene_error():
     blob = sc.encode_scene(mini_cornell())
     for bad in (b"", b"garbage", blob[:-10], sc.MAGIC + b"\0" * 50, blob[:20] + b"x" + blob[21:]):
@@ -86,6 +94,9 @@ def _blob_of(tree) -> bytes:
     (lambda t: t["emitters"][0].update(mesh=99), "mesh index"),
     (lambda t: t.pop("camera"), "missing"),
     (lambda t: t["materials"][0]["diffuse"].update(uv_scale=[1, 2]), "tuple"),
+    (lambda t: t["camera"].update(rfilter="sinc"), "unknown reconstruction filter 'sinc'"),
+    (lambda t: t["camera"].update(rfilter="gaussian", rfilter_params={"__tuple__": [float("nan"), 0.0]}),
+     "not finite"),
 ])
 def test_decode_validates_content(mutate, match):
     tree = sc.scene_to_dict(mini_cornell())

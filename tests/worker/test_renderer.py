@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from igi.common import bundled
-from igi.common.camera import camera_rays, pixel_jitter, resolve_camera
+from igi.common.camera import camera_rays, frame_jitter, resolve_camera
 from igi.common.interleave import make_tiles
 from igi.common.loader import load_scene
 from igi.common.scene import DIFFUSE
@@ -28,7 +28,7 @@ def test_first_frame_samples_pixel_centres_accumulated_frames_each_pixels_rotate
     for index in (0, 1, 2):
         spec = sequence_spec(index, index, cam, fov_x, w, h, pd)
         depth = r.render_tile(spec, tile).depth
-        jitter = spec.jitter if index == 0 else pixel_jitter(spec.jitter, xs, ys)
+        jitter = frame_jitter(spec.jitter, index > 0, xs, ys, scene.camera, w, h)
         o, d = camera_rays(np.asarray(cam, float).reshape(4, 4), fov_x, w, h, xs, ys, jitter)
         hits = r.geom.intersect(o, d)
         t = hits.t
@@ -37,7 +37,7 @@ def test_first_frame_samples_pixel_centres_accumulated_frames_each_pixels_rotate
         assert hit.mean() > 0.8
         np.testing.assert_allclose(depth[hit], t[hit], rtol=1e-5)
         if index > 0:  # pixels of one frame sample different sub-pixel positions
-            assert len({tuple(j) for j in np.round(jitter, 9)}) == 64
+            assert len({tuple(j) for j in np.round(jitter, 9)}) >= 64
 
 
 def _vpl_sets_built(r: Renderer) -> dict:
