@@ -15,29 +15,54 @@ from .obj_mtl import drop_nonfinite, load_obj_mesh, recompute_vertex_normals, re
 from .scene import AREA, Emitter, Mesh
 
 
+def _cylinder_frame(loader, p: Props, node: Node) -> np.ndarray:
+    """Mitsuba's cylinder: the unit cylinder carried onto its axis p0 -> p1 with its radius,
+    translate(p0) · to_frame(Frame(d)) · scale(radius, radius, |d|), as Mitsuba 3 builds it."""
+    p0 = p.vec3("p0", (0.0, 0.0, 0.0))
+    p1 = p.vec3("p1", (0.0, 0.0, 1.0))
+    r = p.float("radius", 1.0)
+    d = np.asarray(p1, np.float64) - np.asarray(p0, np.float64)
+    length = float(np.linalg.norm(d))
+    if not (length > 0 and np.isfinite(length)):
+        raise loader.error(node, f"cylinder axis p0 {list(p0)} -> p1 {list(p1)} has no length")
+    if not (np.isfinite(r) and r != 0):
+        raise loader.error(p.named.get("radius", node), f"cylinder radius {r} must be finite and not 0")
+    s, t = tf.coordinate_system(d / length)
+    frame = np.eye(4)
+    frame[:3, 0], frame[:3, 1], frame[:3, 2] = s, t, d / length
+    return tf.translate(p0) @ frame @ tf.scale([r, r, length])
+
+
 def load_shape(loader, node: Node) -> None:
     p = Props(loader, node)
     kind = p.type
-    if kind not in ("obj", "ply", "rectangle", "cube", "sphere", "disk"):
+    if kind not in ("obj", "ply", "serialized", "rectangle", "cube", "sphere", "disk", "cylinder"):
         loader.warn(node, f"unsupported shape '{kind}'", "skipped")
         return
     M = p.transform("to_world")
     name = node.attrib.get("id", "")
     face_normals = False
     flip = p.bool("flip_normals", False)
-    if kind in ("obj", "ply", "rectangle", "cube"):  # meshes in Mitsuba 3.9.1
+    if kind in ("obj", "ply", "serialized", "rectangle", "cube"):  # meshes in Mitsuba 3.9.1
         face_normals = p.bool("face_normals", False)
-    if kind in ("obj", "ply"):
+    if kind in ("obj", "ply", "serialized"):
         fn = p.string("filename")
         if fn is None:
             raise loader.error(node, f"<shape type='{kind}'> needs a 'filename'")
         path = loader.resolve(fn, node)
         if kind == "obj":
             v, f, n, uv = load_obj_mesh(path, fn, loader.warnings, flip_tex_coords=p.bool("flip_tex_coords", True))
-        else:
+        elif kind == "ply":
             from .ply import load_ply_mesh
 
             v, f, n, uv = load_ply_mesh(path, fn, loader.warnings)
+        else:
+            from .serialized import load_serialized_mesh
+
+            index = p.int("shape_index", 0)
+            v, f, n, uv, flagged = load_serialized_mesh(path, fn, index, loader.warnings)
+            face_normals = face_normals or flagged  # (the file's flag 0x10 is Mitsuba's face_normals)
+            name = name or f"{Path(fn).name}@{index}"
         name = name or Path(fn).stem
     else:
         if kind == "rectangle":
@@ -46,6 +71,9 @@ def load_shape(loader, node: Node) -> None:
             v, f, n, uv = shp.cube()
         elif kind == "disk":
             v, f, n, uv = shp.disk()
+        elif kind == "cylinder":
+            v, f, n, uv = shp.cylinder()
+            M = M @ _cylinder_frame(loader, p, node)
         else:
             c = p.vec3("center", (0.0, 0.0, 0.0))
             r = p.float("radius", 1.0)

@@ -12,9 +12,10 @@ same texel as Mitsuba. Below, ``v_mitsuba`` is the value Mitsuba reports in ``si
 - cube: Mitsuba's own 24-vertex cube (per-face quads, uv (0,1),(1,1),(1,0),(0,0) per face)
 - sphere: ``(phi / 2pi, theta / pi)`` with ``phi = atan2(y, x)`` in [0, 2pi), ``theta = acos(z)``
 - disk: ``(r, phi / 2pi)``
+- cylinder: ``(phi / 2pi, z)`` on the unit cylinder about +z, z in [0, 1]
 
-Analytic Mitsuba shapes (sphere, disk) are tessellated here; the sphere with 128 x 64 segments
-and smooth (exact) normals, the disk with 128 segments.
+Analytic Mitsuba shapes (sphere, disk, cylinder) are tessellated here; the sphere with 128 x 64
+segments and smooth (exact) normals, the disk and the cylinder with 128 segments.
 """
 from __future__ import annotations
 
@@ -95,6 +96,23 @@ def disk(n_seg: int = 128):
     k = np.arange(n_seg)
     f = np.stack([n_seg + 1 + k, k, k + 1], axis=1).astype(np.int32)
     n = np.tile([0.0, 0.0, 1.0], (len(v), 1))
+    return v, f, n, _flip_v(uv_m)
+
+
+def cylinder(n_phi: int = 128):
+    """Mitsuba's open cylinder in its local frame: radius 1 about +z from z = 0 to 1, no caps,
+    normals outward; uv = (phi / 2pi, z). One band of quads (exact along z), smooth normals."""
+    phi = np.linspace(0.0, 2.0 * np.pi, n_phi + 1)
+    ring = np.stack([np.cos(phi), np.sin(phi)], axis=1)
+    ring[np.abs(ring) < 1e-15] = 0.0
+    v = np.concatenate([np.column_stack([ring, np.zeros(n_phi + 1)]), np.column_stack([ring, np.ones(n_phi + 1)])])
+    n = np.concatenate([np.column_stack([ring, np.zeros(n_phi + 1)])] * 2)
+    uv_m = np.concatenate([np.stack([phi / (2 * np.pi), np.zeros_like(phi)], axis=1),
+                           np.stack([phi / (2 * np.pi), np.ones_like(phi)], axis=1)])
+    k = np.arange(n_phi)
+    top = n_phi + 1 + k
+    # counter-clockwise seen from outside: the geometric normal faces out, as the shading normals
+    f = np.concatenate([np.stack([k, k + 1, top + 1], axis=1), np.stack([k, top + 1, top], axis=1)]).astype(np.int32)
     return v, f, n, _flip_v(uv_m)
 
 

@@ -416,6 +416,44 @@ def test_a_films_reconstruction_filter_is_read_with_mitsubas_defaults(tmp_path):
     assert filt == ("tent", (1.0, 0.0)) and any("unsupported parameter 'width'" in w for w in warnings)
 
 
+CYLINDERS = """
+    <shape type="cylinder"><point name="p0" value="0.5, 0.2, -0.3"/><point name="p1" value="0.5, 1.7, 0.5"/>
+        <float name="radius" value="0.4"/></shape>
+    <shape type="cylinder"><point name="p0" value="-1, 0, 0"/><point name="p1" value="-1, 0, -2"/>
+        <float name="radius" value="0.3"/>
+        <transform name="to_world"><rotate x="1" angle="30"/><translate y="0.5"/></transform></shape>
+"""
+
+
+def test_cylinders_are_mitsubas_open_cylinders(tmp_path):
+    from igi.common.geometry import Geometry
+
+    s = load_mitsuba(scene_file(tmp_path, CYLINDERS))
+    a, b = s.meshes
+    # Mitsuba 3.9.1: the first cylinder's bbox and surface area (2 pi r |p1 - p0|)
+    np.testing.assert_allclose(a.vertices.min(0), [0.1, 0.0117647, -0.652941], atol=2e-4)
+    np.testing.assert_allclose(a.vertices.max(0), [0.9, 1.88824, 0.852941], atol=2e-4)
+    tri = a.vertices[a.faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    assert area == pytest.approx(4.272566, rel=1e-3)  # (tessellated: 128 segments)
+    # rays Mitsuba 3.9.1 traced: (origin, direction) -> t, uv, shading normal
+    rays = [((3, 0.95, 0.1), (-1, 0, 0), 2.1, (0.0, 0.5), (1, 0, 0)),
+            ((0.5, 1.0, 3), (0, 0, -1), 2.42, (0.75, 0.658824), (0, -0.470588, 0.882353)),
+            ((-1, 3, -0.5), (0, -1, 0), 1.864915, (0.75, 0.375278), (0, 0.866025, 0.5))]
+    hits = Geometry(s).intersect(np.array([r[0] for r in rays], float), np.array([r[1] for r in rays], float))
+    assert hits.valid.all()
+    np.testing.assert_allclose(hits.t, [r[2] for r in rays], atol=1e-4)
+    uv = np.column_stack([hits.uv[:, 0], 1 - hits.uv[:, 1]])  # (meshes store 1 - Mitsuba's v)
+    np.testing.assert_allclose(uv, [r[3] for r in rays], atol=1e-4)
+    np.testing.assert_allclose(hits.ns, [r[4] for r in rays], atol=1e-4)
+    assert np.all(np.einsum("ij,ij->i", hits.ng, hits.ns) > 0.999)  # the faces wind outward
+    for bad, what in [('<point name="p1" value="0.5, 0.2, -0.3"/>', "has no length"),
+                      ('<float name="radius" value="0"/>', "radius 0.0 must be")]:
+        body = f'<shape type="cylinder"><point name="p0" value="0.5, 0.2, -0.3"/>{bad}</shape>'
+        with pytest.raises(SceneError, match=what):
+            load_mitsuba(scene_file(tmp_path, body))
+
+
 def test_defaults_substitution_refs_aliases_and_includes(tmp_path):
     p = scene_file(tmp_path, """
         <default name="spp" value="16"/>
@@ -454,7 +492,7 @@ def test_unsupported_elements_warn_with_name_line_and_fallback(tmp_path):
         <shape type="cube">
             <bsdf type="measured"><string name="filename" value="x.bsdf"/></bsdf>
         </shape>
-        <shape type="cylinder"/>
+        <shape type="bsplinecurve"/>
         <emitter type="sunsky"/>
         <medium type="homogeneous" id="fog"/>
         <shape type="cube"><bsdf type="roughplastic"><float name="alpha_q" value="0.3"/></bsdf></shape>
@@ -462,7 +500,7 @@ def test_unsupported_elements_warn_with_name_line_and_fallback(tmp_path):
     s = load_mitsuba(p)
     w = "\n".join(s.warnings)
     assert f"unsupported bsdf 'measured' at {p}:{line_of(p, 'measured')}, using diffuse 0.5" in w
-    assert f"unsupported shape 'cylinder' at {p}:{line_of(p, 'cylinder')}, skipped" in w
+    assert f"unsupported shape 'bsplinecurve' at {p}:{line_of(p, 'bsplinecurve')}, skipped" in w
     assert f"unsupported emitter 'sunsky' at {p}:{line_of(p, 'sunsky')}" in w
     assert "homogeneous" in w and f"{p}:{line_of(p, 'medium')}" in w
     assert "unsupported parameter 'alpha_q'" in w

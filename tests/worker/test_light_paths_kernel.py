@@ -10,10 +10,14 @@ import pytest
 from igi.bench.stress_scenes import load_shared
 from igi.common import bsdf
 from igi.common.geometry import Geometry
+from igi.common.loader import load_scene
 from igi.common.scene import (CONDUCTOR, DIELECTRIC, DIFFUSE, PLASTIC, ROUGHCONDUCTOR, ROUGHPLASTIC, THINDIELECTRIC,
                               Material, Texture)
 from igi.worker.light_paths import continue_paths
 from tests.support.oracle_light_paths import continue_paths_numpy
+from tests.support.paths import ROOT
+
+BUMP = ROOT / "tests" / "data" / "bump" / "bump.xml"
 
 pytestmark = pytest.mark.filterwarnings("ignore::RuntimeWarning")  # the oracle's numpy on NaN inputs
 
@@ -123,7 +127,7 @@ def _walk_sets(monkeypatch, name: str, compiled: bool, roulette: bool):
     from igi.common.lights import LightSampler
     from igi.worker.vpl import build_vpl_sets
 
-    scene = load_shared(name)
+    scene = load_scene(BUMP) if name == "bump" else load_shared(name)
     geom = Geometry(scene)
     if not compiled:
         monkeypatch.setattr(geom, "closest_terms", lambda: None)
@@ -131,13 +135,14 @@ def _walk_sets(monkeypatch, name: str, compiled: bool, roulette: bool):
     return sets, geom.counters["intersect_rays"]
 
 
-@pytest.mark.parametrize("name", ["cornell-box-glossy", "cornell-box-sphere", "modern-hall", "grey-white-room"])
+@pytest.mark.parametrize("name", ["cornell-box-glossy", "cornell-box-sphere", "modern-hall", "grey-white-room", "bump"])
 @pytest.mark.parametrize("roulette", [False, True])
 def test_compiled_light_walks_equal_the_numpy_loop(monkeypatch, name, roulette):
     """The walks traced in one compiled call (kernels.light_paths.trace_walks) leave the numpy
     loop's VPLs bit for bit and in order — positions, normals, flux, depths, incident
     directions, BSDFs (bitmap-textured floors and walls included) — after the same rays; with
-    Russian roulette past the walk length too."""
+    Russian roulette past the walk length too. ``bump`` (tests/data/bump): normal- and
+    bump-mapped surfaces, whose stored flux and bounces take the shading-normal correction."""
     got, got_rays = _walk_sets(monkeypatch, name, True, roulette)
     monkeypatch.undo()
     want, want_rays = _walk_sets(monkeypatch, name, False, roulette)
@@ -172,7 +177,6 @@ def test_light_walks_leave_no_vpls_on_a_black_lamp(monkeypatch, tmp_path, compil
     no light) — where the same lamp reflects (a diffuse given), they leave VPLs on it. Compiled
     and numpy walks alike."""
     from igi.common.lights import LightSampler
-    from igi.common.loader import load_scene
     from igi.worker.vpl import build_vpl_sets
 
     def lamp_vpls(bsdf_xml):

@@ -63,6 +63,22 @@ def test_kernel_matches_numpy_on_shared_scenes(name, force_general):
         assert out.sum() > 0  # something is lit: the comparison is not vacuous
 
 
+@pytest.mark.parametrize("force_general", [False, True])
+def test_kernel_matches_numpy_on_normal_and_bump_mapped_surfaces(force_general):
+    """tests/data/bump: end points and VPLs on a normal-mapped floor and a bump-mapped rough
+    plastic wall, whose VPLs radiate through their true surface (design note 44)."""
+    from igi.common.loader import load_scene
+    from tests.support.paths import ROOT
+
+    r = Renderer(load_scene(ROOT / "tests" / "data" / "bump" / "bump.xml"))
+    end = eye_end_points(r, 32, 24)
+    for k in (0, 4):
+        vpls = _set(r, k)
+        assert r.geom.bumped(vpls.surface.material_rows()).any()  # VPLs on the mapped surfaces
+        out = _agree(r, end, vpls, force_general=force_general)
+        assert out.sum() > 0
+
+
 def test_kernel_matches_numpy_with_spots_points_on_surfaces_and_zero_power_lights():
     r = Renderer(with_extra_lights(load_shared("cornell-box")))
     end = eye_end_points(r, 24, 24)
