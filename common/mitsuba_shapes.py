@@ -33,13 +33,63 @@ def _cylinder_frame(loader, p: Props, node: Node) -> np.ndarray:
     return tf.translate(p0) @ frame @ tf.scale([r, r, length])
 
 
-def load_shape(loader, node: Node) -> None:
+def _mesh_file(loader, kind: str, path: Path, fn: str, option) -> tuple:
+    """(vertices, faces, normals, uvs, face-normals flag) of a mesh file in its own space, read
+    once per loader (the instances of a shapegroup share their files)."""
+    cache = loader.__dict__.setdefault("_mesh_files", {})
+    key = (kind, str(path), option)
+    if key not in cache:
+        if kind == "obj":
+            cache[key] = (*load_obj_mesh(path, fn, loader.warnings, flip_tex_coords=option), False)
+        elif kind == "ply":
+            from .ply import load_ply_mesh
+
+            cache[key] = (*load_ply_mesh(path, fn, loader.warnings), False)
+        else:
+            from .serialized import load_serialized_mesh
+
+            cache[key] = load_serialized_mesh(path, fn, option, loader.warnings)
+    v, f, n, uv, flagged = cache[key]
+    return v, f, n, None if uv is None else uv.copy(), flagged
+
+
+def _load_instance(loader, node: Node, p: Props) -> None:
+    """Mitsuba's ``instance``: every shape of its shapegroup (a <ref> to it or nested), placed by
+    the instance's to_world after its own — as meshes of their own (igi flattens instances)."""
+    groups = [loader.deref(c) for c in p.children]
+    if len(groups) != 1 or groups[0].tag != "shape" or groups[0].attrib.get("type") != "shapegroup":
+        raise loader.error(node, "<shape type='instance'> needs one shapegroup (a <ref> to it, or nested)")
+    M = p.transform("to_world")
+    p.finish()
+    label = "#" + node.attrib.get("id", f"instance@{node.line}")
+    for c in groups[0].children:
+        child = loader.deref(c)
+        if child.tag != "shape":
+            loader.warn(child, f"{child.describe()} inside a shapegroup", "ignored")
+            continue
+        load_shape(loader, child, M, label)
+
+
+def load_shape(loader, node: Node, outer: np.ndarray | None = None, instance: str = "") -> None:
+    """A ``<shape>`` as meshes of the scene. ``outer``: the to_world of the instance that places
+    this shape of a shapegroup (named ``instance``)."""
     p = Props(loader, node)
     kind = p.type
+    if kind in ("shapegroup", "instance"):
+        if outer is not None:
+            raise loader.error(node, f"a {kind} inside a shapegroup (nested instancing) is not supported, "
+                                     "as in Mitsuba 3")
+        if kind == "instance":
+            _load_instance(loader, node, p)
+        elif "id" not in node.attrib:
+            loader.warn(node, "a shapegroup without an id is never instanced", "ignored")
+        return  # (a shapegroup's shapes are loaded where an instance places them)
     if kind not in ("obj", "ply", "serialized", "rectangle", "cube", "sphere", "disk", "cylinder"):
         loader.warn(node, f"unsupported shape '{kind}'", "skipped")
         return
     M = p.transform("to_world")
+    if outer is not None:
+        M = outer @ M
     name = node.attrib.get("id", "")
     face_normals = False
     flip = p.bool("flip_normals", False)
@@ -50,19 +100,11 @@ def load_shape(loader, node: Node) -> None:
         if fn is None:
             raise loader.error(node, f"<shape type='{kind}'> needs a 'filename'")
         path = loader.resolve(fn, node)
-        if kind == "obj":
-            v, f, n, uv = load_obj_mesh(path, fn, loader.warnings, flip_tex_coords=p.bool("flip_tex_coords", True))
-        elif kind == "ply":
-            from .ply import load_ply_mesh
-
-            v, f, n, uv = load_ply_mesh(path, fn, loader.warnings)
-        else:
-            from .serialized import load_serialized_mesh
-
-            index = p.int("shape_index", 0)
-            v, f, n, uv, flagged = load_serialized_mesh(path, fn, index, loader.warnings)
-            face_normals = face_normals or flagged  # (the file's flag 0x10 is Mitsuba's face_normals)
-            name = name or f"{Path(fn).name}@{index}"
+        option = p.bool("flip_tex_coords", True) if kind == "obj" else p.int("shape_index", 0) if kind == "serialized" else 0
+        v, f, n, uv, flagged = _mesh_file(loader, kind, path, fn, option)
+        face_normals = face_normals or flagged  # (a serialized file's flag 0x10 is Mitsuba's face_normals)
+        if kind == "serialized":
+            name = name or f"{Path(fn).name}@{option}"
         name = name or Path(fn).stem
     else:
         if kind == "rectangle":
@@ -117,9 +159,13 @@ def load_shape(loader, node: Node) -> None:
         if p.has(k):
             loader.warn(p.get(k), f"medium '{k}' is not supported", "ignored")
     p.finish()
+    if outer is not None and emitter_node is not None:
+        raise loader.error(emitter_node, "an emitting shape inside a shapegroup is not supported "
+                                         "(Mitsuba 3 does not instance emitters)")
     if len(f) == 0:
         loader.warn(node, f"{node.describe()} has no triangles", "skipped")
         return
+    name += instance
     mat = material_index(loader, bsdf_node, emitting=emitter_node is not None)
     mesh = Mesh(name=name, vertices=V, faces=np.ascontiguousarray(f, dtype=np.int32), material=mat,
                 normals=N, uvs=uv)

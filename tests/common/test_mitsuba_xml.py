@@ -454,6 +454,69 @@ def test_cylinders_are_mitsubas_open_cylinders(tmp_path):
             load_mitsuba(scene_file(tmp_path, body))
 
 
+INSTANCES = """
+    <bsdf type="diffuse" id="grey"/>
+    <shape type="shapegroup" id="pair">
+        <shape type="rectangle"><transform name="to_world"><scale x="0.5"/><translate z="-1"/></transform>
+            <ref id="grey"/></shape>
+        <shape type="sphere"><point name="center" value="0, 0.5, 0"/><float name="radius" value="0.25"/>
+            <ref id="grey"/></shape>
+    </shape>
+    <shape type="instance" id="left"><ref id="pair"/>
+        <transform name="to_world"><rotate y="1" angle="30"/><translate x="-1.5"/></transform></shape>
+    <shape type="instance"><ref id="pair"/>
+        <transform name="to_world"><scale value="2"/><translate x="1.5" y="-0.5"/></transform></shape>
+"""
+
+
+def test_instances_place_their_shapegroups_shapes_as_mitsuba_does(tmp_path):
+    from igi.common.geometry import Geometry
+
+    s = load_mitsuba(scene_file(tmp_path, INSTANCES))
+    p = tmp_path / "scene.xml"
+    line = line_of(p, "scale value")  # (an unnamed instance is named by its line)
+    assert [m.name.split("#")[1] for m in s.meshes] == ["left", "left"] + [f"instance@{line - 1}"] * 2
+    assert len(s.materials) == 1 and not [w for w in s.warnings if "sensor" not in w]
+    # Mitsuba 3.9.1: the scene's bbox and three rays' hit distances
+    lo = np.min([m.vertices.min(0) for m in s.meshes], 0)
+    hi = np.max([m.vertices.max(0) for m in s.meshes], 0)
+    np.testing.assert_allclose(lo, [-2.43301, -2.5, -2], atol=1e-4)
+    np.testing.assert_allclose(hi, [2.5, 1.5, 0.5], atol=1e-4)
+    hits = Geometry(s).intersect(np.array([[-1.5, 0.5, 5], [1.5, 0.5, 5], [1.5, 3, 0]], float),
+                                 np.array([[0, 0, -1], [0, 0, -1], [0, -1, 0]], float))
+    np.testing.assert_allclose(hits.t, [4.75, 4.5, 2.0], atol=2e-4)
+
+
+@pytest.mark.parametrize("body,what", [
+    ('<shape type="shapegroup" id="g"><shape type="instance"><ref id="g"/></shape></shape>'
+     '<shape type="instance"><ref id="g"/></shape>', "nested instancing"),
+    ('<shape type="shapegroup" id="g"><shape type="rectangle"><emitter type="area"/></shape></shape>'
+     '<shape type="instance"><ref id="g"/></shape>', "emitting shape inside a shapegroup"),
+    ('<shape type="instance"/>', "needs one shapegroup"),
+    ('<shape type="cube" id="c"/><shape type="instance"><ref id="c"/></shape>', "needs one shapegroup"),
+])
+def test_bad_instancing_is_named(tmp_path, body, what):
+    with pytest.raises(SceneError, match=what):
+        load_mitsuba(scene_file(tmp_path, body))
+
+
+def test_a_shapegroup_without_an_id_warns_and_a_mesh_file_is_read_once_for_all_its_instances(tmp_path, monkeypatch):
+    from igi.common import mitsuba_shapes
+
+    reads = []
+    real = mitsuba_shapes.load_obj_mesh
+    monkeypatch.setattr(mitsuba_shapes, "load_obj_mesh", lambda *a, **k: reads.append(a[0]) or real(*a, **k))
+    p = scene_file(tmp_path, """
+        <shape type="shapegroup"><shape type="cube"/></shape>
+        <shape type="shapegroup" id="g"><shape type="obj"><string name="filename" value="t.obj"/></shape></shape>
+        """ + "".join(f'<shape type="instance"><ref id="g"/><transform name="to_world"><translate x="{i}"/>'
+                      '</transform></shape>' for i in range(3)), files={"t.obj": TRI})
+    s = load_mitsuba(p)
+    assert any("shapegroup without an id is never instanced" in w for w in s.warnings)
+    assert len(s.meshes) == 3 and len(reads) == 1
+    np.testing.assert_allclose([m.vertices[0, 0] for m in s.meshes], [0, 1, 2])
+
+
 def test_defaults_substitution_refs_aliases_and_includes(tmp_path):
     p = scene_file(tmp_path, """
         <default name="spp" value="16"/>
