@@ -237,8 +237,10 @@ class MitsubaPT:
         cam = setup.scene.camera
         self.base_to_world = np.asarray(cam.to_world, np.float64).reshape(4, 4)
         self.integrator = mi.load_dict({"type": "path", "max_depth": int(max_depth)})
+        lens = {"type": "thinlens", "aperture_radius": float(cam.aperture_radius),
+                "focus_distance": float(cam.focus_distance)} if cam.aperture_radius > 0 else {"type": "perspective"}
         self.sensor = mi.load_dict({
-            "type": "perspective", "fov_axis": "x", "fov": float(cam.fov_x), "near_clip": float(cam.near_clip),
+            **lens, "fov_axis": "x", "fov": float(cam.fov_x), "near_clip": float(cam.near_clip),
             "film": {"type": "hdrfilm", "width": setup.width, "height": setup.height,
                      "rfilter": mitsuba_rfilter(cam.rfilter, cam.rfilter_params), "pixel_format": "rgb"},
             "sampler": {"type": "independent", "sample_count": 1}})

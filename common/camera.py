@@ -19,10 +19,13 @@ from .scene import Camera, Scene
 
 def camera_rays(to_world: np.ndarray, fov_x: float, width: int, height: int,
                 px: np.ndarray, py: np.ndarray, jitter: np.ndarray | tuple = (0.5, 0.5),
-                ) -> tuple[np.ndarray, np.ndarray]:
+                lens: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """World-space origins and unit directions through pixels (px, py) at sub-pixel ``jitter``.
 
-    ``jitter`` is (2,) or (N, 2) in [0,1)²; (0.5, 0.5) is the pixel centre.
+    ``jitter`` is (2,) or (N, 2) in [0,1)²; (0.5, 0.5) is the pixel centre. ``lens``: Mitsuba's
+    thin lens, (aperture radius, focus distance, (N, 2) numbers in [0, 1)² for the aperture):
+    each ray leaves its point of the aperture (concentric disk) toward where the pinhole ray
+    through its pixel meets the plane in focus, as Mitsuba's ``thinlens`` sensor traces it.
     """
     m = np.asarray(to_world, np.float64).reshape(4, 4)
     jit = np.asarray(jitter, np.float64)
@@ -32,10 +35,53 @@ def camera_rays(to_world: np.ndarray, fov_x: float, width: int, height: int,
     d_cam = np.empty((len(px), 3))
     kc.film_directions(px, py, np.ascontiguousarray(jit.reshape(-1, 2)), per_pixel, float(width), float(height),
                        float(np.tan(np.radians(fov_x) / 2)), d_cam)
+    o = np.broadcast_to(m[:3, 3], d_cam.shape).copy()
+    if lens is not None and lens[0] > 0:
+        radius, focus, u = lens
+        a = radius * concentric_disk(np.asarray(u, np.float64).reshape(-1, 2))
+        d_cam *= focus  # the point in focus: d_cam has z = 1
+        d_cam[:, :2] -= a
+        o += a @ m[:3, :2].T
     d = d_cam @ m[:3, :3].T
     kc.normalize_rows(d)
-    o = np.broadcast_to(m[:3, 3], d.shape).copy()
     return o, d
+
+
+def concentric_disk(u: np.ndarray) -> np.ndarray:
+    """(N, 2) points of the unit disk from (N, 2) numbers: Shirley and Chiu's concentric map
+    (Mitsuba's square_to_uniform_disk_concentric; common.kernels.bsdf.concentric_disk per point)."""
+    x, y = 2.0 * u[:, 0] - 1.0, 2.0 * u[:, 1] - 1.0
+    q13 = np.abs(x) < np.abs(y)
+    r = np.where(q13, y, x)
+    rp = np.where(q13, x, y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        phi = 0.25 * np.pi * rp / r
+    phi = np.where(q13, 0.5 * np.pi - phi, phi)
+    phi = np.where((x == 0) & (y == 0), 0.0, phi)
+    return np.stack([r * np.cos(phi), r * np.sin(phi)], axis=1)
+
+
+def radical_inverse(i: int, base: int) -> float:
+    """The ``base``-ary digits of i mirrored about the point: the i-th point of van der Corput's
+    sequence (Halton's in that base)."""
+    f, r = 1.0, 0.0
+    while i > 0:
+        f /= base
+        r += f * (i % base)
+        i //= base
+    return r
+
+
+def lens_jitter(index: int, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+    """(N, 2) numbers for the thin lens's aperture of pixels (px, py) in accumulation frame
+    ``index``: Halton's bases (5, 7) over the frames (the sub-pixel jitter takes 2 and 3), each
+    pixel's rotation of them a point of :func:`pixel_tile` read at another place of the tile, so
+    a pixel's aperture samples are stratified over the frames and an 8 x 8 block's within a
+    frame (one in each 1/64 along either axis)."""
+    px = np.ascontiguousarray(px, np.int64).ravel()
+    py = np.ascontiguousarray(py, np.int64).ravel()
+    rot = pixel_tile()[(py + 3) % 8, (px + 5) % 8][:, ::-1]
+    return np.mod(rot + np.array([radical_inverse(index, 5), radical_inverse(index, 7)]), 1.0)
 
 
 @functools.cache

@@ -22,9 +22,16 @@ def load_sensor(loader, node: Node) -> None:
         return
     if kind not in ("perspective", "thinlens"):
         loader.warn(node, f"unsupported sensor '{kind}'", "using a perspective camera with its to_world")
-    elif kind == "thinlens":
-        loader.warn(node, "sensor 'thinlens' (depth of field) is not supported", "using a pinhole perspective camera")
-        p.get("aperture_radius"), p.get("focus_distance")
+    aperture, focus = 0.0, 10000.0
+    if kind == "thinlens":  # (Mitsuba: aperture_radius required, focus_distance the far clip's 10^4)
+        if not p.has("aperture_radius"):
+            raise loader.error(node, "sensor 'thinlens' needs an 'aperture_radius'")
+        aperture = float(p.float("aperture_radius"))
+        focus = float(p.float("focus_distance", 10000.0))
+        if not (0 <= aperture < math.inf):
+            raise loader.error(p.named["aperture_radius"], f"aperture_radius {aperture} must be finite and >= 0")
+        if not (0 < focus < math.inf):
+            raise loader.error(p.named["focus_distance"], f"focus_distance {focus} must be finite and > 0")
     M = p.transform("to_world")
     width, height = 768, 576
     film = None
@@ -67,7 +74,8 @@ def load_sensor(loader, node: Node) -> None:
         fov = math.degrees(2 * math.atan(math.hypot(36.0, 24.0) / (2 * flen)))
         fov_axis = "diagonal"
     loader.camera = Camera(to_world=M, fov=float(fov), fov_axis=fov_axis, width=int(width), height=int(height),
-                         near_clip=float(p.float("near_clip", 0.01)), rfilter=rfilter[0], rfilter_params=rfilter[1])
+                         near_clip=float(p.float("near_clip", 0.01)), rfilter=rfilter[0], rfilter_params=rfilter[1],
+                         aperture_radius=aperture, focus_distance=focus)
     p.finish(ignore=("far_clip", "shutter_open", "shutter_close", "principal_point_offset_x",
                      "principal_point_offset_y", "sample_border", "srf"))
 

@@ -3,9 +3,11 @@
 Supported (everything else is skipped or replaced, with a warning in ``Scene.warnings`` that names
 the element, its ``file:line`` and the fallback):
 
-- shapes ``obj``, ``ply``, ``rectangle``, ``cube``, ``sphere`` (tessellated), ``disk`` (tessellated)
-  with ``to_world``, ``face_normals``, ``flip_normals``, ``flip_tex_coords`` (obj), ``center`` and
-  ``radius`` (sphere); a nested or referenced BSDF and area emitter;
+- shapes ``obj``, ``ply``, ``serialized`` (``shape_index``), ``rectangle``, ``cube``, ``sphere``,
+  ``disk`` and ``cylinder`` (``p0``, ``p1``, ``radius``; the three tessellated) with ``to_world``,
+  ``face_normals``, ``flip_normals``, ``flip_tex_coords`` (obj), ``center`` and ``radius``
+  (sphere); a nested or referenced BSDF and area emitter (a shape that emits and names no BSDF is
+  black, as in Mitsuba); ``shapegroup`` and ``instance`` (flattened);
 - BSDFs ``diffuse``, ``conductor``, ``roughconductor``, ``dielectric``, ``thindielectric``,
   ``roughdielectric``, ``plastic``, ``roughplastic``, ``twosided``; ``principled`` and
   ``principledthin`` approximated by the nearest of those (:mod:`common.mitsuba_principled`);
@@ -19,8 +21,9 @@ the element, its ``file:line`` and the fallback):
 - emitters ``area``, ``point``, ``spot``, ``directional``, ``constant``, ``envmap`` (``filename``:
   OpenEXR or Radiance .hdr, ``scale``, ``to_world``; at most one environment emitter when one is
   a map);
-- sensor ``perspective`` (``fov``/``focal_length``, ``fov_axis``, ``to_world``, ``near_clip``) with
-  an ``hdrfilm`` (``width``, ``height``); ``<integrator>``'s ``max_depth``;
+- sensors ``perspective`` (``fov``/``focal_length``, ``fov_axis``, ``to_world``, ``near_clip``) and
+  ``thinlens`` (also ``aperture_radius``, ``focus_distance``) with an ``hdrfilm`` (``width``,
+  ``height``, its ``rfilter``: :mod:`common.reconstruction_filter`); ``<integrator>``'s ``max_depth``;
 - ``<default>`` + ``$name`` substitution (the ``defaults`` argument wins), ``<ref>``, ids,
   ``<alias>``, ``<path>``, ``<include>``; values ``float``, ``integer``, ``boolean``, ``string``,
   ``rgb``, ``spectrum`` (a single value, ``wavelength:value`` pairs or an ``.spd`` file, converted to

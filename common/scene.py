@@ -233,6 +233,9 @@ class Camera:
     # parameters (box/tent: radius, gaussian: stddev, mitchell: B and C, lanczos: lobes)
     rfilter: str = "box"
     rfilter_params: tuple[float, float] = (0.5, 0.0)
+    # Mitsuba's thinlens: the aperture's radius (0: a pinhole) and the distance in focus
+    aperture_radius: float = 0.0
+    focus_distance: float = 10000.0
 
     @property
     def fov_x(self) -> float:

@@ -289,6 +289,9 @@ def validate_scene(scene: Scene) -> None:
     if np.shape(scene.camera.to_world) != (4, 4):
         raise SceneError("camera to_world: expected a 4x4 matrix")
     reconstruction_filter.validate(scene.camera.rfilter, scene.camera.rfilter_params)
+    if not (0 <= scene.camera.aperture_radius < np.inf and 0 < scene.camera.focus_distance < np.inf):
+        raise SceneError(f"camera thin lens: aperture radius {scene.camera.aperture_radius} and focus distance "
+                         f"{scene.camera.focus_distance} must be finite, the radius >= 0, the distance > 0")
 
 
 def scene_from_dict(tree: Any) -> Scene:

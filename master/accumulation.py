@@ -16,26 +16,18 @@ from __future__ import annotations
 
 import numpy as np
 
+from igi.common.camera import radical_inverse
 from igi.common.frame import FrameSpec, frame_seed
 from igi.master.filter_selection import select
 from igi.master.kernels.accumulate import add_frame
 from igi.master.kernels.accumulate import mean as mean_kernel
 
 
-def _radical_inverse(i: int, base: int) -> float:
-    f, r = 1.0, 0.0
-    while i > 0:
-        f /= base
-        r += f * (i % base)
-        i //= base
-    return r
-
-
 def jitter_for(index: int) -> tuple[float, float]:
     """Sub-pixel position of accumulation frame ``index``: centre, then Halton (2, 3)."""
     if index <= 0:
         return (0.5, 0.5)
-    return (_radical_inverse(index, 2), _radical_inverse(index, 3))
+    return (radical_inverse(index, 2), radical_inverse(index, 3))
 
 
 def sequence_spec(frame: int, index: int, camera_to_world, fov_x: float, width: int, height: int,

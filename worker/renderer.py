@@ -17,7 +17,7 @@ import numpy as np
 from scipy.special import gammaln
 
 from igi.common import bsdf
-from igi.common.camera import camera_rays, frame_jitter
+from igi.common.camera import camera_rays, frame_jitter, lens_jitter
 from igi.common.frame import NO_LOBE, FrameSpec, Tile, TileBuffers, accumulation_index, frame_seed
 from igi.common.geometry import Geometry
 from igi.common.lights import LightSampler
@@ -419,9 +419,12 @@ class Renderer:
             vpls = self.vpl_set(spec.seed, tile.k, params, roulette=consistent, view=view, index=index)
         with self._stage("eye paths"):
             # Accumulating: each pixel walks its own rotation of the frames' jitter sequence.
-            jitter = frame_jitter(spec.jitter, index > 0, xs, ys, self.scene.camera, spec.width, spec.height)
+            cam = self.scene.camera
+            jitter = frame_jitter(spec.jitter, index > 0, xs, ys, cam, spec.width, spec.height)
+            lens = (cam.aperture_radius, cam.focus_distance, lens_jitter(index, xs, ys)) if cam.aperture_radius > 0 \
+                else None
             o, d = camera_rays(np.asarray(spec.camera_to_world).reshape(4, 4), spec.fov_x, spec.width,
-                               spec.height, xs, ys, jitter)
+                               spec.height, xs, ys, jitter, lens)
             rng = make_rng(spec.seed, tile.k, tile.sx0, tile.sy0)
             # A split lobe's direct-only end point takes the first lobe_lights emitter samples;
             # its sampled ray's MIS weight must count the same samples.
