@@ -66,6 +66,8 @@ from pathlib import Path
 
 import numpy as np
 
+from igi.common.reconstruction_filter import KINDS
+
 from . import quality as bq
 from .paths import REPO_ROOT
 from .report import git_commit, machine_info
@@ -107,16 +109,10 @@ _probe(sys.argv[1], sys.argv[2], int(sys.argv[3]))
 def mitsuba_rfilter(kind: str, params: tuple[float, float]) -> dict:
     """The scene's reconstruction filter (common.reconstruction_filter) as Mitsuba's plugin
     dict: both renderers filter their pixels alike."""
-    a, b = params
-    if kind == "tent":
-        return {"type": kind, "radius": float(a)}
-    if kind == "gaussian":
-        return {"type": kind, "stddev": float(a)}
-    if kind == "mitchell":
-        return {"type": kind, "B": float(a), "C": float(b)}
-    if kind == "lanczos":
-        return {"type": kind, "lobes": int(a)}
-    return {"type": kind}
+    if kind == "box":  # (Mitsuba's box takes no radius: always 0.5)
+        return {"type": kind}
+    names = [n for n in KINDS[kind][0].split(", ") if n]
+    return {"type": kind, **{n: int(v) if n == "lobes" else float(v) for n, v in zip(names, params)}}
 
 
 def _probe(variant: str, scene_path: str, max_depth: int) -> None:

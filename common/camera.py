@@ -22,7 +22,9 @@ def camera_rays(to_world: np.ndarray, fov_x: float, width: int, height: int,
                 lens: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """World-space origins and unit directions through pixels (px, py) at sub-pixel ``jitter``.
 
-    ``jitter`` is (2,) or (N, 2) in [0,1)²; (0.5, 0.5) is the pixel centre. ``lens``: Mitsuba's
+    ``jitter`` is (2,) or (N, 2) sub-pixel positions from the pixel's corner, (0.5, 0.5) its centre:
+    in [0, 1)² for the pixel's box, up to a reconstruction filter's radius beyond it
+    (:func:`frame_jitter`). ``lens``: Mitsuba's
     thin lens, (aperture radius, focus distance, (N, 2) numbers in [0, 1)² for the aperture):
     each ray leaves its point of the aperture (concentric disk) toward where the pinhole ray
     through its pixel meets the plane in focus, as Mitsuba's ``thinlens`` sensor traces it.
@@ -38,27 +40,15 @@ def camera_rays(to_world: np.ndarray, fov_x: float, width: int, height: int,
     o = np.broadcast_to(m[:3, 3], d_cam.shape).copy()
     if lens is not None and lens[0] > 0:
         radius, focus, u = lens
-        a = radius * concentric_disk(np.asarray(u, np.float64).reshape(-1, 2))
+        from .microfacet import square_to_uniform_disk_concentric  # (scipy: only where a lens is)
+
+        a = radius * np.column_stack(square_to_uniform_disk_concentric(np.asarray(u, np.float64).reshape(-1, 2)))
         d_cam *= focus  # the point in focus: d_cam has z = 1
         d_cam[:, :2] -= a
         o += a @ m[:3, :2].T
     d = d_cam @ m[:3, :3].T
     kc.normalize_rows(d)
     return o, d
-
-
-def concentric_disk(u: np.ndarray) -> np.ndarray:
-    """(N, 2) points of the unit disk from (N, 2) numbers: Shirley and Chiu's concentric map
-    (Mitsuba's square_to_uniform_disk_concentric; common.kernels.bsdf.concentric_disk per point)."""
-    x, y = 2.0 * u[:, 0] - 1.0, 2.0 * u[:, 1] - 1.0
-    q13 = np.abs(x) < np.abs(y)
-    r = np.where(q13, y, x)
-    rp = np.where(q13, x, y)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        phi = 0.25 * np.pi * rp / r
-    phi = np.where(q13, 0.5 * np.pi - phi, phi)
-    phi = np.where((x == 0) & (y == 0), 0.0, phi)
-    return np.stack([r * np.cos(phi), r * np.sin(phi)], axis=1)
 
 
 def radical_inverse(i: int, base: int) -> float:
@@ -127,9 +117,10 @@ def frame_jitter(jitter: tuple, accumulated: bool, px: np.ndarray, py: np.ndarra
                  height: int) -> np.ndarray | tuple:
     """Sub-pixel positions of a frame's eye rays through pixels (px, py) of a ``width`` x
     ``height`` film: the frame's ``jitter`` point for every pixel on the first frame after a
-    reset (the pixel centres), each pixel's rotation of it on accumulated frames
-    (:func:`pixel_jitter`) — then drawn from the film's reconstruction filter
-    (common.reconstruction_filter; the pixel's own box leaves them as they are)."""
+    reset (the pixel centres; within a filter's radius of the film's edge, the median of the
+    filter cut there), each pixel's rotation of it on accumulated frames (:func:`pixel_jitter`) —
+    then drawn from the film's reconstruction filter (common.reconstruction_filter; the pixel's
+    own box leaves them as they are)."""
     jit = pixel_jitter(jitter, px, py) if accumulated else jitter
     if rf.is_identity(camera.rfilter, camera.rfilter_params):
         return jit

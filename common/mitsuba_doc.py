@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from .scene import SceneError, Texture
+from .scene_root import read_bytes
 
 PROPERTY_TAGS = {"float", "integer", "boolean", "string", "rgb", "spectrum", "point", "vector", "transform"}
 OBJECT_TAGS = {"bsdf", "texture", "emitter", "shape", "sensor", "film", "sampler", "rfilter", "integrator",
@@ -86,12 +87,7 @@ def parse_xml_file(path: Path, display: str) -> Node:
     from defusedxml import DefusedXmlException
     from defusedxml.ElementTree import DefusedXMLParser
 
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise SceneError(f"{display}: file not found") from None
-    except OSError as e:
-        raise SceneError(f"{display}: cannot read ({e.strerror or e})") from None
+    data = read_bytes(path, display)
     builder = _Builder(display)
     parser = DefusedXMLParser(target=builder, forbid_dtd=False, forbid_entities=True, forbid_external=True)
     builder.parser = parser

@@ -11,6 +11,7 @@ import numpy as np
 from . import transform as tf
 from .mitsuba_doc import Node, Props
 from . import reconstruction_filter as rf
+from .limits import MAX_COORD
 from .scene import Camera, SceneError
 
 
@@ -23,15 +24,16 @@ def load_sensor(loader, node: Node) -> None:
     if kind not in ("perspective", "thinlens"):
         loader.warn(node, f"unsupported sensor '{kind}'", "using a perspective camera with its to_world")
     aperture, focus = 0.0, 10000.0
-    if kind == "thinlens":  # (Mitsuba: aperture_radius required, focus_distance the far clip's 10^4)
+    if kind == "thinlens":  # (Mitsuba: aperture_radius required, focus_distance by default far_clip, 10^4)
         if not p.has("aperture_radius"):
             raise loader.error(node, "sensor 'thinlens' needs an 'aperture_radius'")
         aperture = float(p.float("aperture_radius"))
-        focus = float(p.float("focus_distance", 10000.0))
-        if not (0 <= aperture < math.inf):
-            raise loader.error(p.named["aperture_radius"], f"aperture_radius {aperture} must be finite and >= 0")
-        if not (0 < focus < math.inf):
-            raise loader.error(p.named["focus_distance"], f"focus_distance {focus} must be finite and > 0")
+        focus = float(p.float("focus_distance", p.float("far_clip", 10000.0)))
+        if not (0 <= aperture <= MAX_COORD):
+            raise loader.error(p.named["aperture_radius"], f"aperture_radius {aperture} must be in [0, {MAX_COORD:g}]")
+        if not (1e-6 <= focus <= MAX_COORD):
+            raise loader.error(p.named.get("focus_distance", node),
+                               f"focus_distance {focus} must be in [1e-06, {MAX_COORD:g}]")
     M = p.transform("to_world")
     width, height = 768, 576
     film = None
@@ -110,7 +112,7 @@ def load_rfilter(loader, nodes: list[Node]) -> tuple[str, tuple[float, float]]:
         rf.validate(kind, params)
     except SceneError as e:
         raise loader.error(node, str(e)) from None
-    if kind in rf.NEGATIVE_LOBES:
+    if rf.has_negative_lobes(kind, params):
         loader.warn(node, f"reconstruction filter '{kind}' has negative lobes, which igi does not draw",
                     "sampling its positive part (slightly softer than Mitsuba's)")
     return kind, params

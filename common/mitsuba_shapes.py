@@ -13,6 +13,8 @@ from .mitsuba_bsdfs import material_index
 from .mitsuba_doc import Node, Props
 from .obj_mtl import drop_nonfinite, load_obj_mesh, recompute_vertex_normals, remove_degenerate
 from .scene import AREA, Emitter, Mesh
+from .limits import fmt_bytes, memory_budget
+from .scene_root import read_bytes
 
 
 def _cylinder_frame(loader, p: Props, node: Node) -> np.ndarray:
@@ -34,23 +36,26 @@ def _cylinder_frame(loader, p: Props, node: Node) -> np.ndarray:
 
 
 def _mesh_file(loader, kind: str, path: Path, fn: str, option) -> tuple:
-    """(vertices, faces, normals, uvs, face-normals flag) of a mesh file in its own space, read
-    once per loader (the instances of a shapegroup share their files)."""
-    cache = loader.__dict__.setdefault("_mesh_files", {})
+    """(vertices, faces, normals, uvs, stored name) of a mesh file in its own space, read once
+    per loader (the instances of a shapegroup share their files; a serialized file's meshes
+    share its bytes)."""
+    cache = loader.mesh_files
     key = (kind, str(path), option)
     if key not in cache:
         if kind == "obj":
-            cache[key] = (*load_obj_mesh(path, fn, loader.warnings, flip_tex_coords=option), False)
+            cache[key] = (*load_obj_mesh(path, fn, loader.warnings, flip_tex_coords=option), "")
         elif kind == "ply":
             from .ply import load_ply_mesh
 
-            cache[key] = (*load_ply_mesh(path, fn, loader.warnings), False)
+            cache[key] = (*load_ply_mesh(path, fn, loader.warnings), "")
         else:
             from .serialized import load_serialized_mesh
 
-            cache[key] = load_serialized_mesh(path, fn, option, loader.warnings)
-    v, f, n, uv, flagged = cache[key]
-    return v, f, n, None if uv is None else uv.copy(), flagged
+            if ("bytes", str(path)) not in cache:
+                cache["bytes", str(path)] = read_bytes(path, fn)
+            cache[key] = load_serialized_mesh(path, fn, option, loader.warnings, cache["bytes", str(path)])
+    v, f, n, uv, stored = cache[key]
+    return v, f.copy(), n, None if uv is None else uv.copy(), stored
 
 
 def _load_instance(loader, node: Node, p: Props) -> None:
@@ -61,7 +66,7 @@ def _load_instance(loader, node: Node, p: Props) -> None:
         raise loader.error(node, "<shape type='instance'> needs one shapegroup (a <ref> to it, or nested)")
     M = p.transform("to_world")
     p.finish()
-    label = "#" + node.attrib.get("id", f"instance@{node.line}")
+    label = "#" + node.attrib.get("id", f"instance@{Path(node.file).name}:{node.line}")
     for c in groups[0].children:
         child = loader.deref(c)
         if child.tag != "shape":
@@ -101,10 +106,9 @@ def load_shape(loader, node: Node, outer: np.ndarray | None = None, instance: st
             raise loader.error(node, f"<shape type='{kind}'> needs a 'filename'")
         path = loader.resolve(fn, node)
         option = p.bool("flip_tex_coords", True) if kind == "obj" else p.int("shape_index", 0) if kind == "serialized" else 0
-        v, f, n, uv, flagged = _mesh_file(loader, kind, path, fn, option)
-        face_normals = face_normals or flagged  # (a serialized file's flag 0x10 is Mitsuba's face_normals)
-        if kind == "serialized":
-            name = name or f"{Path(fn).name}@{option}"
+        v, f, n, uv, stored = _mesh_file(loader, kind, path, fn, option)
+        if kind == "serialized":  # Mitsuba's name: the one stored with the mesh, or file@index
+            name = name or stored or f"{Path(fn).name}@{option}"
         name = name or Path(fn).stem
     else:
         if kind == "rectangle":
@@ -170,6 +174,10 @@ def load_shape(loader, node: Node, outer: np.ndarray | None = None, instance: st
     mesh = Mesh(name=name, vertices=V, faces=np.ascontiguousarray(f, dtype=np.int32), material=mat,
                 normals=N, uvs=uv)
     loader.meshes.append(mesh)
+    loader.mesh_bytes += sum(a.nbytes for a in (V, mesh.faces, N, uv) if a is not None)
+    if loader.mesh_bytes > memory_budget():  # (instances multiply a scene's meshes: refuse before they fill memory)
+        raise loader.error(node, f"the scene's meshes take {fmt_bytes(loader.mesh_bytes)} so far, more than the "
+                                 f"memory budget of {fmt_bytes(memory_budget())} (--memory-budget)")
     if emitter_node is not None:
         ep = Props(loader, emitter_node)
         if ep.type != "area":

@@ -99,6 +99,8 @@ class _Loader:
         self.texture_of: dict[int, Texture] = {}
         self.images: dict[tuple[str, bool], np.ndarray] = {}
         self.default_materials: dict[str, int] = {}  # mitsuba_bsdfs.material_index's defaults
+        self.mesh_files: dict[tuple, object] = {}  # mitsuba_shapes._mesh_file: mesh files (and bytes) read
+        self.mesh_bytes = 0  # the meshes' arrays so far, held to the memory budget
         self.camera: Camera | None = None
         self.max_depth = -1
 

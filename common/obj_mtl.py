@@ -39,7 +39,7 @@ import numpy as np
 
 from .scene import (AREA, CONDUCTOR, DIELECTRIC, DIFFUSE, ROUGHPLASTIC, Camera, Emitter, Material, Mesh,
                     Scene, SceneError, Texture)
-from .scene_root import SceneRoot
+from .scene_root import SceneRoot, read_bytes
 from .scene_warnings import SceneWarnings
 
 log = logging.getLogger("igi.scene")
@@ -148,19 +148,8 @@ class ObjData:
     short_faces: int = 0  # faces with fewer than 3 corners (no triangle)
 
 
-def _read_bytes(path: Path, display: str) -> bytes:
-    try:
-        return path.read_bytes()
-    except FileNotFoundError:
-        raise SceneError(f"{display}: file not found") from None
-    except IsADirectoryError:
-        raise SceneError(f"{display}: is a directory, not a file") from None
-    except OSError as e:
-        raise SceneError(f"{display}: cannot read ({e.strerror or e})") from None
-
-
 def _read_text(path: Path, display: str) -> str:
-    return _read_bytes(path, display).decode("utf-8", errors="replace")
+    return read_bytes(path, display).decode("utf-8", errors="replace")
 
 
 def _parse_fast(data: bytes) -> ObjData | None:
@@ -374,7 +363,7 @@ def _parse_slow(text: str, display: str) -> ObjData:
 def parse_obj(path, display: str | None = None, need_groups: bool = False) -> ObjData:
     path = Path(path)
     display = display or str(path)
-    raw = _read_bytes(path, display)
+    raw = read_bytes(path, display)
     data = None if need_groups else _parse_fast(raw)
     if data is None:
         data = _parse_slow(raw.decode("utf-8", errors="replace"), display)

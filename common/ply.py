@@ -17,6 +17,7 @@ import numpy as np
 
 from .obj_mtl import _warn, drop_nonfinite
 from .scene import SceneError
+from .scene_root import read_bytes
 
 _TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -199,12 +200,7 @@ def load_ply_mesh(path, display: str | None = None, warnings: list[str] | None =
 
 
 def _load_ply(path: Path, display: str, warnings: list[str] | None):
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise SceneError(f"{display}: file not found") from None
-    except OSError as e:
-        raise SceneError(f"{display}: cannot read ({e.strerror or e})") from None
+    data = read_bytes(path, display)
     import io
 
     f = io.BytesIO(data)

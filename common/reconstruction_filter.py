@@ -32,7 +32,6 @@ KINDS = {
     "catmullrom": ("", None),  # Mitchell-Netravali with B = 0, C = 1/2
     "lanczos": ("lobes", 3),  # radius = lobes
 }
-NEGATIVE_LOBES = ("mitchell", "catmullrom", "lanczos")
 DEFAULT = ("gaussian", (0.5, 0.0))  # Mitsuba's hdrfilm without an rfilter
 TABLE_SIZE = 1024  # inverse-CDF entries per axis (offsets interpolated between them)
 
@@ -44,10 +43,20 @@ def validate(kind: str, params: tuple[float, float]) -> None:
     a, b = (float(x) for x in params)
     if not (math.isfinite(a) and math.isfinite(b)):
         raise SceneError(f"reconstruction filter {kind!r}: parameters {params} are not finite")
-    if kind in ("box", "tent", "gaussian") and not 0 < a <= 16:
-        raise SceneError(f"reconstruction filter {kind!r}: {KINDS[kind][0]} {a} must be in (0, 16] pixels")
+    if kind in ("box", "tent", "gaussian") and not 1e-3 <= a <= 16:
+        raise SceneError(f"reconstruction filter {kind!r}: {KINDS[kind][0]} {a} must be in [0.001, 16] pixels")
     if kind == "lanczos" and not (a == int(a) and 1 <= a <= 16):
         raise SceneError(f"reconstruction filter 'lanczos': lobes {a} must be a whole number in 1..16")
+    if kind == "mitchell" and not (abs(a) <= 100 and abs(b) <= 100):
+        raise SceneError(f"reconstruction filter 'mitchell': B {a} and C {b} must lie in [-100, 100]")
+    if not _positive_part(kind, (a, b))[1][-1] > 0:
+        raise SceneError(f"reconstruction filter {kind!r} {params}: no positive weight to draw pixels' rays from")
+
+
+def has_negative_lobes(kind: str, params: tuple[float, float]) -> bool:
+    """Whether the filter weighs some offsets negatively (those igi does not draw)."""
+    r = radius(kind, params)
+    return bool(evaluate(kind, params, np.linspace(0, r, 1025)).min() < -1e-12)
 
 
 def radius(kind: str, params: tuple[float, float]) -> float:
@@ -89,13 +98,19 @@ def tables(kind: str, params: tuple[float, float]) -> tuple[np.ndarray, np.ndarr
     """(x, cdf): the CDF of the filter's positive part at TABLE_SIZE + 1 offsets x over
     [-radius, radius] (trapezoids of a fine grid, piecewise linear between the table's points)."""
     validate(kind, params)
+    fine, cdf = _positive_part(kind, params)
+    x = np.linspace(fine[0], fine[-1], TABLE_SIZE + 1)
+    return x, np.interp(x, fine, cdf / cdf[-1])
+
+
+def _positive_part(kind: str, params: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """(x, running integral of max(f, 0)) on a fine grid over the support (not normalized)."""
     r = radius(kind, params)
     fine = np.linspace(-r, r, 64 * TABLE_SIZE + 1)
-    f = np.maximum(evaluate(kind, params, fine), 0.0)
-    cdf = np.concatenate([[0.0], np.cumsum(0.5 * (f[1:] + f[:-1]) * np.diff(fine))])
-    cdf /= cdf[-1]
-    x = np.linspace(-r, r, TABLE_SIZE + 1)
-    return x, np.interp(x, fine, cdf)
+    with np.errstate(over="ignore", invalid="ignore"):
+        f = np.maximum(evaluate(kind, params, fine), 0.0)
+    f = np.where(np.isfinite(f), f, 0.0)
+    return fine, np.concatenate([[0.0], np.cumsum(0.5 * (f[1:] + f[:-1]) * np.diff(fine))])
 
 
 def is_identity(kind: str, params: tuple[float, float]) -> bool:

@@ -93,10 +93,15 @@ _N_KINDS = ROUGHDIELECTRIC + 1
 _KIND_TABLES: dict[tuple, np.ndarray] = {}
 
 
-def black_rows(materials: list) -> np.ndarray:
-    """(len(materials) + 1,) bool: each material row is black (Material.is_black); the last row,
-    NULL, is not."""
-    return np.array([m.is_black for m in materials] + [False], bool)
+def reflecting(materials: list, kind: np.ndarray, mat_ids: np.ndarray) -> np.ndarray:
+    """Per point of BSDF ``kind`` on material row ``mat_ids`` (out of range: NULL): whether it
+    reflects light onward — not mirror/glass, not NULL, not black (Material.is_black): where
+    light walks leave VPLs and the final gather's levels go on (their compiled loops read the
+    same per material row)."""
+    black = np.array([m.is_black for m in materials] + [False], bool)
+    m = np.asarray(mat_ids)
+    rows = np.where((m >= 0) & (m < len(materials)), m, len(materials))
+    return ~kind_in(kind, SPECULAR_KINDS) & (kind != NULL) & ~black[rows]
 
 
 def kind_in(kind: np.ndarray, kinds: tuple) -> np.ndarray:

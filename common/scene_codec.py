@@ -54,6 +54,7 @@ import msgpack
 import numpy as np
 
 from . import reconstruction_filter
+from .limits import MAX_COORD
 from . import scene as scene_mod
 from .scene import Camera, Emitter, Material, Mesh, Scene, SceneError, Texture
 
@@ -289,9 +290,9 @@ def validate_scene(scene: Scene) -> None:
     if np.shape(scene.camera.to_world) != (4, 4):
         raise SceneError("camera to_world: expected a 4x4 matrix")
     reconstruction_filter.validate(scene.camera.rfilter, scene.camera.rfilter_params)
-    if not (0 <= scene.camera.aperture_radius < np.inf and 0 < scene.camera.focus_distance < np.inf):
-        raise SceneError(f"camera thin lens: aperture radius {scene.camera.aperture_radius} and focus distance "
-                         f"{scene.camera.focus_distance} must be finite, the radius >= 0, the distance > 0")
+    if not (0 <= scene.camera.aperture_radius <= MAX_COORD and 1e-6 <= scene.camera.focus_distance <= MAX_COORD):
+        raise SceneError(f"camera thin lens: aperture radius {scene.camera.aperture_radius} must be in [0, "
+                         f"{MAX_COORD:g}], focus distance {scene.camera.focus_distance} in [1e-06, {MAX_COORD:g}]")
 
 
 def scene_from_dict(tree: Any) -> Scene:

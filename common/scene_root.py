@@ -63,4 +63,16 @@ class SceneRoot:
                               f"(--scene-root DIR widens the root)")
 
 
-__all__ = ["SceneRoot", "SceneRootError"]
+__all__ = ["SceneRoot", "SceneRootError", "read_bytes"]
+
+
+def read_bytes(path: str | Path, display: str) -> bytes:
+    """The bytes of a file a scene names, or a SceneError that says why not, named ``display``."""
+    try:
+        return Path(path).read_bytes()
+    except FileNotFoundError:
+        raise SceneError(f"{display}: file not found") from None
+    except IsADirectoryError:
+        raise SceneError(f"{display}: is a directory, not a file") from None
+    except OSError as e:
+        raise SceneError(f"{display}: cannot read ({e.strerror or e})") from None

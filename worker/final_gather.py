@@ -36,7 +36,7 @@ from igi.common import bsdf
 from igi.common.geometry import Geometry, Hits
 from igi.common.kernels.ray_packets import hit_buffers
 from igi.common.lights import VPL_SURFACE, LightSampler, to_local
-from igi.common.scene import NULL, SPECULAR_KINDS, Scene, kind_in
+from igi.common.scene import Scene, reflecting
 
 from .arrivals import Arrivals
 from .caustics import PhotonSet, gather_photons
@@ -212,12 +212,13 @@ def _compiled_levels(scene: Scene, geom: Geometry, lights: LightSampler, first: 
 
 
 def _as_end_points(scene: Scene, arr: Arrivals, lobe_alpha: float) -> tuple[Arrivals, EndPoints, np.ndarray | None]:
-    """The points of ``arr`` that reflect (not mirror/glass, not NULL), as end points with their
-    lobes regularized as senders, and the regularization's gain (None: no lobe widened)."""
+    """The points of ``arr`` that reflect (common.scene.reflecting: not mirror/glass, not NULL,
+    not black), as end points with their lobes regularized as senders, and the regularization's
+    gain (None: no lobe widened)."""
     orig = bsdf.gather(scene.materials, arr.material, arr.uv)
     sp = regularized_senders(orig, lobe_alpha)
     widened = sp is not orig
-    nd = np.nonzero(~kind_in(sp.kind, SPECULAR_KINDS) & (sp.kind != NULL))[0]
+    nd = np.nonzero(reflecting(scene.materials, sp.kind, arr.material))[0]
     if len(nd) < len(arr):
         arr, sp = arr.rows(nd), sp.subset(nd)
     n = len(arr)

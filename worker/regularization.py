@@ -22,7 +22,7 @@ from threading import Lock
 import numpy as np
 
 from igi.common import bsdf
-from igi.common.scene import NULL, ROUGHCONDUCTOR, ROUGHPLASTIC, SPECULAR_KINDS, black_rows, kind_in
+from igi.common.scene import ROUGHCONDUCTOR, ROUGHPLASTIC, reflecting
 
 from .kernels import regularization_gain as kg
 
@@ -153,7 +153,7 @@ def sender_rows(materials: list, lobe_alpha: float) -> tuple:
     if hit is None:
         sp = regularized_senders(bsdf.gather(materials, np.arange(len(materials) + 1), None), lobe_alpha)
         P, _rows = bsdf.packed_rows(sp)
-        rows = (P, ~kind_in(sp.kind, SPECULAR_KINDS) & (sp.kind != NULL) & ~black_rows(materials))
+        rows = (P, reflecting(materials, sp.kind, np.arange(len(materials) + 1)))
         hit = (tuple(materials), rows)  # the materials held: their ids stay theirs
         with _SENDER_LOCK:  # render threads share the cache
             while len(_SENDER_ROWS) >= 8:

@@ -15,7 +15,7 @@ import numpy as np
 from igi.common import bsdf
 from igi.common.geometry import Geometry
 from igi.common.lights import VPL_SPOT, VPL_SURFACE, LightSampler, PointSamples, to_local
-from igi.common.scene import NULL, SPECULAR_KINDS, Scene, black_rows, kind_in
+from igi.common.scene import Scene, reflecting
 from igi.common.sobol_stream import SobolStream, stream_seed
 
 from .light_paths import continue_paths, incident_ratios, roulette_numbers, set_key, trace_walks
@@ -202,7 +202,6 @@ def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarr
         extra, survival = roulette_numbers(keys, walks, roulette_after, max_length, WALK_DIMS_PER_BOUNCE)
         u = np.concatenate([u, extra], axis=1)
     alive = np.nonzero(np.any(flux > 0, axis=1))[0]
-    black = black_rows(scene.materials)  # (kernels.light_paths.trace_walks reads the same, as ``reflects``)
     pos_l, ns_l, ng_l, pw_l, dp_l, wi_l, sp_l, row_l = [], [], [], [], [], [], [], []
     for bounce in range(max_length):
         if len(alive) == 0:
@@ -220,7 +219,7 @@ def _light_walks(scene: Scene, geom: Geometry, lights: LightSampler, u: np.ndarr
         sp = bsdf.gather(scene.materials, mat, uv)
         bumped = geom.bumped(mat)
         wi = to_local(-d[alive], ns)
-        nondelta = ~kind_in(sp.kind, SPECULAR_KINDS) & (sp.kind != NULL) & ~black[np.where(mat >= 0, mat, -1)]
+        nondelta = reflecting(scene.materials, sp.kind, mat)
         if nondelta.any():
             sel = np.nonzero(nondelta)[0]
             pos_l.append(pos[sel])

@@ -408,6 +408,9 @@ def test_a_films_reconstruction_filter_is_read_with_mitsubas_defaults(tmp_path):
     assert any("negative lobes" in w for w in warnings)
     (kind, params), warnings = _film_filter(tmp_path, '<rfilter type="lanczos"><integer name="lobes" value="2"/></rfilter>')
     assert (kind, params) == ("lanczos", (2.0, 0.0)) and any("negative lobes" in w for w in warnings)
+    (kind, params), warnings = _film_filter(tmp_path, '<rfilter type="mitchell"><float name="B" value="1"/>'
+                                                      '<float name="C" value="0"/></rfilter>')
+    assert kind == "mitchell" and not any("negative lobes" in w for w in warnings)  # (B-spline: none)
     filt, warnings = _film_filter(tmp_path, '<rfilter type="sinc"/>')
     assert filt == ("gaussian", (0.5, 0.0)) and any("unknown reconstruction filter 'sinc'" in w for w in warnings)
     with pytest.raises(SceneError, match=r"scene.xml:\d+.*stddev -0.5 must be"):
@@ -475,7 +478,7 @@ def test_instances_place_their_shapegroups_shapes_as_mitsuba_does(tmp_path):
     s = load_mitsuba(scene_file(tmp_path, INSTANCES))
     p = tmp_path / "scene.xml"
     line = line_of(p, "scale value")  # (an unnamed instance is named by its line)
-    assert [m.name.split("#")[1] for m in s.meshes] == ["left", "left"] + [f"instance@{line - 1}"] * 2
+    assert [m.name.split("#")[1] for m in s.meshes] == ["left", "left"] + [f"instance@scene.xml:{line - 1}"] * 2
     assert len(s.materials) == 1 and not [w for w in s.warnings if "sensor" not in w]
     # Mitsuba 3.9.1: the scene's bbox and three rays' hit distances
     lo = np.min([m.vertices.min(0) for m in s.meshes], 0)
@@ -485,6 +488,20 @@ def test_instances_place_their_shapegroups_shapes_as_mitsuba_does(tmp_path):
     hits = Geometry(s).intersect(np.array([[-1.5, 0.5, 5], [1.5, 0.5, 5], [1.5, 3, 0]], float),
                                  np.array([[0, 0, -1], [0, 0, -1], [0, -1, 0]], float))
     np.testing.assert_allclose(hits.t, [4.75, 4.5, 2.0], atol=2e-4)
+
+
+def test_instances_past_the_memory_budget_are_refused_before_they_fill_it(tmp_path):
+    from igi.common.limits import set_memory_budget
+
+    body = ('<shape type="shapegroup" id="g"><shape type="sphere"/></shape>'
+            + '<shape type="instance"><ref id="g"/></shape>' * 50)
+    set_memory_budget("2M")
+    try:
+        with pytest.raises(SceneError, match=r"meshes take .* more than the memory budget of 2 MiB"):
+            load_mitsuba(scene_file(tmp_path, body))
+    finally:
+        set_memory_budget(None)
+    assert len(load_mitsuba(scene_file(tmp_path, body)).meshes) == 50
 
 
 @pytest.mark.parametrize("body,what", [

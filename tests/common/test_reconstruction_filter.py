@@ -108,7 +108,16 @@ def test_frame_jitter_filters_the_rotated_jitter_of_accumulated_frames_only_thro
     ("box", (float("nan"), 0.0), "not finite"),
     ("lanczos", (2.5, 0.0), "whole number"),
     ("mitchell", (float("inf"), 0.3), "not finite"),
+    ("gaussian", (1e-200, 0.0), "stddev 1e-200 must be"),
+    ("mitchell", (1e308, 1e308), "must lie in"),
 ])
 def test_bad_filters_are_named(kind, params, what):
     with pytest.raises(SceneError, match=what):
         rf.validate(kind, params)
+
+
+def test_negative_lobes_are_found_where_the_parameters_give_them():
+    assert rf.has_negative_lobes("mitchell", (1 / 3, 1 / 3)) and rf.has_negative_lobes("lanczos", (3.0, 0.0))
+    assert rf.has_negative_lobes("catmullrom", (0.0, 0.0))
+    assert not rf.has_negative_lobes("mitchell", (1.0, 0.0))  # the cubic B-spline: positive everywhere
+    assert not rf.has_negative_lobes("gaussian", (0.5, 0.0)) and not rf.has_negative_lobes("tent", (1.0, 0.0))

@@ -9,7 +9,7 @@ import pytest
 
 from igi.common.mitsuba_xml import load_mitsuba
 from igi.common.scene import SceneError
-from igi.common.serialized import FACE_NORMALS, HEADER, load_serialized_mesh
+from igi.common.serialized import HEADER, load_serialized_mesh
 from tests.support.serialized_files import write_serialized
 
 RNG = np.random.default_rng(0)
@@ -39,19 +39,37 @@ def test_meshes_read_by_shape_index_as_mitsuba_reads_them(tmp_path, version, dou
     np.testing.assert_allclose(second.vertices, V2, atol=1e-6)
     np.testing.assert_array_equal(second.faces, F2)
     assert second.normals is not None and np.allclose(np.linalg.norm(second.normals, axis=1), 1)  # recomputed
-    assert (first.name, second.name) == ("m.serialized@0", "m.serialized@1")  # Mitsuba's names
+    # Mitsuba's names: the one stored with the mesh (version 4), else file@index
+    want = ("first", "second") if version == 4 else ("m.serialized@0", "m.serialized@1")
+    assert (first.name, second.name) == want
 
 
-def test_the_face_normals_flag_is_mitsubas_face_normals(tmp_path):
+def test_the_files_face_normals_flag_is_ignored_as_mitsuba_3_ignores_it(tmp_path):
+    """Mitsuba 3.9.1 reads face_normals from the XML alone; flag 0x10 in the file changes nothing."""
     path = tmp_path / "m.serialized"
     write_serialized(path, MESHES[:1])
     data = bytearray(path.read_bytes())
     body = zlib.decompress(bytes(data[4:]))
-    body = struct.pack("<I", struct.unpack_from("<I", body)[0] | FACE_NORMALS) + body[4:]
+    body = struct.pack("<I", struct.unpack_from("<I", body)[0] | 0x10) + body[4:]
     path.write_bytes(bytes(data[:4]) + zlib.compress(body) + struct.pack("<QI", 0, 1))
-    assert load_serialized_mesh(path)[4] is True
-    s = load_mitsuba(_scene(tmp_path, '<shape type="serialized"><string name="filename" value="m.serialized"/></shape>'))
-    assert s.meshes[0].normals is None  # flat: the triangles' own normals
+    shape = '<shape type="serialized"><string name="filename" value="m.serialized"/>{}</shape>'
+    s = load_mitsuba(_scene(tmp_path, shape.format("")))
+    assert s.meshes[0].normals is not None  # smooth: the file's normals
+    s = load_mitsuba(_scene(tmp_path, shape.format('<boolean name="face_normals" value="true"/>')))
+    assert s.meshes[0].normals is None  # flat only where the XML says so
+
+
+def test_a_files_meshes_share_one_read_of_it(tmp_path, monkeypatch):
+    from igi.common import mitsuba_shapes
+
+    write_serialized(tmp_path / "m.serialized", MESHES)
+    reads = []
+    real = mitsuba_shapes.read_bytes
+    monkeypatch.setattr(mitsuba_shapes, "read_bytes", lambda *a: reads.append(a[0]) or real(*a))
+    s = load_mitsuba(_scene(tmp_path, "".join(
+        f'<shape type="serialized"><string name="filename" value="m.serialized"/>'
+        f'<integer name="shape_index" value="{i}"/></shape>' for i in (1, 0, 1))))
+    assert len(s.meshes) == 3 and len(reads) == 1
 
 
 def _broken(tmp_path, mutate) -> str:
@@ -75,7 +93,8 @@ def _body(data: bytes) -> bytes:
     (lambda d: d[:4] + zlib.compress(_body(d)[:-8]), 0, "truncated"),
     (lambda d: d[:4] + zlib.compress(_body(d)[:-4] + struct.pack("<I", 99)), 0, "face index 99 out of range"),
     (lambda d: d[:4] + zlib.compress(_body(d)[:10] + struct.pack("<QQ", 1 << 40, 1) + _body(d)[26:]), 0,
-     "claims"),
+     "claims 1099511627776 vertices .* more than the memory budget"),
+    (lambda d: d[:4] + zlib.compress(b"\0" * 4 + b"x" * 5000), 0, "not terminated within 4096 bytes"),
     (lambda d: d[:-12] + struct.pack("<QI", 10 ** 9, 2), 1, "outside the file"),
     (lambda d: d[:4] + b"not zlib at all", 0, "malformed serialized mesh"),
 ])

@@ -63,6 +63,14 @@ def test_lens_numbers_are_stratified_over_frames_and_over_a_block_of_pixels():
         assert len(set(np.floor(over_block[:, axis] * 64).astype(int))) == 64
 
 
+def test_the_focus_distance_defaults_to_the_far_clip_as_in_mitsuba(tmp_path):
+    p = tmp_path / "scene.xml"
+    for extra, focus in [("", 10000.0), ('<float name="far_clip" value="42"/>', 42.0)]:
+        p.write_text('<scene version="3.0.0"><sensor type="thinlens"><float name="aperture_radius" value="0.1"/>'
+                     f'{extra}</sensor><shape type="cube"/></scene>')
+        assert load_scene(p).camera.focus_distance == focus
+
+
 @pytest.mark.parametrize("body,what", [
     ('<sensor type="thinlens"/>', "needs an 'aperture_radius'"),
     ('<sensor type="thinlens"><float name="aperture_radius" value="-1"/></sensor>', "aperture_radius -1.0 must be"),

@@ -10,7 +10,7 @@ from igi.bench.stress_scenes import load_shared
 def traced_end_points(monkeypatch, scene_name: str, compiled: bool, sky: bool, max_depth: int, seed: int,
                       clamp_fraction: float | None = None, width: int = 96, height: int = 72):
     """(scene, renderer, eye result, BSDF rays, clamp d², generator) for ``width``×``height``
-    eye paths through ``scene_name``: the rays through the compiled kernels (``compiled``) or
+    eye paths through ``scene_name`` (a shared scene, or a path under tests/data ending .xml): the rays through the compiled kernels (``compiled``) or
     Geometry.intersect, under a lit sky or not; the BSDF rays ``√d²`` short (d² the default
     clamp, or ``clamp_fraction`` of the squared diagonal), aimed at the mirror/glass targets."""
     from igi.common.camera import camera_rays, resolve_camera
@@ -18,7 +18,13 @@ def traced_end_points(monkeypatch, scene_name: str, compiled: bool, sky: bool, m
     from igi.worker.renderer import Renderer, clamp_distance2
     from igi.worker.shading import trace_bsdf_rays, trace_eye
 
-    scene = load_shared(scene_name)
+    if scene_name.endswith(".xml"):  # a test scene of tests/data
+        from igi.common.loader import load_scene
+        from tests.support.paths import ROOT
+
+        scene = load_scene(ROOT / scene_name)
+    else:
+        scene = load_shared(scene_name)
     r = Renderer(scene)
     if not compiled:
         monkeypatch.setattr(r.geom, "closest_terms", lambda: None)

@@ -187,13 +187,16 @@ def _levels(monkeypatch, scene_name: str, compiled: bool, max_depth: int, lobe_a
                                                                           ("cornell-box-sphere", -1, 0.5, True, False),
                                                                           ("cornell-box-glossy", -1, 0.5, False, False),
                                                                           ("cornell-box-glossy", -1, 0.0, False, False),
-                                                                          ("grey-white-room", -1, 0.5, False, False)])
+                                                                          ("grey-white-room", -1, 0.5, False, False),
+                                                                          ("tests/data/bump/bump.xml", -1, 0.5, False,
+                                                                           False)])
 def test_the_compiled_levels_equal_the_numpy_levels(monkeypatch, scene_name, max_depth, lobe_alpha, sky, lens):
     """kernels.final_gather_levels.find_levels gives find_levels what its numpy loop gave, bit
     for bit: every level's points (sender lobes regularized or not), rays, hits, parents,
     weights and gains, the generator's next draw and the rays traced — on glass (chain ends
     and near points, their rays toward the glass traced in full or not), under a lit sky and on
-    glossy senders, with and without a path-length limit."""
+    glossy senders, with and without a path-length limit; beside a bare (black) lamp, whose
+    points neither reflect nor go on (tests/data/bump)."""
     got = _levels(monkeypatch, scene_name, True, max_depth, lobe_alpha, sky, lens)
     monkeypatch.undo()
     want = _levels(monkeypatch, scene_name, False, max_depth, lobe_alpha, sky, lens)
@@ -221,6 +224,12 @@ def test_the_compiled_levels_equal_the_numpy_levels(monkeypatch, scene_name, max
         assert len(textured) and np.isin(got[3], textured).any()
     if scene_name == "cornell-box-glossy" and lobe_alpha > 0:
         assert any(gain is not None and (gain != 1).any() for gain in a.gains)  # regularized senders were met
+    if scene_name.endswith("bump.xml"):  # arrivals on the black lamp were met (and left out alike)
+        from igi.common.loader import load_scene
+        from tests.support.paths import ROOT
+
+        black = [i for i, m in enumerate(load_scene(ROOT / scene_name).materials) if m.is_black]
+        assert black and np.isin(got[3], black).any()
 
 
 @pytest.mark.parametrize("max_depth", [-1, 4])
