@@ -9,11 +9,11 @@ import numpy as np
 
 from . import shapes as shp
 from . import transform as tf
+from .limits import fmt_bytes, memory_budget
 from .mitsuba_bsdfs import material_index
 from .mitsuba_doc import Node, Props
 from .obj_mtl import drop_nonfinite, load_obj_mesh, recompute_vertex_normals, remove_degenerate
 from .scene import AREA, Emitter, Mesh
-from .limits import fmt_bytes, memory_budget
 from .scene_root import read_bytes
 
 
@@ -105,7 +105,8 @@ def load_shape(loader, node: Node, outer: np.ndarray | None = None, instance: st
         if fn is None:
             raise loader.error(node, f"<shape type='{kind}'> needs a 'filename'")
         path = loader.resolve(fn, node)
-        option = p.bool("flip_tex_coords", True) if kind == "obj" else p.int("shape_index", 0) if kind == "serialized" else 0
+        option = {"obj": lambda: p.bool("flip_tex_coords", True), "serialized": lambda: p.int("shape_index", 0),
+                  "ply": lambda: 0}[kind]()
         v, f, n, uv, stored = _mesh_file(loader, kind, path, fn, option)
         if kind == "serialized":  # Mitsuba's name: the one stored with the mesh, or file@index
             name = name or stored or f"{Path(fn).name}@{option}"

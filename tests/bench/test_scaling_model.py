@@ -107,7 +107,7 @@ def test_bytes_per_frame_and_shared_host_contention():
 
 def test_networks_order_and_set_reuse():
     c = _costs(set_build_s=0.03)
-    fast, mid, slow = (simulate(c, Config(workers=64, width=1920, height=1080, network=n, frames=8, warmup=3,
+    fast, mid, slow = (simulate(c, Config(workers=64, width=1920, height=1080, network=n, frames=4, warmup=2,
                                                      task_pixels=4096)).fps
                        for n in reversed(NETWORKS))
     assert fast >= mid >= slow

@@ -44,8 +44,8 @@ CASES = {
     "cornell-box-water": (2, 2),
     "veach-ajar": (4, 8),
     "veach-bidir": (2, 4),
-    "modern-hall": (8, 32),
-    "grey-white-room": (8, 32),
+    "modern-hall": (8, 16),
+    "grey-white-room": (8, 24),
 }
 
 

@@ -278,7 +278,7 @@ def test_compiled_carry_back_equals_numpy_add_at():
 
 def test_light_crossing_a_water_surface_between_diffuse_bounces_is_not_lost(monkeypatch):
     """cornell-box-water's indirect light (the reference's full minus its direct light, blocks
-    that see the lamp left out) at 80×60 after 24 frames is within 5% of the Mitsuba
+    that see the lamp left out) at 80×60 after 12 frames is within 5% of the Mitsuba
     reference's. The floor under the water lights itself through the surface's total internal
     reflection and the walls above through the surface: D S D S D paths that only chains of
     chains carry (final_gather.lensed_levels). With one chain an end point (LENSED_DEPTH 1)
@@ -300,9 +300,9 @@ def test_light_crossing_a_water_surface_between_diffuse_bounces_is_not_lost(monk
         img = render_local(scene, {"seed": 0}, frames, width=ref.shape[1], height=ref.shape[0], renderer=r)[..., :3]
         return float((img - direct)[keep].sum() / (ref - direct)[keep].sum())
 
-    ratio = indirect_ratio(24)
+    ratio = indirect_ratio(12)  # (seeds 0-2: 0.985-1.003)
     monkeypatch.setattr(fg, "LENSED_DEPTH", 1)
-    one_chain = indirect_ratio(8)  # (a bias of 10-14%: fewer frames tell it)
+    one_chain = indirect_ratio(4)  # (a bias of 10-16%: fewer frames tell it; seeds 0-1: 0.84-0.88)
     print(f"indirect light / reference: {ratio:.3f} (one chain: {one_chain:.3f})")
     assert 0.95 <= ratio <= 1.05
     assert one_chain < 0.93
