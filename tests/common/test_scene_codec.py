@@ -95,6 +95,8 @@ def _blob_of(tree) -> bytes:
     (lambda t: t.pop("camera"), "missing"),
     (lambda t: t["materials"][0]["diffuse"].update(uv_scale=[1, 2]), "tuple"),
     (lambda t: t["camera"].update(rfilter="sinc"), "unknown reconstruction filter 'sinc'"),
+    (lambda t: t["camera"].update(aperture_radius=-1.0), "thin lens: aperture radius -1.0"),
+    (lambda t: t["camera"].update(aperture_radius=0.1, focus_distance=0.0), "focus distance 0.0"),
     (lambda t: t["camera"].update(rfilter="gaussian", rfilter_params={"__tuple__": [float("nan"), 0.0]}),
      "not finite"),
 ])
