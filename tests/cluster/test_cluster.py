@@ -118,9 +118,9 @@ def local_frame_images(scene, pdict, count):
     return out
 
 
-def test_sigkill_workers_during_20_frames(scene, procs):
+def test_sigkill_workers_during_14_frames(scene, procs):
     pdict = params_to_dict(make_params(photons=0, accumulate=True))
-    frames = 20
+    frames = 14
     refs = local_frame_images(scene, pdict, frames)
     rng = random.Random(20020)
     kills = []

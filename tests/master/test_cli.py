@@ -29,7 +29,7 @@ def test_render_exr_and_png(tmp_path):
     from igi.common.image_io import read_image
 
     exr, png = tmp_path / "cb.exr", tmp_path / "cb.png"
-    r = igi("render", CORNELL, "-o", exr, "--width", 64, "--height", 64, "--frames", 2, "--workers", 2)
+    r = igi("render", CORNELL, "-o", exr, "--width", 64, "--height", 64, "--frames", 2, "--workers", 1)
     assert r.returncode == 0, r.stderr
     assert "2/2 frames" in r.stderr, "progress on stderr"
     img = read_image(exr)

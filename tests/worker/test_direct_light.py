@@ -45,7 +45,7 @@ CASES = {
     "veach-ajar": (4, 8),
     "veach-bidir": (2, 4),
     "modern-hall": (8, 16),
-    "grey-white-room": (8, 24),
+    "grey-white-room": (8, 16),
 }
 
 
