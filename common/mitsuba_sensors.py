@@ -95,18 +95,12 @@ def load_rfilter(loader, nodes: list[Node]) -> tuple[str, tuple[float, float]]:
     if kind not in rf.KINDS:
         loader.warn(node, f"unknown reconstruction filter '{kind}'", "using Mitsuba's default gaussian")
         return rf.DEFAULT
-    if kind == "box":  # (Mitsuba 3's box takes no radius)
-        params = (0.5, 0.0)
-    elif kind == "tent":
-        params = (float(p.float("radius", 1.0)), 0.0)
-    elif kind == "gaussian":
-        params = (float(p.float("stddev", 0.5)), 0.0)
-    elif kind == "mitchell":
-        params = (float(p.float("B", 1 / 3)), float(p.float("C", 1 / 3)))
-    elif kind == "lanczos":
-        params = (float(p.int("lobes", 3)), 0.0)
-    else:  # catmullrom: no parameters
-        params = (0.0, 0.0)
+    # the parameters and defaults rf.KINDS declares (Mitsuba 3's box takes no radius: always 0.5)
+    names, defaults = rf.KINDS[kind]
+    names = [] if kind == "box" else [n for n in names.split(", ") if n]
+    defaults = defaults if isinstance(defaults, tuple) else (defaults,)
+    values = [p.int(n, d) if n == "lobes" else p.float(n, d) for n, d in zip(names, defaults)]
+    params = (0.5, 0.0) if kind == "box" else tuple(float(v) for v in values + [0.0, 0.0][len(values):])
     p.finish()
     try:
         rf.validate(kind, params)
