@@ -74,6 +74,10 @@ ROUGHPLASTIC_LOBE = 9
 # A rough dielectric (Mitsuba's roughdielectric, Walter et al. 2007): followed as a chain, as
 # glass is, each crossing at one microfacet normal drawn from those visible from wi.
 ROUGHDIELECTRIC = 10
+# Internal: a rough dielectric's refraction alone, from wi to the other side, with the weight and
+# density of its drawn crossing: rough glass seen from inside takes the emitter samples outside
+# through it (its reflection seen from outside is a rough interface's, ROUGHPLASTIC_LOBE).
+ROUGHDIELECTRIC_T = 11
 
 KIND_NAMES = {
     "diffuse": DIFFUSE,
@@ -89,7 +93,7 @@ KIND_NAMES = {
 # delta BSDFs, and the rough dielectric sampled as one at a drawn microfacet: chains are followed
 SPECULAR_KINDS = (CONDUCTOR, DIELECTRIC, THINDIELECTRIC, ROUGHDIELECTRIC)
 GLOSSY_KINDS = (ROUGHCONDUCTOR, PLASTIC, ROUGHPLASTIC)
-_N_KINDS = ROUGHDIELECTRIC + 1
+_N_KINDS = ROUGHDIELECTRIC_T + 1
 _KIND_TABLES: dict[tuple, np.ndarray] = {}
 
 

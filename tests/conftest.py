@@ -3,6 +3,7 @@ always test this tree. Tests are packages (tests/common/, tests/worker/, tests/m
 tests/bench/, tests/cluster/), imported by pytest as ``tests.<folder>.<file>``; their helpers
 are in tests/support/ (``from tests.support.paths import SHARED``)."""
 import sys
+import time
 from collections import Counter
 from pathlib import Path
 
@@ -39,8 +40,11 @@ def pytest_sessionstart(session):
     if getattr(config.option, "numprocesses", None) and not hasattr(config, "workerinput"):
         from igi.worker.kernels.warm import one_compiler, warm_up
 
+        t0 = time.perf_counter()
         with one_compiler():
             warm_up()
+        # CI's budget is tight: say what the compile (or the cache's load) took
+        sys.stderr.write(f"kernels ready in {time.perf_counter() - t0:.0f} s\n")
 
 
 # Run first: its own install and cold kernel compile take minutes in one test. xdist's loadfile

@@ -24,7 +24,7 @@ from igi.common.geometry import Geometry
 from igi.common.microfacet import lerp_gather
 from igi.common.lights import (VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE, LightSampler, luminance,
                                rays_meet_spheres, to_local, to_world)
-from igi.common.scene import (DIFFUSE, NULL, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC,
+from igi.common.scene import (DIFFUSE, NULL, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHDIELECTRIC_T, ROUGHPLASTIC,
                               ROUGHPLASTIC_DIFFUSE, ROUGHPLASTIC_LOBE, SPECULAR_KINDS, Scene, kind_in)
 
 from .kernels import bsdf_direct as kbd
@@ -188,7 +188,16 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
                                            np.ones((len(lr), 3)), 1, t_hit[lr]))
         sel = np.nonzero(np.any(weight > 0, axis=1))[0]
         branch(lobe[sel], wo[sel], weight[sel], np.zeros(len(sel), bool), pdf[sel])
-    if len(di) and specular_depth > 0 and _allowed(2, max_depth):
+    chains = len(di) and specular_depth > 0 and _allowed(2, max_depth)
+    # rough glass: its light-sample points (design note 48; kernels.eye_paths._glass_lobe)
+    glass = np.zeros(len(di), bool)
+    if chains and light_mis is not None and light_mis.direct_count > 0:
+        glass = sp.kind[di] == ROUGHDIELECTRIC
+        g = di[glass]
+        if len(g):
+            ends.append(_lobe_light_points(idx[g], pos[g], ns[g], ng[g], wi[g], bsdf.glass_lobes(sp.subset(g), wi[g]),
+                                           np.ones((len(g), 3)), 1, t_hit[g]))
+    if chains:
         sp_d = sp.subset(di)
         # (a rough dielectric's microfacet normals, drawn only where there is one, as the kernel)
         u_m = rng.random((len(di), 2)) if (sp_d.kind == ROUGHDIELECTRIC).any() else None
@@ -198,7 +207,7 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
         for ci, (wo, weight, ok) in enumerate(comps):
             sel = np.nonzero(ok & np.any(weight > 0, axis=1))[0]
             if len(sel):
-                branch(di[sel], wo[sel], weight[sel], best[sel] == ci)
+                branch(di[sel], wo[sel], weight[sel], best[sel] == ci, _glass_mis(sp_d, wi[di], wo, sel, glass))
     if branches:
         cat = [np.concatenate(col) for col in zip(*branches)]
         ends.extend(_follow_chains(scene, geom, lights, *cat, unf, env, max_depth, specular_depth, rng,
@@ -272,6 +281,7 @@ def _compiled_eye(scene, geom, lights, origins, dirs, max_depth, specular_depth,
         rp = lobe_lights & (sp.kind == ROUGHPLASTIC)
         if rp.any():
             sp = sp.replaced(kind=np.where(rp, ROUGHPLASTIC_LOBE, sp.kind).astype(sp.kind.dtype))
+        sp = bsdf.glass_lobes(sp, wi, lobe_lights)
         direct_only = lobe_lights if lobe_lights.any() else None
     end = EndPoints(pix, pos, ns, ng, wi, sp, thr, seg, main, dist, direct_only)
     return EyeResult(end, unf, depth, normal)
@@ -380,9 +390,19 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis
         di = np.nonzero(delta)[0]
         if (len(di) == 0 and len(lobe) == 0) or not _allowed(seg + 1, max_depth):
             break
+        glass = np.zeros(len(sp), bool)
+        if light_mis is not None and light_mis.direct_count > 0:  # rough glass's light-sample points
+            glass[di] = sp.kind[di] == ROUGHDIELECTRIC
+            g = np.flatnonzero(glass)
+            if len(g):
+                out.append(_lobe_light_points(pix[g], hpos[g], hns[g], hng[g], wi[g],
+                                              bsdf.glass_lobes(sp.subset(g), wi[g]), thr[g], seg, dist[g]))
         # the delta vertices' rays in one compiled pass; the split lobes' (rare) after them
         src, thr_d, _seg, dirs_d, o_d = delta_bounce(scene.materials, geom, di, hpos, hns, hng, dirs, thr, None,
                                                      hits.material, hits.uv, -1, rng, delta_only=False)
+        mis_d = np.zeros(len(src))
+        if glass.any():
+            mis_d = _glass_mis(sp.subset(src), wi[src], to_local(dirs_d, hns[src]), np.arange(len(src)), glass[src])
         if len(lobe):
             lobe_main = main[lobe] & ~nd_mask[lobe]  # a plastic's layer keeps the pixel's main end point
             wo_l, weight_l, pdf_l, lit, lobe_end = _sample_lobe(lobe_sp, wi[lobe], rng, light_mis)
@@ -394,15 +414,28 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis
             src_l = lobe[kl]
             dirs_l = to_world(wo_l[kl], hns[src_l])
             main = np.concatenate([main[src], lobe_main[kl]])
-            mis_pdf = np.concatenate([np.zeros(len(src)), pdf_l[kl]])
+            mis_pdf = np.concatenate([mis_d, pdf_l[kl]])
             thr = np.concatenate([thr_d, thr[src_l] * weight_l[kl]])
             o = np.concatenate([o_d, geom.offset(hpos[src_l], hng[src_l], dirs_l)])
             dirs = np.concatenate([dirs_d, dirs_l])
             src = np.concatenate([src, src_l])
         else:
-            main, mis_pdf, thr, o, dirs = main[src], np.zeros(len(src)), thr_d, o_d, dirs_d
+            main, mis_pdf, thr, o, dirs = main[src], mis_d, thr_d, o_d, dirs_d
         pix, dist = pix[src], dist[src]
     return out
+
+
+def _glass_mis(sp: "bsdf.SurfacePoints", wi: np.ndarray, wo: np.ndarray, sel: np.ndarray,
+               glass: np.ndarray) -> np.ndarray:
+    """The MIS pdf of the rays ``sel`` sampled at points ``sp`` (local ``wi``, ``wo``): where a
+    rough glass point takes light samples (``glass``) and the ray leaves through the lobe they
+    take (wo's z > 0: bsdf.glass_lobes), that lobe's pdf; 0 (no MIS) elsewhere."""
+    mis = np.zeros(len(sel))
+    lit = np.flatnonzero(glass[sel] & (wo[sel, 2] > 0))
+    if len(lit):
+        q = sel[lit]
+        mis[lit] = bsdf.pdf(bsdf.glass_lobes(sp.subset(q), wi[q]), wi[q], wo[q])
+    return mis
 
 
 def delta_bounce(materials: list, geom: Geometry, src: np.ndarray, pos: np.ndarray, ns: np.ndarray, ng: np.ndarray,
@@ -946,6 +979,11 @@ def _receivers(geom: Geometry, end: EndPoints, sl: slice) -> tuple:
     # Glossy kinds reflect only (no rough dielectric): seen from behind a one-sided one, f = 0.
     layers = vg.receiver_rows(np.ascontiguousarray(kind), np.ascontiguousarray(end.sp.twosided[sl]), wi, DIFFUSE,
                               NULL, ROUGHPLASTIC_DIFFUSE, row)
+    through = np.flatnonzero(kind == ROUGHDIELECTRIC_T)
+    if len(through):  # rough glass seen from inside: lit through it, from the far side
+        row[through] = vg.ROW_GLOSSY
+        side[through] = -side[through]
+        off[through] = -off[through]
     tables, row_tab, inv_tavg = np.ones((1, 2)), np.zeros(n, np.int64), np.ones(n)
     if layers:
         wz = wi[:, 2]

@@ -37,6 +37,7 @@ from igi.common.scene import (
     PLASTIC,
     ROUGHCONDUCTOR,
     ROUGHDIELECTRIC,
+    ROUGHDIELECTRIC_T,
     ROUGHPLASTIC,
     ROUGHPLASTIC_DIFFUSE,
     ROUGHPLASTIC_LOBE,
@@ -365,7 +366,8 @@ def carries(r: float, g: float, b: float) -> bool:
 def _flipped(P, i: int, wiz: float) -> bool:
     """Twosided point seen from the back (transmissive kinds are two-sided by nature)."""
     k = P[0][i]
-    return P[10][i] and wiz < 0.0 and k != DIELECTRIC and k != THINDIELECTRIC and k != ROUGHDIELECTRIC
+    return (P[10][i] and wiz < 0.0 and k != DIELECTRIC and k != THINDIELECTRIC and k != ROUGHDIELECTRIC
+            and k != ROUGHDIELECTRIC_T)
 
 
 @njit(**_KERNEL)
@@ -473,7 +475,59 @@ def _eval_pdf_kind(P, i: int, k: int, wix, wiy, wiz, wox, woy, woz) -> tuple:
         return _diffuse_coef(P, i, 0) * s, _diffuse_coef(P, i, 1) * s, _diffuse_coef(P, i, 2) * s, p
     if k == ROUGHPLASTIC:
         return _rough_plastic(P, i, wix, wiy, wiz, wox, woy, woz)
+    if k == ROUGHDIELECTRIC_T:
+        return _rough_transmission(P, i, wix, wiy, wiz, wox, woy, woz)
     return 0.0, 0.0, 0.0, 0.0  # delta kinds and NULL
+
+
+@njit(**_KERNEL, inline="always")
+def _rough_transmission(P, i: int, wix, wiy, wiz, wox, woy, woz) -> tuple:
+    """``(f·|cos θ_o| rgb, pdf)`` of a rough dielectric's refraction from wi to wo on the other
+    side, as :func:`_rough_dielectric` draws it: pdf the density of its refracted direction —
+    the visible normals' density at the generalized half vector m ∝ wi + η_o/η_i · wo times
+    the refraction's Jacobian η_o²|wo·m| / (η_i wi·m + η_o wo·m)² (Walter et al. 2007, eq. 17)
+    — and f·cos = pdf · (1 − F) · G1(wo) · transmittance · η_ti²: the crossing's own
+    transmission weight (radiance: eye paths are its only use), so that light samples taken
+    through it and the crossing's traced ray are two estimators of one integral (MIS)."""
+    if not wiz * woz < 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    a = P[4][i]
+    beck = P[8][i]
+    eta = P[5][i]
+    eta_m = eta if wiz > 0.0 else 1.0 / eta  # η_o / η_i
+    hx, hy, hz = wix + eta_m * wox, wiy + eta_m * woy, wiz + eta_m * woz
+    hn = math.sqrt(hx * hx + hy * hy + hz * hz)
+    if not hn > 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    s = 1.0 if hz >= 0.0 else -1.0  # (m faces the outside, as the crossing draws it)
+    mx, my, mz = s * hx / hn, s * hy / hn, s * hz / hn
+    c = wix * mx + wiy * my + wiz * mz
+    co = wox * mx + woy * my + woz * mz
+    if not (c * wiz > 0.0 and co * woz > 0.0):
+        return 0.0, 0.0, 0.0, 0.0
+    si = 1.0 if wiz >= 0.0 else -1.0
+    den = c + eta_m * co
+    p = pdf_visible(si * wix, si * wiy, si * wiz, mx, my, mz, a, beck) * eta_m * eta_m * abs(co) / (den * den)
+    r, _cos_t, _eta_it, eta_ti = fresnel_dielectric(c, eta)
+    w = p * (1.0 - r) * smith_g1(wox, woy, woz, mx, my, mz, a, beck) * eta_ti * eta_ti
+    t = P[3]
+    return _fin(w * t[i, 0]), _fin(w * t[i, 1]), _fin(w * t[i, 2]), _fin(p)
+
+
+@njit(**_KERNEL, inline="always")
+def glass_lobe_kind(wiz: float) -> int:
+    """The lobe of rough glass that faces its outside, seen from wi (local z): from outside its
+    reflection (a rough interface's, ROUGHPLASTIC_LOBE), from inside its refraction out
+    (ROUGHDIELECTRIC_T). Emitters are outside; through that lobe rough glass takes the set's
+    emitter samples (worker.kernels.eye_paths, design note 48)."""
+    return ROUGHPLASTIC_LOBE if wiz > 0.0 else ROUGHDIELECTRIC_T
+
+
+@njit(**_KERNEL, inline="always")
+def glass_lobe_pdf(P, i: int, wix: float, wiy: float, wiz: float, wox: float, woy: float, woz: float) -> float:
+    """pdf of wo through :func:`glass_lobe_kind`'s lobe of rough glass row ``i`` of P (as
+    :func:`eval_pdf` of the row relabelled: neither lobe is mirrored for a twosided point)."""
+    return _fin(_eval_pdf_kind(P, i, glass_lobe_kind(wiz), wix, wiy, wiz, wox, woy, woz)[3])
 
 
 @njit(**_KERNEL, inline="always")
@@ -769,6 +823,9 @@ def albedo(P, i: int, wiz: float) -> tuple:
         r = r0 * s[i, 0] + (1.0 - r0) * t[i, 0]
         g = r0 * s[i, 1] + (1.0 - r0) * t[i, 1]
         b = r0 * s[i, 2] + (1.0 - r0) * t[i, 2]
+    elif k == ROUGHDIELECTRIC_T:  # (a scale for the gather's demodulation: the refracted share)
+        t0 = 1.0 - fresnel_dielectric(1.0, P[5][i])[0]
+        r, g, b = t0 * t[i, 0], t0 * t[i, 1], t0 * t[i, 2]
     elif k == PLASTIC:
         eta = P[5][i]
         f_i = fresnel_dielectric(c, eta)[0]

@@ -18,7 +18,9 @@ from igi.common.scene import (
     PLASTIC,
     ROUGHCONDUCTOR,
     ROUGHDIELECTRIC,
+    ROUGHDIELECTRIC_T,
     ROUGHPLASTIC,
+    ROUGHPLASTIC_LOBE,
     THINDIELECTRIC,
     Material,
     Texture,
@@ -339,15 +341,10 @@ def test_dielectric_snell_and_total_internal_reflection():
     np.testing.assert_allclose(p[tir], 1.0)
 
 
-def _walter_rough_dielectric(alpha, beckmann, eta, wi, n=600):
-    """(reflected, transmitted) ∫ f |cos θo| dωo of a rough dielectric (Walter et al. 2007 with
-    the separable Smith term, as Mitsuba's roughdielectric evaluates it, radiance mode) by a
-    midpoint grid over the sphere: its own half vectors and NDF, not the sampler's."""
-    th = (np.arange(n) + 0.5) / n * np.pi
-    ph = (np.arange(2 * n) + 0.5) / (2 * n) * 2 * np.pi
-    t, p = np.meshgrid(th, ph, indexing="ij")
-    wo = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1).reshape(-1, 3)
-    dw = (np.pi / n) ** 2 * np.sin(t).ravel()
+def _walter_values(alpha, beckmann, eta, wi, wo):
+    """(reflected, transmitted) f |cos θo| of a rough dielectric toward each ``wo`` (Walter et
+    al. 2007 with the separable Smith term, as Mitsuba's roughdielectric evaluates it, radiance
+    mode), each 0 on the other's side: its own half vectors and NDF, not the sampler's."""
     ci = wi[2]
     refl = ci * wo[:, 2] > 0
     e = eta if ci > 0 else 1 / eta  # η_o / η_i
@@ -366,7 +363,56 @@ def _walter_rough_dielectric(alpha, beckmann, eta, wi, n=600):
     with np.errstate(invalid="ignore", divide="ignore"):
         fr = f * d * g / (4 * abs(ci))
         ft = np.abs((1 / e) ** 2 * (1 - f) * d * g * e * e * dim * dom / (ci * (dim + e * dom) ** 2))
-    return (np.nan_to_num(np.where(refl, fr, 0.0)) @ dw, np.nan_to_num(np.where(refl, 0.0, ft)) @ dw)
+    return np.nan_to_num(np.where(refl, fr, 0.0)), np.nan_to_num(np.where(refl, 0.0, ft))
+
+
+def _sphere_grid(n):
+    """Midpoints of an (n × 2n) θ, φ grid over the sphere and their solid angles."""
+    th = (np.arange(n) + 0.5) / n * np.pi
+    ph = (np.arange(2 * n) + 0.5) / (2 * n) * 2 * np.pi
+    t, p = np.meshgrid(th, ph, indexing="ij")
+    wo = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1).reshape(-1, 3)
+    return wo, (np.pi / n) ** 2 * np.sin(t).ravel()
+
+
+def _walter_rough_dielectric(alpha, beckmann, eta, wi, n=600):
+    """(reflected, transmitted) ∫ f |cos θo| dωo of :func:`_walter_values` by a midpoint grid."""
+    wo, dw = _sphere_grid(n)
+    fr, ft = _walter_values(alpha, beckmann, eta, wi, wo)
+    return fr @ dw, ft @ dw
+
+
+@pytest.mark.parametrize("dist, alpha, eta, theta", [("ggx", 0.3, 1.5, 0.8), ("beckmann", 0.2, 1.5, np.pi - 0.4),
+                                                     ("ggx", 0.6, 1.33, 1.3), ("ggx", 0.5, 1.33, np.pi - 0.3),
+                                                     ("beckmann", 0.1, 1.5, np.pi - 1.2)])
+def test_rough_glass_lobe_facing_out_is_walters_bsdf_with_the_crossings_density(dist, alpha, eta, theta):
+    """The lobe through which rough glass takes light samples (bsdf.glass_lobes: from outside
+    its reflection, from inside its refraction out, ROUGHDIELECTRIC_T) evaluates to Walter's
+    BSDF on that side, direction by direction; its pdf integrates to the share of the crossing's
+    draws that leave through it, and at each drawn direction pdf × the draw's weight is the
+    BSDF there — the two estimators MIS weighs against each other see one integrand."""
+    n = 20_000
+    mat = Material("rg", ROUGHDIELECTRIC, alpha=alpha, distribution=dist, int_ior=eta, ext_ior=1.0)
+    wi = np.array([np.sin(theta), 0.0, np.cos(theta)])
+    grid, dw = _sphere_grid(300)
+    outside = grid[:, 2] > 0  # the lobe's side: the emitters'
+    sp = bsdf.glass_lobes(_sp(mat, len(grid)), np.tile(wi, (len(grid), 1)))
+    assert np.all(sp.kind == (ROUGHPLASTIC_LOBE if wi[2] > 0 else ROUGHDIELECTRIC_T))
+    want = _walter_values(alpha, dist == "beckmann", float(np.float32(eta)), wi, grid)[0 if wi[2] > 0 else 1]
+    got = bsdf.eval(sp, np.tile(wi, (len(grid), 1)), grid)[:, 0]
+    np.testing.assert_allclose(got[outside], want[outside], rtol=1e-6, atol=1e-9)
+    assert np.all(got[~outside] == 0)
+    pdf = bsdf.pdf(sp, np.tile(wi, (len(grid), 1)), grid)
+    # the crossing's draws (both branches at one microfacet each) that leave through the lobe
+    u2 = _rng(23).random((n, 2))
+    comps = bsdf.specular_components(_sp(mat, n), np.tile(wi, (n, 1)), u2=u2)
+    wo, w, ok = comps[0] if wi[2] > 0 else comps[1]
+    leave = ok & (wo[:, 2] > 0)
+    np.testing.assert_allclose(pdf @ dw, leave.mean(), atol=0.01)
+    lobe = bsdf.glass_lobes(_sp(mat, int(leave.sum())), np.tile(wi, (int(leave.sum()), 1)))
+    f = bsdf.eval(lobe, np.tile(wi, (len(lobe), 1)), wo[leave])[:, 0]
+    p = bsdf.pdf(lobe, np.tile(wi, (len(lobe), 1)), wo[leave])
+    np.testing.assert_allclose(p * w[leave, 0], f, rtol=1e-6, atol=1e-12)
 
 
 @pytest.mark.parametrize("dist, alpha, eta, theta", [("ggx", 0.3, 1.5, 0.8), ("beckmann", 0.2, 1.5, np.pi - 0.4),

@@ -123,6 +123,51 @@ def test_smooth_plastics_split_into_layer_and_mirror_ray_equal_the_numpy_eye_pat
     assert end.direct_only is None  # a mirror takes no light samples
 
 
+def test_rough_glass_takes_light_samples_through_the_lobe_facing_out_as_the_numpy_eye_paths(monkeypatch):
+    """With the set's emitter samples (LightMIS), each hit on rough glass is also a direct-only
+    point whose BSDF is the lobe facing the outside: seen from outside its reflection (a rough
+    plastic's coat lobe of the glass's α, η and colour), from inside its refraction out
+    (ROUGHDIELECTRIC_T); the emission a ray leaving through that lobe meets is MIS-weighted
+    against those samples. The compiled eye paths equal the numpy form, draws included, and
+    the traced rays that meet the lamp give it less than their whole light."""
+    from igi.common.camera import camera_rays, resolve_camera
+    from igi.common.mitsuba_xml import load_mitsuba
+    from igi.common.scene import ROUGHDIELECTRIC, ROUGHDIELECTRIC_T, ROUGHPLASTIC_LOBE
+    from igi.worker.shading import LightMIS
+    from tests.support.paths import ROOT
+
+    scene = load_mitsuba(ROOT / "tests/data/roughglass/roughglass.xml")
+    got = _eye(monkeypatch, True, -1, False, scene=scene, light_mis=LightMIS(4))
+    monkeypatch.undo()
+    want = _eye(monkeypatch, False, -1, False, scene=scene, light_mis=LightMIS(4))
+    _same_eye(got, want)
+    plain = _eye(monkeypatch, True, -1, False, scene=scene)[0]  # (the light-sample points draw nothing)
+    end = got[0].end
+    out = end.direct_only & (end.sp.kind == ROUGHPLASTIC_LOBE)
+    through = end.direct_only & (end.sp.kind == ROUGHDIELECTRIC_T)
+    # at the first hits: one a pixel whose first hit is rough glass (from outside), at that hit
+    cam, fov, w, h = resolve_camera(scene, None, 96, 72)
+    ys, xs = np.divmod(np.arange(w * h), w)
+    o, d = camera_rays(cam, fov, w, h, xs, ys)
+    hits = Geometry(scene).intersect(o, d)
+    kind = np.array([m.kind for m in scene.materials] + [-1])[hits.material]
+    on_glass = np.flatnonzero(hits.valid & (kind == ROUGHDIELECTRIC))
+    assert len(on_glass) > 300
+    first = out & (end.segments == 1)
+    np.testing.assert_array_equal(np.sort(end.pixel[first]), on_glass)
+    np.testing.assert_allclose(end.distance[first], hits.t[end.pixel[first]])
+    # along the chains: leaving the balls and the pane from inside, reflected off them outside
+    assert np.count_nonzero(through) > 300 and np.all(end.segments[through] > 1)
+    assert np.all(end.wi[through, 2] < 0) and np.all(end.wi[out, 2] > 0)
+    assert np.count_nonzero(out & (end.segments > 1)) > 0
+    rough = [m for m in scene.materials if m.kind == ROUGHDIELECTRIC]
+    np.testing.assert_allclose(np.unique(end.sp.alpha[out | through]), sorted(m.alpha for m in rough), rtol=1e-6)
+    # same paths, same draws: the MIS weights only take light away from the traced rays
+    assert np.all(got[0].unfiltered <= plain.unfiltered + 1e-12)
+    assert got[0].unfiltered.sum() < 0.9 * plain.unfiltered[on_glass].sum() + plain.unfiltered.sum() - \
+        plain.unfiltered[on_glass].sum()
+
+
 def test_rough_glass_crossed_at_drawn_microfacets_equals_the_numpy_eye_paths(monkeypatch):
     """tests/data/roughglass (a frosted pane, a satin and a milky glass ball): each first hit on
     rough glass split at one drawn microfacet normal, the chains behind sampling theirs — the

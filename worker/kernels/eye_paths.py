@@ -66,6 +66,16 @@ def _carries_any(w0, w1, w2) -> bool:
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _glass_lobe(kind, row) -> bool:
+    """A hit on rough glass: a direct-only point through the lobe that faces the outside (where
+    the emitters are: its reflection seen from outside, its refraction out seen from inside;
+    common.kernels.bsdf.glass_lobe_kind) takes the set's emitter samples, and the traced ray
+    that leaves through that lobe their MIS weight (design note 48): emitters seen through
+    frosted glass were met by chance only."""
+    return kind[row] == ROUGHDIELECTRIC
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _sample_lobes(P, P_lobe, with_pdf, row, wi, u, out_wo, out_w, out_pdf) -> None:
     """Each point's sampled lobe ray (kb.sample_lobe) and, ``with_pdf``, its lobe pdf under
     ``P_lobe`` (the MIS weight against the light samples; 0 for a smooth plastic's mirror, a
@@ -87,9 +97,10 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
     — pixel, position, ns, ng, wi, material, uv, throughput, segments, main, distance, code —
     in pixel order (a smooth glossy one, where a chain may start: a plastic's diffuse layer
     only, code LAYER; a conductor none); then the split lobes' light-sample points (code
-    LOBE_LIGHTS); then, where a chain may start, the lobes' sampled rays and each mirror/glass
-    hit's reflected and transmitted rays (all reflections first, then all transmissions; the
-    brighter one the pixel's main) followed by :func:`_chains`, their end points after.
+    LOBE_LIGHTS), then rough glass's (:func:`_glass_lobe`); then, where a
+    chain may start, the lobes' sampled rays and each mirror/glass hit's reflected and
+    transmitted rays (all reflections first, then all transmissions; the brighter one the
+    pixel's main) followed by :func:`_chains`, their end points after.
     ``lobes``: (split smooth glossy hits?, smooth per material row, P with the plastics' kind
     their lobe's, light samples per set (0: the lobes take none, no MIS), area pdf per emitter
     (a last row of 0), the environment's pdf — its emitter-choice probability where guided or a
@@ -176,6 +187,17 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
                 _put_end(ends, done, i, i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv, 1.0, 1.0,
                          1.0, 1, False, htt[i], LOBE_LIGHTS)
                 done += 1
+    # rough glass: its light-sample points (design note 48)
+    glass_lights = chains and direct_count > 0
+    if glass_lights:
+        for q in range(n_delta):
+            i = delta[q]
+            if _glass_lobe(kind, prow[i]):
+                if done >= room:
+                    return -1, p
+                _put_end(ends, done, i, i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv, 1.0, 1.0,
+                         1.0, 1, False, htt[i], LOBE_LIGHTS)
+                done += 1
     first = done
     if not chains or (n_delta == 0 and n_lobe == 0):
         return done, p
@@ -220,6 +242,9 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
                 lx, ly, lz = comp[q, at], comp[q, at + 1], comp[q, at + 2]
                 w0, w1, w2 = comp[q, at + 3], comp[q, at + 4], comp[q, at + 5]
                 is_main, pdf = best[q] == c, 0.0
+                if glass_lights and lz > 0.0 and _glass_lobe(kind, prow[i]):
+                    # leaving through the lobe its light samples take: weighed against them
+                    pdf = kb.glass_lobe_pdf(P, prow[i], wi[i, 0], wi[i, 1], wi[i, 2], lx, ly, lz)
             if not _carries_any(w0, w1, w2):
                 continue
             dx, dy, dz = shading_frame.to_world(lx, ly, lz, hns[i, 0], hns[i, 1], hns[i, 2])
@@ -368,6 +393,16 @@ def _chains(P, kind, specular, null_kind, rng, closest, rays, live, specular_dep
             done += 1
         if (n_di == 0 and n_lobe == 0) or not (max_depth < 0 or seg + 1 <= max_depth):
             break
+        glass_lights = direct_count > 0
+        if glass_lights:  # rough glass's light-sample points (design note 48), before the lobes'
+            for q in range(n_di):
+                i = di[q]
+                if _glass_lobe(kind, prow[i]):
+                    if done >= room:
+                        return -1, traced
+                    _put_end(ends, done, pix[i], i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv,
+                             thr[i, 0], thr[i, 1], thr[i, 2], seg, False, dist[i], LOBE_LIGHTS)
+                    done += 1
         u1 = rng.random(n_di)
         u2 = rng.random((n_di, 2))
         # (np.int64/np.bool_: a literal argument would compile delta_bounce once more, ~10 s cold)
@@ -380,6 +415,10 @@ def _chains(P, kind, specular, null_kind, rng, closest, rays, live, specular_dep
             nmain[j] = main[i]
             ndist[j] = dist[i]
             nmis[j] = 0.0
+            if glass_lights and _glass_lobe(kind, prow[i]):
+                ox, oy, oz = shading_frame.to_local(bd[j, 0], bd[j, 1], bd[j, 2], hns[i, 0], hns[i, 1], hns[i, 2])
+                if oz > 0.0:  # leaving through the lobe its light samples take: weighed against them
+                    nmis[j] = kb.glass_lobe_pdf(P, prow[i], wi[i, 0], wi[i, 1], wi[i, 2], ox, oy, oz)
             for a in range(3):
                 nthr[j, a] = bthr[j, a]
                 nd[j, a] = bd[j, a]
