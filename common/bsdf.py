@@ -36,6 +36,7 @@ from igi.common.scene import (
     PLASTIC,
     ROUGHCONDUCTOR,
     ROUGHDIELECTRIC,
+    ROUGHDIELECTRIC_R,
     ROUGHDIELECTRIC_T,
     ROUGHPLASTIC,
     ROUGHPLASTIC_DIFFUSE,
@@ -249,8 +250,7 @@ def _material_tables(materials: list[Material]) -> dict:
         "twos": table(lambda t: bool(t.twosided), dtype=bool, null=False),
         "spec_weight": table(sw, null=0.5),
     }
-    # rough glass too: its reflection lobe (lobe_only) is a coat's, its albedo read from them
-    rough = np.isin(tables["kind"], ROUGH_PLASTIC_KINDS + (ROUGHDIELECTRIC,))
+    rough = np.isin(tables["kind"], ROUGH_PLASTIC_KINDS)
     coat = np.zeros(m + 1, np.int64)
     if rough.any():  # tables of every rough plastic of the list, computed once per process
         coat[rough] = coat_tables.rows(tables["alpha"][rough], tables["eta"][rough], tables["beck"][rough])
@@ -632,20 +632,24 @@ def lobe_only(sp: SurfacePoints) -> SurfacePoints:
     return sp.replaced(kind=np.where(rp, ROUGHPLASTIC_LOBE, sp.kind).astype(sp.kind.dtype))
 
 
-def glass_lobes(sp: SurfacePoints, wi: np.ndarray, rows: np.ndarray | None = None) -> SurfacePoints:
-    """Rough glass points (of ``rows``, a mask; None: all) as the lobe through which they take
-    the set's emitter samples (kernels.bsdf.glass_lobe_kind): seen from outside (wi's z > 0)
-    their reflection, a rough interface's (ROUGHPLASTIC_LOBE: a rough plastic's coat of the
-    glass's α, η and specular colour), from inside their refraction out (ROUGHDIELECTRIC_T);
-    eval/pdf/albedo of the result are that lobe's, its pdf the density with which the crossing
-    draws the direction (design note 48)."""
+def glass_lobes(sp: SurfacePoints, lobe, rows: np.ndarray | None = None) -> SurfacePoints:
+    """Rough glass points (of ``rows``, a mask; None: all) as one lobe of theirs alone, ``lobe``
+    (per point or one for all) ROUGHDIELECTRIC_R (the reflection, on wi's side) or
+    ROUGHDIELECTRIC_T (the refraction, to the other side): eval/pdf/albedo of the result are that
+    lobe's, its pdf the density with which the crossing draws the direction (design note 48)."""
     glass = sp.kind == ROUGHDIELECTRIC
     if rows is not None:
         glass &= rows
     if not glass.any():
         return sp
-    lobe = np.where(np.asarray(wi)[:, 2] > 0, ROUGHPLASTIC_LOBE, ROUGHDIELECTRIC_T)
     return sp.replaced(kind=np.where(glass, lobe, sp.kind).astype(sp.kind.dtype))
+
+
+def outward_lobe(wi: np.ndarray) -> np.ndarray:
+    """Per point seen from local ``wi``, rough glass's lobe that faces its outside (ng's side,
+    where the emitters are): from outside its reflection (ROUGHDIELECTRIC_R), from inside its
+    refraction out (ROUGHDIELECTRIC_T) — kernels.bsdf.glass_lobe_pdf's choice for wo outside."""
+    return np.where(np.asarray(wi)[:, 2] > 0, ROUGHDIELECTRIC_R, ROUGHDIELECTRIC_T)
 
 
 def specular_components(sp: SurfacePoints, wi: np.ndarray, mode: str = "radiance", u2: np.ndarray | None = None):

@@ -74,10 +74,11 @@ ROUGHPLASTIC_LOBE = 9
 # A rough dielectric (Mitsuba's roughdielectric, Walter et al. 2007): followed as a chain, as
 # glass is, each crossing at one microfacet normal drawn from those visible from wi.
 ROUGHDIELECTRIC = 10
-# Internal: a rough dielectric's refraction alone, from wi to the other side, with the weight and
-# density of its drawn crossing: rough glass seen from inside takes the emitter samples outside
-# through it (its reflection seen from outside is a rough interface's, ROUGHPLASTIC_LOBE).
-ROUGHDIELECTRIC_T = 11
+# Internal: a rough dielectric's reflection alone (on wi's side) and its refraction alone (to the
+# other side), each with the weight and density of its drawn crossing: the two direct-only points
+# through which a hit on rough glass takes the set's emitter samples (design note 48).
+ROUGHDIELECTRIC_R = 11
+ROUGHDIELECTRIC_T = 12
 
 KIND_NAMES = {
     "diffuse": DIFFUSE,

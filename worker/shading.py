@@ -24,8 +24,9 @@ from igi.common.geometry import Geometry
 from igi.common.microfacet import lerp_gather
 from igi.common.lights import (VPL_AREA, VPL_DIRECTIONAL, VPL_SPOT, VPL_SURFACE, LightSampler, luminance,
                                rays_meet_spheres, to_local, to_world)
-from igi.common.scene import (DIFFUSE, NULL, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHDIELECTRIC_T, ROUGHPLASTIC,
-                              ROUGHPLASTIC_DIFFUSE, ROUGHPLASTIC_LOBE, SPECULAR_KINDS, Scene, kind_in)
+from igi.common.scene import (DIFFUSE, NULL, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHDIELECTRIC_R,
+                              ROUGHDIELECTRIC_T, ROUGHPLASTIC, ROUGHPLASTIC_DIFFUSE, ROUGHPLASTIC_LOBE, SPECULAR_KINDS,
+                              Scene, kind_in)
 
 from .kernels import bsdf_direct as kbd
 from .kernels import bsdf_rays as br
@@ -194,9 +195,8 @@ def trace_eye(scene: Scene, geom: Geometry, lights: LightSampler, origins: np.nd
     if chains and light_mis is not None and light_mis.direct_count > 0:
         glass = sp.kind[di] == ROUGHDIELECTRIC
         g = di[glass]
-        if len(g):
-            ends.append(_lobe_light_points(idx[g], pos[g], ns[g], ng[g], wi[g], bsdf.glass_lobes(sp.subset(g), wi[g]),
-                                           np.ones((len(g), 3)), 1, t_hit[g]))
+        ends.extend(_glass_light_points(idx[g], pos[g], ns[g], ng[g], wi[g], sp.subset(g), np.ones((len(g), 3)), 1,
+                                        t_hit[g]))
     if chains:
         sp_d = sp.subset(di)
         # (a rough dielectric's microfacet normals, drawn only where there is one, as the kernel)
@@ -281,7 +281,10 @@ def _compiled_eye(scene, geom, lights, origins, dirs, max_depth, specular_depth,
         rp = lobe_lights & (sp.kind == ROUGHPLASTIC)
         if rp.any():
             sp = sp.replaced(kind=np.where(rp, ROUGHPLASTIC_LOBE, sp.kind).astype(sp.kind.dtype))
-        sp = bsdf.glass_lobes(sp, wi, lobe_lights)
+        glass = code == ek.GLASS_LIGHTS
+        if glass.any():  # rough glass's light-sample points, through the lobe facing out
+            sp = bsdf.glass_lobes(sp, bsdf.outward_lobe(wi), glass)
+            lobe_lights = lobe_lights | glass
         direct_only = lobe_lights if lobe_lights.any() else None
     end = EndPoints(pix, pos, ns, ng, wi, sp, thr, seg, main, dist, direct_only)
     return EyeResult(end, unf, depth, normal)
@@ -394,9 +397,7 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis
         if light_mis is not None and light_mis.direct_count > 0:  # rough glass's light-sample points
             glass[di] = sp.kind[di] == ROUGHDIELECTRIC
             g = np.flatnonzero(glass)
-            if len(g):
-                out.append(_lobe_light_points(pix[g], hpos[g], hns[g], hng[g], wi[g],
-                                              bsdf.glass_lobes(sp.subset(g), wi[g]), thr[g], seg, dist[g]))
+            out.extend(_glass_light_points(pix[g], hpos[g], hns[g], hng[g], wi[g], sp.subset(g), thr[g], seg, dist[g]))
         # the delta vertices' rays in one compiled pass; the split lobes' (rare) after them
         src, thr_d, _seg, dirs_d, o_d = delta_bounce(scene.materials, geom, di, hpos, hns, hng, dirs, thr, None,
                                                      hits.material, hits.uv, -1, rng, delta_only=False)
@@ -425,16 +426,25 @@ def _follow_chains(scene, geom, lights, pix, pos, ng, dirs, thr, main, dist, mis
     return out
 
 
+def _glass_light_points(pix, pos, ns, ng, wi, sp, thr, segments: int, dist) -> list[EndPoints]:
+    """Rough glass hits' light-sample points (kernels.eye_paths._glass_lobe): each through its
+    lobe that faces the outside (bsdf.outward_lobe)."""
+    if len(pix) == 0:
+        return []
+    return [_lobe_light_points(pix, pos, ns, ng, wi, bsdf.glass_lobes(sp, bsdf.outward_lobe(wi)), thr, segments,
+                               dist)]
+
+
 def _glass_mis(sp: "bsdf.SurfacePoints", wi: np.ndarray, wo: np.ndarray, sel: np.ndarray,
                glass: np.ndarray) -> np.ndarray:
     """The MIS pdf of the rays ``sel`` sampled at points ``sp`` (local ``wi``, ``wo``): where a
     rough glass point takes light samples (``glass``) and the ray leaves through the lobe they
-    take (wo's z > 0: bsdf.glass_lobes), that lobe's pdf; 0 (no MIS) elsewhere."""
+    take (wo's z > 0: bsdf.outward_lobe), that lobe's pdf; 0 (no MIS) elsewhere."""
     mis = np.zeros(len(sel))
     lit = np.flatnonzero(glass[sel] & (wo[sel, 2] > 0))
     if len(lit):
         q = sel[lit]
-        mis[lit] = bsdf.pdf(bsdf.glass_lobes(sp.subset(q), wi[q]), wi[q], wo[q])
+        mis[lit] = bsdf.pdf(bsdf.glass_lobes(sp.subset(q), bsdf.outward_lobe(wi[q])), wi[q], wo[q])
     return mis
 
 
@@ -979,9 +989,10 @@ def _receivers(geom: Geometry, end: EndPoints, sl: slice) -> tuple:
     # Glossy kinds reflect only (no rough dielectric): seen from behind a one-sided one, f = 0.
     layers = vg.receiver_rows(np.ascontiguousarray(kind), np.ascontiguousarray(end.sp.twosided[sl]), wi, DIFFUSE,
                               NULL, ROUGHPLASTIC_DIFFUSE, row)
-    through = np.flatnonzero(kind == ROUGHDIELECTRIC_T)
-    if len(through):  # rough glass seen from inside: lit through it, from the far side
-        row[through] = vg.ROW_GLOSSY
+    glass = np.flatnonzero((kind == ROUGHDIELECTRIC_R) | (kind == ROUGHDIELECTRIC_T))
+    if len(glass):  # rough glass's lobes light it from their side (its refraction: the far one)
+        row[glass] = vg.ROW_GLOSSY
+        through = glass[kind[glass] == ROUGHDIELECTRIC_T]
         side[through] = -side[through]
         off[through] = -off[through]
     tables, row_tab, inv_tavg = np.ones((1, 2)), np.zeros(n, np.int64), np.ones(n)

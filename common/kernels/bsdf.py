@@ -37,6 +37,7 @@ from igi.common.scene import (
     PLASTIC,
     ROUGHCONDUCTOR,
     ROUGHDIELECTRIC,
+    ROUGHDIELECTRIC_R,
     ROUGHDIELECTRIC_T,
     ROUGHPLASTIC,
     ROUGHPLASTIC_DIFFUSE,
@@ -367,7 +368,7 @@ def _flipped(P, i: int, wiz: float) -> bool:
     """Twosided point seen from the back (transmissive kinds are two-sided by nature)."""
     k = P[0][i]
     return (P[10][i] and wiz < 0.0 and k != DIELECTRIC and k != THINDIELECTRIC and k != ROUGHDIELECTRIC
-            and k != ROUGHDIELECTRIC_T)
+            and k != ROUGHDIELECTRIC_R and k != ROUGHDIELECTRIC_T)
 
 
 @njit(**_KERNEL)
@@ -475,9 +476,38 @@ def _eval_pdf_kind(P, i: int, k: int, wix, wiy, wiz, wox, woy, woz) -> tuple:
         return _diffuse_coef(P, i, 0) * s, _diffuse_coef(P, i, 1) * s, _diffuse_coef(P, i, 2) * s, p
     if k == ROUGHPLASTIC:
         return _rough_plastic(P, i, wix, wiy, wiz, wox, woy, woz)
+    if k == ROUGHDIELECTRIC_R:
+        return _rough_reflection(P, i, wix, wiy, wiz, wox, woy, woz)
     if k == ROUGHDIELECTRIC_T:
         return _rough_transmission(P, i, wix, wiy, wiz, wox, woy, woz)
     return 0.0, 0.0, 0.0, 0.0  # delta kinds and NULL
+
+
+@njit(**_KERNEL, inline="always")
+def _rough_reflection(P, i: int, wix, wiy, wiz, wox, woy, woz) -> tuple:
+    """``(f·|cos θ_o| rgb, pdf)`` of a rough dielectric's reflection from wi to wo on its side
+    (outside or in), as :func:`_rough_dielectric` draws it: pdf the density of its reflected
+    direction (the visible normals' density at the half vector m, over 4|wo·m|) and f·cos =
+    pdf · F · G1(wo) · specular, the crossing's reflection weight (F = 1 past the critical angle)."""
+    if not wiz * woz > 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    hx, hy, hz = wix + wox, wiy + woy, wiz + woz
+    hn = math.sqrt(hx * hx + hy * hy + hz * hz)
+    if not hn > 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    s = 1.0 if hz >= 0.0 else -1.0  # (m faces the outside, as the crossing draws it)
+    mx, my, mz = s * hx / hn, s * hy / hn, s * hz / hn
+    c = wix * mx + wiy * my + wiz * mz
+    if not c * wiz > 1e-9:  # (m visible from wi; wi·m ~ 0: see _well_posed)
+        return 0.0, 0.0, 0.0, 0.0
+    a = P[4][i]
+    beck = P[8][i]
+    si = 1.0 if wiz >= 0.0 else -1.0
+    p = pdf_visible(si * wix, si * wiy, si * wiz, mx, my, mz, a, beck) / (4.0 * abs(c))
+    r = fresnel_dielectric(c, P[5][i])[0]
+    w = p * r * smith_g1(wox, woy, woz, mx, my, mz, a, beck)
+    sp = P[2]
+    return _fin(w * sp[i, 0]), _fin(w * sp[i, 1]), _fin(w * sp[i, 2]), _fin(p)
 
 
 @njit(**_KERNEL, inline="always")
@@ -515,19 +545,12 @@ def _rough_transmission(P, i: int, wix, wiy, wiz, wox, woy, woz) -> tuple:
 
 
 @njit(**_KERNEL, inline="always")
-def glass_lobe_kind(wiz: float) -> int:
-    """The lobe of rough glass that faces its outside, seen from wi (local z): from outside its
-    reflection (a rough interface's, ROUGHPLASTIC_LOBE), from inside its refraction out
-    (ROUGHDIELECTRIC_T). Emitters are outside; through that lobe rough glass takes the set's
-    emitter samples (worker.kernels.eye_paths, design note 48)."""
-    return ROUGHPLASTIC_LOBE if wiz > 0.0 else ROUGHDIELECTRIC_T
-
-
-@njit(**_KERNEL, inline="always")
 def glass_lobe_pdf(P, i: int, wix: float, wiy: float, wiz: float, wox: float, woy: float, woz: float) -> float:
-    """pdf of wo through :func:`glass_lobe_kind`'s lobe of rough glass row ``i`` of P (as
-    :func:`eval_pdf` of the row relabelled: neither lobe is mirrored for a twosided point)."""
-    return _fin(_eval_pdf_kind(P, i, glass_lobe_kind(wiz), wix, wiy, wiz, wox, woy, woz)[3])
+    """pdf of wo through the lobe of rough glass row ``i`` of P that reaches it — its reflection
+    (ROUGHDIELECTRIC_R) on wi's side, its refraction (ROUGHDIELECTRIC_T) on the other — as
+    :func:`eval_pdf` of the row relabelled to that lobe (neither is mirrored for a twosided point)."""
+    k = ROUGHDIELECTRIC_R if wiz * woz > 0.0 else ROUGHDIELECTRIC_T
+    return _fin(_eval_pdf_kind(P, i, k, wix, wiy, wiz, wox, woy, woz)[3])
 
 
 @njit(**_KERNEL, inline="always")
@@ -823,9 +846,11 @@ def albedo(P, i: int, wiz: float) -> tuple:
         r = r0 * s[i, 0] + (1.0 - r0) * t[i, 0]
         g = r0 * s[i, 1] + (1.0 - r0) * t[i, 1]
         b = r0 * s[i, 2] + (1.0 - r0) * t[i, 2]
-    elif k == ROUGHDIELECTRIC_T:  # (a scale for the gather's demodulation: the refracted share)
-        t0 = 1.0 - fresnel_dielectric(1.0, P[5][i])[0]
-        r, g, b = t0 * t[i, 0], t0 * t[i, 1], t0 * t[i, 2]
+    elif k == ROUGHDIELECTRIC_R or k == ROUGHDIELECTRIC_T:  # (scales for the gather's demodulation)
+        r0 = fresnel_dielectric(1.0, P[5][i])[0]
+        tab = s if k == ROUGHDIELECTRIC_R else t
+        f = r0 if k == ROUGHDIELECTRIC_R else 1.0 - r0
+        r, g, b = f * tab[i, 0], f * tab[i, 1], f * tab[i, 2]
     elif k == PLASTIC:
         eta = P[5][i]
         f_i = fresnel_dielectric(c, eta)[0]

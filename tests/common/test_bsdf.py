@@ -18,9 +18,9 @@ from igi.common.scene import (
     PLASTIC,
     ROUGHCONDUCTOR,
     ROUGHDIELECTRIC,
+    ROUGHDIELECTRIC_R,
     ROUGHDIELECTRIC_T,
     ROUGHPLASTIC,
-    ROUGHPLASTIC_LOBE,
     THINDIELECTRIC,
     Material,
     Texture,
@@ -385,34 +385,36 @@ def _walter_rough_dielectric(alpha, beckmann, eta, wi, n=600):
 @pytest.mark.parametrize("dist, alpha, eta, theta", [("ggx", 0.3, 1.5, 0.8), ("beckmann", 0.2, 1.5, np.pi - 0.4),
                                                      ("ggx", 0.6, 1.33, 1.3), ("ggx", 0.5, 1.33, np.pi - 0.3),
                                                      ("beckmann", 0.1, 1.5, np.pi - 1.2)])
-def test_rough_glass_lobe_facing_out_is_walters_bsdf_with_the_crossings_density(dist, alpha, eta, theta):
-    """The lobe through which rough glass takes light samples (bsdf.glass_lobes: from outside
-    its reflection, from inside its refraction out, ROUGHDIELECTRIC_T) evaluates to Walter's
-    BSDF on that side, direction by direction; its pdf integrates to the share of the crossing's
-    draws that leave through it, and at each drawn direction pdf × the draw's weight is the
-    BSDF there — the two estimators MIS weighs against each other see one integrand."""
+def test_rough_glass_lobes_are_walters_bsdf_with_the_crossings_density(dist, alpha, eta, theta):
+    """The two lobes through which rough glass takes light samples (bsdf.glass_lobes: its
+    reflection ROUGHDIELECTRIC_R on wi's side, its refraction ROUGHDIELECTRIC_T on the other)
+    evaluate to Walter's BSDF there, direction by direction, 0 on the other side; each pdf
+    integrates to the share of the crossing's draws of that branch that carry light, and at
+    each drawn direction pdf × the draw's weight is the BSDF there — so the two estimators MIS
+    weighs against each other see one integrand."""
     n = 20_000
     mat = Material("rg", ROUGHDIELECTRIC, alpha=alpha, distribution=dist, int_ior=eta, ext_ior=1.0)
     wi = np.array([np.sin(theta), 0.0, np.cos(theta)])
     grid, dw = _sphere_grid(300)
-    outside = grid[:, 2] > 0  # the lobe's side: the emitters'
-    sp = bsdf.glass_lobes(_sp(mat, len(grid)), np.tile(wi, (len(grid), 1)))
-    assert np.all(sp.kind == (ROUGHPLASTIC_LOBE if wi[2] > 0 else ROUGHDIELECTRIC_T))
-    want = _walter_values(alpha, dist == "beckmann", float(np.float32(eta)), wi, grid)[0 if wi[2] > 0 else 1]
-    got = bsdf.eval(sp, np.tile(wi, (len(grid), 1)), grid)[:, 0]
-    np.testing.assert_allclose(got[outside], want[outside], rtol=1e-6, atol=1e-9)
-    assert np.all(got[~outside] == 0)
-    pdf = bsdf.pdf(sp, np.tile(wi, (len(grid), 1)), grid)
-    # the crossing's draws (both branches at one microfacet each) that leave through the lobe
+    same = grid[:, 2] * wi[2] > 0  # wi's side
+    walter = _walter_values(alpha, dist == "beckmann", float(np.float32(eta)), wi, grid)
     u2 = _rng(23).random((n, 2))
     comps = bsdf.specular_components(_sp(mat, n), np.tile(wi, (n, 1)), u2=u2)
-    wo, w, ok = comps[0] if wi[2] > 0 else comps[1]
-    leave = ok & (wo[:, 2] > 0)
-    np.testing.assert_allclose(pdf @ dw, leave.mean(), atol=0.01)
-    lobe = bsdf.glass_lobes(_sp(mat, int(leave.sum())), np.tile(wi, (int(leave.sum()), 1)))
-    f = bsdf.eval(lobe, np.tile(wi, (len(lobe), 1)), wo[leave])[:, 0]
-    p = bsdf.pdf(lobe, np.tile(wi, (len(lobe), 1)), wo[leave])
-    np.testing.assert_allclose(p * w[leave, 0], f, rtol=1e-6, atol=1e-12)
+    for lobe, want, side, (wo, w, ok) in ((ROUGHDIELECTRIC_R, walter[0], same, comps[0]),
+                                          (ROUGHDIELECTRIC_T, walter[1], ~same, comps[1])):
+        sp = bsdf.glass_lobes(_sp(mat, len(grid)), lobe)
+        assert np.all(sp.kind == lobe)
+        got = bsdf.eval(sp, np.tile(wi, (len(grid), 1)), grid)[:, 0]
+        np.testing.assert_allclose(got[side], want[side], rtol=1e-6, atol=1e-9)
+        assert np.all(got[~side] == 0)
+        pdf = bsdf.pdf(sp, np.tile(wi, (len(grid), 1)), grid)
+        drawn = ok & (w[:, 0] > 0)
+        np.testing.assert_allclose(pdf @ dw, drawn.mean(), atol=0.01)
+        k = int(drawn.sum())
+        at = bsdf.glass_lobes(_sp(mat, k), lobe)
+        f = bsdf.eval(at, np.tile(wi, (k, 1)), wo[drawn])[:, 0]
+        p = bsdf.pdf(at, np.tile(wi, (k, 1)), wo[drawn])
+        np.testing.assert_allclose(p * w[drawn, 0], f, rtol=1e-6, atol=1e-12)
 
 
 @pytest.mark.parametrize("dist, alpha, eta, theta", [("ggx", 0.3, 1.5, 0.8), ("beckmann", 0.2, 1.5, np.pi - 0.4),

@@ -20,11 +20,20 @@ DATA = Path(__file__).resolve().parents[1] / "data" / "roughglass"
 
 
 def test_rough_glass_renders_as_mitsubas_roughdielectric():
+    """At 16 full-resolution frames, compared in 2 × 2 blocks. The milky ball (GGX α 0.5) is lit
+    by the lamp through itself: its eye paths' hits on it take the set's emitter samples through
+    the lobe facing out (design note 48), so it does not sparkle with the paths that met the lamp
+    by chance: its own relMSE is 0.041 (by chance alone, stop 68's code: 0.12)."""
     scene = load_scene(DATA / "roughglass.xml")
     assert not [w for w in scene.warnings if "not supported" in w]
-    ref = block_average(read_image(DATA / "roughglass_ref.exr"), 2)
+    full = read_image(DATA / "roughglass_ref.exr")
+    img = render_local(scene, frames=16, width=full.shape[1], height=full.shape[0])
+    milky = (slice(50, 100), slice(122, 160))
+    print("milky ball relMSE", relmse(img[milky], full[milky]))
+    assert relmse(img[milky], full[milky]) < 0.07
+    ref = block_average(full, 2)
     H, W = ref.shape[:2]
-    img = render_local(scene, frames=16, width=W, height=H)
+    img = block_average(img, 2)
     err = relmse(img, ref)
     smooth = load_scene(DATA / "roughglass.xml")
     smooth.materials = [dataclasses.replace(m, kind=DIELECTRIC) if m.kind == ROUGHDIELECTRIC else m
@@ -37,3 +46,4 @@ def test_rough_glass_renders_as_mitsubas_roughdielectric():
     ball = (slice(25, 47), slice(61, 80))
     np.testing.assert_allclose(img[ball].mean(), ref[ball].mean(), rtol=0.05)
     np.testing.assert_allclose(img.mean((0, 1)), ref.mean((0, 1)), rtol=0.03)
+

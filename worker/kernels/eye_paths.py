@@ -27,9 +27,10 @@ from .specular_chain import delta_bounce
 
 _WR, _WG, _WB = LUMINANCE_WEIGHTS  # (frozen into the kernels as constants)
 # An end point's relabelling (ends' last array): a split plastic's diffuse layer (a rough one
-# ROUGHPLASTIC_DIFFUSE, a smooth one its coat zeroed: common.bsdf.split_layer), or a split lobe's
-# direct-only light-sample point (ROUGHPLASTIC_LOBE).
-LAYER, LOBE_LIGHTS = 1, 2
+# ROUGHPLASTIC_DIFFUSE, a smooth one its coat zeroed: common.bsdf.split_layer), a split lobe's
+# direct-only light-sample point (ROUGHPLASTIC_LOBE), or rough glass's through its lobe that
+# faces the outside (common.bsdf.outward_lobe).
+LAYER, LOBE_LIGHTS, GLASS_LIGHTS = 1, 2, 3
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -67,10 +68,10 @@ def _carries_any(w0, w1, w2) -> bool:
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _glass_lobe(kind, row) -> bool:
-    """A hit on rough glass: a direct-only point through the lobe that faces the outside (where
-    the emitters are: its reflection seen from outside, its refraction out seen from inside;
-    common.kernels.bsdf.glass_lobe_kind) takes the set's emitter samples, and the traced ray
-    that leaves through that lobe their MIS weight (design note 48): emitters seen through
+    """A hit on rough glass: a direct-only point (code GLASS_LIGHTS) through its lobe that faces
+    the outside, where the emitters are (seen from outside its reflection, from inside its
+    refraction out: common.bsdf.outward_lobe) takes the set's emitter samples, and the traced
+    ray that leaves through that lobe their MIS weight (design note 48): emitters seen through
     frosted glass were met by chance only."""
     return kind[row] == ROUGHDIELECTRIC
 
@@ -97,7 +98,7 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
     — pixel, position, ns, ng, wi, material, uv, throughput, segments, main, distance, code —
     in pixel order (a smooth glossy one, where a chain may start: a plastic's diffuse layer
     only, code LAYER; a conductor none); then the split lobes' light-sample points (code
-    LOBE_LIGHTS), then rough glass's (:func:`_glass_lobe`); then, where a
+    LOBE_LIGHTS), then rough glass's (:func:`_glass_lobe`, code GLASS_LIGHTS); then, where a
     chain may start, the lobes' sampled rays and each mirror/glass hit's reflected and
     transmitted rays (all reflections first, then all transmissions; the brighter one the
     pixel's main) followed by :func:`_chains`, their end points after.
@@ -196,7 +197,7 @@ def trace_eye(P, kind, specular, null_kind, rng, closest, o, d, specular_depth, 
                 if done >= room:
                     return -1, p
                 _put_end(ends, done, i, i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv, 1.0, 1.0,
-                         1.0, 1, False, htt[i], LOBE_LIGHTS)
+                         1.0, 1, False, htt[i], GLASS_LIGHTS)
                 done += 1
     first = done
     if not chains or (n_delta == 0 and n_lobe == 0):
@@ -401,7 +402,7 @@ def _chains(P, kind, specular, null_kind, rng, closest, rays, live, specular_dep
                     if done >= room:
                         return -1, traced
                     _put_end(ends, done, pix[i], i, hpos, hns, hng, wi[i, 0], wi[i, 1], wi[i, 2], hmat, huv,
-                             thr[i, 0], thr[i, 1], thr[i, 2], seg, False, dist[i], LOBE_LIGHTS)
+                             thr[i, 0], thr[i, 1], thr[i, 2], seg, False, dist[i], GLASS_LIGHTS)
                     done += 1
         u1 = rng.random(n_di)
         u2 = rng.random((n_di, 2))
