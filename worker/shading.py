@@ -258,7 +258,9 @@ def _compiled_eye(scene, geom, lights, origins, dirs, max_depth, specular_depth,
     lobes = (split, smooth, P_lobe, count, area_pdf, env_pdf, density, lights.env_tables)
     p = len(origins)
     unf, depth, normal = np.zeros((p, 3)), np.empty(p), np.empty((p, 3))
-    n = 3 * p  # room enough unless chains keep meeting smooth glossy surfaces (then: the numpy form)
+    # room enough unless chains keep meeting smooth glossy surfaces (then: the numpy form); rough
+    # glass adds a light-sample point a hit (a frosted pane over every pixel: 4 end points a pixel)
+    n = (4 if np.any(kind == ROUGHDIELECTRIC) else 3) * p
     ends = (np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
             np.empty(n, np.int32), np.empty((n, 2)), np.empty((n, 3)), np.empty(n, np.int32), np.empty(n, bool),
             np.empty(n), np.empty(n, np.int8))
