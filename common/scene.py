@@ -75,8 +75,8 @@ ROUGHPLASTIC_LOBE = 9
 # glass is, each crossing at one microfacet normal drawn from those visible from wi.
 ROUGHDIELECTRIC = 10
 # Internal: a rough dielectric's reflection alone (on wi's side) and its refraction alone (to the
-# other side), each with the weight and density of its drawn crossing: the two direct-only points
-# through which a hit on rough glass takes the set's emitter samples (design note 48).
+# other side), each with the weight and density of its drawn crossing: the lobes through which a
+# hit on rough glass takes the set's emitter samples, the one facing its outside (design note 48).
 ROUGHDIELECTRIC_R = 11
 ROUGHDIELECTRIC_T = 12
 

@@ -35,14 +35,24 @@ def _private_table_cache(tmp_path_factory):
 def pytest_sessionstart(session):
     """Under pytest-xdist (``-n 2``, the README's command) the controller compiles the kernels
     once into numba's on-disk cache before its workers start, so the workers load them instead
-    of each compiling all of them at once (minutes on a fresh checkout)."""
+    of each compiling all of them at once (minutes on a fresh checkout). The master's kernels
+    (master.kernels.warm, ~17 s of a core) compile in a process of their own beside them: else
+    the first test to start a master compiled them, and the bare-clone test (which copies the
+    checkout's compiled kernels) once more."""
     config = session.config
     if getattr(config.option, "numprocesses", None) and not hasattr(config, "workerinput"):
+        import subprocess
+
         from igi.worker.kernels.warm import one_compiler, warm_up
 
         t0 = time.perf_counter()
+        from tests.support.paths import pythonpath_env
+
+        master = subprocess.Popen([sys.executable, "-c", "from igi.master.kernels.warm import warm_up_master; "
+                                   "warm_up_master()"], cwd=str(ROOT), env=pythonpath_env())
         with one_compiler():
             warm_up()
+        master.wait()
         # CI's budget is tight: say what the compile (or the cache's load) took
         sys.stderr.write(f"kernels ready in {time.perf_counter() - t0:.0f} s\n")
 

@@ -36,7 +36,7 @@ from igi.common import bsdf
 from igi.common.geometry import Geometry, Hits
 from igi.common.kernels.ray_packets import hit_buffers
 from igi.common.lights import VPL_SURFACE, LightSampler, to_local
-from igi.common.scene import Scene, reflecting
+from igi.common.scene import ROUGHDIELECTRIC_R, ROUGHDIELECTRIC_T, Scene, kind_in, reflecting
 
 from .arrivals import Arrivals
 from .caustics import PhotonSet, gather_photons
@@ -238,6 +238,14 @@ def concat_rays(parts: list[BSDFRays], sizes: list[int]) -> BSDFRays:
                     Hits.concat([r.hits for r in parts]))
 
 
+def _alone(end: EndPoints) -> np.ndarray:
+    """End points that take their shadow roulette alone, not with their pixel's: rough glass's
+    light-sample points (design note 48). The roulette guesses their lobes flat (f ~ 1, tens of
+    times the light they pass), which would make the pixel's other points look faint and thin
+    their shadow rays up to MAX_BOOST times."""
+    return kind_in(end.sp.kind, (ROUGHDIELECTRIC_R, ROUGHDIELECTRIC_T))
+
+
 def final_gather(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoints, rays: BSDFRays,
                  first: Arrivals | None, vpls: VPLSet, clamp_d2: float, max_depth: int, rng: np.random.Generator,
                  lobe_alpha: float = 0.0, photons: PhotonSet | None = None, shadow_roulette: float = 0.0,
@@ -279,7 +287,7 @@ def final_gather(scene: Scene, geom: Geometry, lights: LightSampler, end: EndPoi
     with stage("VPL gather"):
         # the eye's end points share a roulette per pixel; the points beyond them go alone
         pixel = np.full(len(points), -1, np.int64)
-        pixel[:len(end)] = end.pixel
+        pixel[:len(end)] = np.where(_alone(end), -1, end.pixel)
         albedo, irr = gather_vpls(geom, points, vpls, clamp_d2, max_depth, force_general=force_general,
                                   lobe_alpha=lobe_alpha, shadow_roulette=shadow_roulette,
                                   seed=int(rng.integers(1 << 62)), lobe_lights=lobe_lights, pixel=pixel)

@@ -259,8 +259,9 @@ def _compiled_eye(scene, geom, lights, origins, dirs, max_depth, specular_depth,
     p = len(origins)
     unf, depth, normal = np.zeros((p, 3)), np.empty(p), np.empty((p, 3))
     # room enough unless chains keep meeting smooth glossy surfaces (then: the numpy form); rough
-    # glass adds a light-sample point a hit (a frosted pane over every pixel: 4 end points a pixel)
-    n = (4 if np.any(kind == ROUGHDIELECTRIC) else 3) * p
+    # glass adds a light-sample point a hit (a ball of it over every pixel: 4 end points a pixel,
+    # more with its inner reflections)
+    n = (6 if np.any(kind == ROUGHDIELECTRIC) else 3) * p
     ends = (np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
             np.empty(n, np.int32), np.empty((n, 2)), np.empty((n, 3)), np.empty(n, np.int32), np.empty(n, bool),
             np.empty(n), np.empty(n, np.int8))
@@ -988,7 +989,7 @@ def _receivers(geom: Geometry, end: EndPoints, sl: slice) -> tuple:
     kind = end.sp.kind[sl]
     wi = np.ascontiguousarray(end.wi[sl], np.float64)
     row = np.empty(n, np.int8)
-    # Glossy kinds reflect only (no rough dielectric): seen from behind a one-sided one, f = 0.
+    # Glossy kinds reflect only: seen from behind a one-sided one, f = 0 (rough glass's lobes: below).
     layers = vg.receiver_rows(np.ascontiguousarray(kind), np.ascontiguousarray(end.sp.twosided[sl]), wi, DIFFUSE,
                               NULL, ROUGHPLASTIC_DIFFUSE, row)
     glass = np.flatnonzero((kind == ROUGHDIELECTRIC_R) | (kind == ROUGHDIELECTRIC_T))

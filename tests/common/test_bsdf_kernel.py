@@ -316,32 +316,6 @@ def test_gathered_coat_rows_survive_subset_and_equal_the_looked_up_ones():
         np.testing.assert_array_equal(a, b)
 
 
-def test_scalar_kernels_equal_the_array_loops():
-    """eval_pdf / sample / sample_lobe / albedo / specular called per point (as other compiled
-    code calls them) give the array loops' rows."""
-    rng = np.random.default_rng(106)
-    mats = [_material(k, d) for k in KINDS if k not in SPLIT for d in ("ggx", "beckmann")]
-    n = 60
-    sp = _points(mats, n, rng, relabel_diffuse_layer=0.5)
-    wi, wo = _unit(rng, n), _unit(rng, n)
-    u1, u2 = _randoms(rng, n)
-    P = sp.packed()
-    f, p = bsdf.eval(sp, wi, wo), bsdf.pdf(sp, wi, wo)
-    s = bsdf.sample(sp, wi, u1, u2)
-    lobe = bsdf.sample_lobe(sp, wi, u2)
-    alb = bsdf.albedo(sp, wi)
-    spec = bsdf.specular_components(sp, wi, u2=u2)
-    for i in range(n):
-        np.testing.assert_array_equal(kb.eval_pdf(P, i, *wi[i], *wo[i]), (*f[i], p[i]))
-        got = kb.sample(P, i, *wi[i], u1[i], *u2[i], True)
-        np.testing.assert_array_equal(got[:7], (*s[0][i], *s[1][i], s[2][i]))
-        assert got[7] == s[3][i]
-        np.testing.assert_array_equal(kb.sample_lobe(P, i, *wi[i], *u2[i]), (*lobe[0][i], *lobe[1][i]))
-        np.testing.assert_array_equal(kb.albedo(P, i, wi[i, 2]), alb[i])
-        np.testing.assert_array_equal(kb.specular(P, i, *wi[i], True, *u2[i]),
-                                      (*spec[0][0][i], *spec[0][1][i], *spec[1][0][i], *spec[1][1][i]))
-
-
 def test_erfinv_matches_scipy_to_float64_precision_including_the_tails():
     y = np.concatenate([np.linspace(-1, 1, 20001), 1 - np.logspace(-16, -1, 300), -1 + np.logspace(-16, -1, 300),
                         np.logspace(-300, -1, 50), [1.5, -1.5, np.nan]])

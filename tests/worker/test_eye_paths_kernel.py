@@ -136,8 +136,13 @@ def test_rough_glass_takes_light_samples_through_the_lobe_facing_out_as_the_nump
     from igi.worker.shading import LightMIS
     from tests.support.paths import ROOT
 
+    import igi.worker.shading as shading
+
     scene = load_mitsuba(ROOT / "tests/data/roughglass/roughglass.xml")
+    kernel, ran = shading.ek.trace_eye, []
+    monkeypatch.setattr(shading.ek, "trace_eye", lambda *a: ran.append(kernel(*a)) or ran[-1])
     got = _eye(monkeypatch, True, -1, False, scene=scene, light_mis=LightMIS(4))
+    assert len(ran) == 1 and ran[0][0] > 0  # the kernel's own end points, not the numpy form's
     monkeypatch.undo()
     want = _eye(monkeypatch, False, -1, False, scene=scene, light_mis=LightMIS(4))
     _same_eye(got, want)
