@@ -484,6 +484,17 @@ def _eval_pdf_kind(P, i: int, k: int, wix, wiy, wiz, wox, woy, woz) -> tuple:
 
 
 @njit(**_KERNEL, inline="always")
+def _outward(hx, hy, hz) -> tuple:
+    """``(ok, m)``: the (generalized) half vector h normalized and turned to the outside (z ≥ 0),
+    as a rough dielectric's crossing draws its microfacet normals; ok False where h is 0 or NaN."""
+    hn = math.sqrt(hx * hx + hy * hy + hz * hz)
+    if not hn > 0.0:
+        return False, 0.0, 0.0, 1.0
+    s = 1.0 if hz >= 0.0 else -1.0
+    return True, s * hx / hn, s * hy / hn, s * hz / hn
+
+
+@njit(**_KERNEL, inline="always")
 def _rough_reflection(P, i: int, wix, wiy, wiz, wox, woy, woz) -> tuple:
     """``(f·|cos θ_o| rgb, pdf)`` of a rough dielectric's reflection from wi to wo on its side
     (outside or in), as :func:`_rough_dielectric` draws it: pdf the density of its reflected
@@ -491,14 +502,9 @@ def _rough_reflection(P, i: int, wix, wiy, wiz, wox, woy, woz) -> tuple:
     pdf · F · G1(wo) · specular, the crossing's reflection weight (F = 1 past the critical angle)."""
     if not wiz * woz > 0.0:
         return 0.0, 0.0, 0.0, 0.0
-    hx, hy, hz = wix + wox, wiy + woy, wiz + woz
-    hn = math.sqrt(hx * hx + hy * hy + hz * hz)
-    if not hn > 0.0:
-        return 0.0, 0.0, 0.0, 0.0
-    s = 1.0 if hz >= 0.0 else -1.0  # (m faces the outside, as the crossing draws it)
-    mx, my, mz = s * hx / hn, s * hy / hn, s * hz / hn
+    ok, mx, my, mz = _outward(wix + wox, wiy + woy, wiz + woz)
     c = wix * mx + wiy * my + wiz * mz
-    if not c * wiz > 1e-9:  # (m visible from wi; wi·m ~ 0: see _well_posed)
+    if not (ok and c * wiz > 1e-9):  # (m visible from wi; wi·m ~ 0: see _well_posed)
         return 0.0, 0.0, 0.0, 0.0
     a = P[4][i]
     beck = P[8][i]
@@ -525,15 +531,10 @@ def _rough_transmission(P, i: int, wix, wiy, wiz, wox, woy, woz) -> tuple:
     beck = P[8][i]
     eta = P[5][i]
     eta_m = eta if wiz > 0.0 else 1.0 / eta  # η_o / η_i
-    hx, hy, hz = wix + eta_m * wox, wiy + eta_m * woy, wiz + eta_m * woz
-    hn = math.sqrt(hx * hx + hy * hy + hz * hz)
-    if not hn > 0.0:
-        return 0.0, 0.0, 0.0, 0.0
-    s = 1.0 if hz >= 0.0 else -1.0  # (m faces the outside, as the crossing draws it)
-    mx, my, mz = s * hx / hn, s * hy / hn, s * hz / hn
+    ok, mx, my, mz = _outward(wix + eta_m * wox, wiy + eta_m * woy, wiz + eta_m * woz)
     c = wix * mx + wiy * my + wiz * mz
     co = wox * mx + woy * my + woz * mz
-    if not (c * wiz > 0.0 and co * woz > 0.0):
+    if not (ok and c * wiz > 0.0 and co * woz > 0.0):
         return 0.0, 0.0, 0.0, 0.0
     si = 1.0 if wiz >= 0.0 else -1.0
     den = c + eta_m * co

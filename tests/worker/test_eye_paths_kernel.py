@@ -170,6 +170,13 @@ def test_rough_glass_takes_light_samples_through_the_lobe_facing_out_as_the_nump
     # same paths, same draws: the MIS weights only take light away from the traced rays
     assert np.all(got[0].unfiltered <= plain.unfiltered + 1e-12)
     assert got[0].unfiltered[on_glass].sum() < 0.9 * plain.unfiltered[on_glass].sum()
+    # the gather lights both kinds as glossy rows, a refraction point from the far side of its eye
+    from igi.worker.kernels import vpl_gather as vg
+    x, _ns, ng, side, off, row, *_ = shading._receivers(Geometry(scene), end, slice(0, len(end)))
+    assert np.all(row[out | through] == vg.ROW_GLOSSY)
+    np.testing.assert_array_equal(side[out], 1.0)
+    np.testing.assert_array_equal(side[through], 1.0)  # its eye inside (wi's z < 0), lit from outside
+    assert np.all(off[out | through] > 0)  # shadow rays leave on the outside
 
 
 def test_rough_glass_crossed_at_drawn_microfacets_equals_the_numpy_eye_paths(monkeypatch):
