@@ -11,7 +11,9 @@ import pytest
 from tests.support.paths import ROOT, pythonpath_env
 
 # moves-5000 is left out: its behaviour is test_scene_edits.py's (15 s more here for the same proof)
-CASES = ["scene-root", "host-rebinding", "viewer-validation", "rogue-wrong"]
+# (not "rogue-wrong": tests/cluster/test_rogue_workers.py renders through that rogue, image
+# compared, and this file ran it a second time)
+CASES = ["scene-root", "host-rebinding", "viewer-validation"]
 
 
 @pytest.mark.timeout(600)
@@ -31,8 +33,7 @@ def test_bench_stress_runs_the_selected_hostile_cases(tmp_path):
     assert by["scene-root"]["figure"] == 6 and by["scene-root"]["detail"]["widened_root_loads_sibling"]
     assert by["host-rebinding"]["figure"] == 4
     assert by["viewer-validation"]["figure"] == by["viewer-validation"]["detail"]["sent"]
-    assert by["rogue-wrong"]["detail"]["identical_to_clean_render"]
-    assert "hostile 4/4 passed" in r.stderr
+    assert f"hostile {len(CASES)}/{len(CASES)} passed" in r.stderr
 
 
 def test_unknown_case_is_one_line():
