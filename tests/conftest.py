@@ -33,7 +33,7 @@ def _private_table_cache(tmp_path_factory):
 
 
 def pytest_sessionstart(session):
-    """Under pytest-xdist (``-n 3``, the README's command) the controller compiles the kernels
+    """Under pytest-xdist (``-n 2``, the README's command) the controller compiles the kernels
     once into numba's on-disk cache before its workers start, so the workers load them instead
     of each compiling all of them at once (minutes on a fresh checkout). The master's kernels
     (master.kernels.warm, ~17 s of a core) compile in a process of their own beside them: else
