@@ -95,12 +95,14 @@ def load_rfilter(loader, nodes: list[Node]) -> tuple[str, tuple[float, float]]:
     if kind not in rf.KINDS:
         loader.warn(node, f"unknown reconstruction filter '{kind}'", "using Mitsuba's default gaussian")
         return rf.DEFAULT
-    # the parameters and defaults rf.KINDS declares (Mitsuba 3's box takes no radius: always 0.5)
-    names, defaults = rf.KINDS[kind]
-    names = [] if kind == "box" else [n for n in names.split(", ") if n]
-    defaults = defaults if isinstance(defaults, tuple) else (defaults,)
-    values = [p.int(n, d) if n == "lobes" else p.float(n, d) for n, d in zip(names, defaults)]
-    params = (0.5, 0.0) if kind == "box" else tuple(float(v) for v in values + [0.0, 0.0][len(values):])
+    if kind == "box":  # (Mitsuba 3's box takes no radius: always 0.5)
+        params = (0.5, 0.0)
+    else:  # the parameters and defaults rf.KINDS declares
+        names, defaults = rf.KINDS[kind]
+        defaults = defaults if isinstance(defaults, tuple) else (defaults,)
+        values = [p.int(n, d) if n == "lobes" else p.float(n, d)
+                  for n, d in zip([n for n in names.split(", ") if n], defaults)]
+        params = tuple(float(v) for v in values + [0.0, 0.0][len(values):])
     p.finish()
     try:
         rf.validate(kind, params)
